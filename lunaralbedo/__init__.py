@@ -1,0 +1,25 @@
+"""lunaralbedo: calibrated albedo maps of the Moon from orbital images.
+
+Python API (the CLI is a thin layer over it)::
+
+    import lunaralbedo
+    result = lunaralbedo.solve("settings.txt", out="albedo_run")
+
+Units and frames everywhere: positions in km, Moon-centred body-fixed; DEM heights
+in metres above the 1737.4 km sphere; longitude/latitude in degrees.
+"""
+from __future__ import annotations
+
+__version__ = "0.1.0"
+
+from .errors import LunarAlbedoError  # noqa: E402
+from .settings import Settings, load_settings  # noqa: E402
+
+__all__ = ["__version__", "LunarAlbedoError", "Settings", "load_settings", "solve"]
+
+
+def solve(*args, **kwargs):
+    """Solve for albedo, exposures and phase coefficients; see :func:`lunaralbedo.engine.solve.solve`."""
+    from .engine.solve import solve as _solve
+
+    return _solve(*args, **kwargs)

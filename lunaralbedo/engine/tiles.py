@@ -1,0 +1,118 @@
+"""The tile grid: TILE_SIZE-degree tiles aligned on multiples of TILE_SIZE.
+
+A tile is named after its unpadded upper-left corner, ``tile_<lon>{E|W}<lat>{N|S}``
+(legacy convention: ``tile_4E8S`` covers lon 4..8, lat -12..-8).  While solving, a
+tile is padded by a few pixels so that normals and interpolation at its edge see
+their neighbours; outputs are cropped back to the unpadded tile.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from rasterio.transform import Affine
+
+from ..errors import SolverError
+
+
+def _fmt(value: float, pos: str, neg: str) -> str:
+    v = abs(value)
+    txt = f"{int(round(v))}" if abs(v - round(v)) < 1e-9 else f"{v:g}".replace(".", "p")
+    return f"{txt}{pos if value >= 0 else neg}"
+
+
+def tile_name(west: float, north: float) -> str:
+    """Legacy tile name from the unpadded upper-left corner (degrees)."""
+    return f"tile_{_fmt(west, 'E', 'W')}{_fmt(north, 'N', 'S')}"
+
+
+@dataclass(frozen=True)
+class Tile:
+    """One output tile and its padded solve grid.
+
+    ``transform`` maps (col, row) of the *padded* grid to (lon, lat) in degrees;
+    the unpadded tile is ``[pad:pad+height, pad:pad+width]`` of it.
+    """
+
+    index: int
+    west: float
+    north: float
+    size_deg: float
+    res_x: float
+    res_y: float
+    width: int
+    height: int
+    pad: int
+
+    @property
+    def name(self) -> str:
+        return tile_name(self.west, self.north)
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """Unpadded ``(west, south, east, north)`` in degrees."""
+        return (self.west, self.north - self.height * self.res_y, self.west + self.width * self.res_x, self.north)
+
+    @property
+    def padded_bounds(self) -> tuple[float, float, float, float]:
+        w, s, e, n = self.bounds
+        return (w - self.pad * self.res_x, s - self.pad * self.res_y, e + self.pad * self.res_x, n + self.pad * self.res_y)
+
+    @property
+    def padded_shape(self) -> tuple[int, int]:
+        return (self.height + 2 * self.pad, self.width + 2 * self.pad)
+
+    @property
+    def padded_transform(self) -> Affine:
+        return Affine(self.res_x, 0.0, self.west - self.pad * self.res_x, 0.0, -self.res_y, self.north + self.pad * self.res_y)
+
+    @property
+    def transform(self) -> Affine:
+        return Affine(self.res_x, 0.0, self.west, 0.0, -self.res_y, self.north)
+
+    @property
+    def inner(self) -> tuple[slice, slice]:
+        """Slices of the padded grid that give the unpadded tile."""
+        return (slice(self.pad, self.pad + self.height), slice(self.pad, self.pad + self.width))
+
+
+def make_tiles(
+    box: tuple[float, float, float, float],
+    tile_size: float,
+    res: tuple[float, float],
+    pad: int = 5,
+    exact: bool = True,
+) -> list[Tile]:
+    """Tiles (row-major, north to south, west to east) covering ``box``.
+
+    ``box`` is ``(lon_min, lon_max, lat_min, lat_max)``; ``res`` the (x, y) pixel
+    size in degrees.  With ``exact`` the pixel size is adjusted so that an integer
+    number of pixels spans the tile exactly (tiles abut without gaps); otherwise
+    the given pixel size is kept and the tile has ``ceil(tile_size / res)`` pixels
+    (the legacy program's grid).
+    """
+    lon0, lon1, lat0, lat1 = box
+    if res[0] <= 0 or res[1] <= 0:
+        raise SolverError(f"pixel size must be positive, got {res}")
+    nx = max(1, math.ceil(tile_size / res[0] - 1e-6))
+    ny = max(1, math.ceil(tile_size / res[1] - 1e-6))
+    rx, ry = (tile_size / nx, tile_size / ny) if exact else res
+    i0, i1 = math.floor(lon0 / tile_size + 1e-9), math.ceil(lon1 / tile_size - 1e-9)
+    j0, j1 = math.floor(lat0 / tile_size + 1e-9), math.ceil(lat1 / tile_size - 1e-9)
+    tiles = []
+    for j in range(j1, j0, -1):  # north edge index, north to south
+        for i in range(i0, i1):
+            tiles.append(
+                Tile(
+                    index=len(tiles),
+                    west=i * tile_size,
+                    north=j * tile_size,
+                    size_deg=tile_size,
+                    res_x=rx,
+                    res_y=ry,
+                    width=nx,
+                    height=ny,
+                    pad=pad,
+                )
+            )
+    return tiles

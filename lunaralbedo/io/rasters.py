@@ -1,0 +1,197 @@
+"""Raster adapters (rasterio/GDAL): DRG catalogue, windowed reads onto a grid, atomic GeoTIFF writes.
+
+Grids are geographic (degrees of planetocentric longitude/latitude on the Moon's
+1737.4 km sphere) unless a DRG says otherwise; every read goes through a window so
+memory depends on the output grid, not on the size of the input image.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import rasterio
+from rasterio.crs import CRS
+from rasterio.enums import Resampling
+from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
+from rasterio.transform import Affine
+from rasterio.warp import reproject
+from rasterio.windows import Window, from_bounds
+
+from ..constants import KEY_LENGTH
+from ..errors import DuplicateKeyError, InputError
+from .atomic import atomic_path
+
+#: Geographic CRS of the IAU 2015 Moon sphere (radius 1737.4 km), planetocentric, east-positive.
+MOON_CRS = CRS.from_string("IAU_2015:30100")
+
+RASTER_SUFFIXES = (".tif", ".tiff", ".cub", ".vrt", ".img")
+
+
+@dataclass(frozen=True)
+class RasterInfo:
+    """Header facts of one input raster (no pixels).
+
+    ``bounds`` is ``(west, south, east, north)`` in the raster's CRS units
+    (degrees for the geographic Moon CRS).
+    """
+
+    key: str
+    path: Path
+    width: int
+    height: int
+    transform: Affine
+    crs: CRS | None
+    bounds: tuple[float, float, float, float]
+    count: int
+    dtype: str
+    nodata: float | None
+
+    @property
+    def has_alpha(self) -> bool:
+        """A second band is read as the alpha / valid mask (legacy DRGs carry one)."""
+        return self.count >= 2
+
+    @property
+    def res(self) -> tuple[float, float]:
+        return abs(self.transform.a), abs(self.transform.e)
+
+
+def raster_info(path: str | Path, key: str | None = None) -> RasterInfo:
+    """Read the header of ``path``; :class:`InputError` naming the file when GDAL cannot open it."""
+    path = Path(path)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as ds:
+                if ds.transform == Affine.identity():
+                    raise InputError(f"{path}: raster has no georeferencing (identity transform)")
+                return RasterInfo(
+                    key=key if key is not None else path.name[:KEY_LENGTH],
+                    path=path,
+                    width=ds.width,
+                    height=ds.height,
+                    transform=ds.transform,
+                    crs=ds.crs,
+                    bounds=tuple(ds.bounds),
+                    count=ds.count,
+                    dtype=ds.dtypes[0],
+                    nodata=ds.nodata,
+                )
+    except RasterioIOError as exc:
+        raise InputError(f"{path}: cannot open raster: {exc}") from None
+
+
+def list_rasters(folder: str | Path, what: str = "raster") -> list[Path]:
+    """The raster files in ``folder``, sorted by name (auxiliary ``.aux.xml`` files skipped)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: {what} folder not found")
+    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in RASTER_SUFFIXES)
+    if not files:
+        raise InputError(f"{folder}: no {what} files ({', '.join(RASTER_SUFFIXES)}) in folder")
+    return files
+
+
+def catalog_drgs(folder: str | Path) -> list[RasterInfo]:
+    """Headers of every DRG in ``folder``, keyed by the first 11 characters of the file name.
+
+    Two files with the same key raise :class:`DuplicateKeyError` naming both.
+    """
+    infos: list[RasterInfo] = []
+    seen: dict[str, Path] = {}
+    for p in list_rasters(folder, "DRG"):
+        key = p.name[:KEY_LENGTH]
+        if key in seen:
+            raise DuplicateKeyError(
+                f"{seen[key]} and {p} share the lookup key {key!r} (the first {KEY_LENGTH} characters of the name)"
+            )
+        seen[key] = p
+        infos.append(raster_info(p, key))
+    return infos
+
+
+def intersects(bounds: Sequence[float], box: Sequence[float]) -> bool:
+    """Do two ``(west, south, east, north)`` rectangles overlap with positive area?"""
+    return bounds[0] < box[2] and box[0] < bounds[2] and bounds[1] < box[3] and box[1] < bounds[3]
+
+
+def read_onto_grid(
+    info: RasterInfo,
+    band: int,
+    dst_transform: Affine,
+    dst_shape: tuple[int, int],
+    dst_crs: CRS | None,
+    resampling: Resampling = Resampling.bilinear,
+    nodata: float | None = None,
+) -> np.ndarray:
+    """Resample one band of ``info`` onto a target grid; float32 with NaN where no data.
+
+    Only the window of the source that covers the target (plus a 2-pixel margin for
+    interpolation) is read.  ``nodata`` overrides the file's own value when the file
+    has none.
+    """
+    h, w = dst_shape
+    west, north = dst_transform * (0, 0)
+    east, south = dst_transform * (w, h)
+    src_nodata = info.nodata if info.nodata is not None else nodata
+    out = np.full(dst_shape, np.nan, dtype=np.float32)
+    with rasterio.open(info.path) as ds:
+        win = from_bounds(min(west, east), min(south, north), max(west, east), max(south, north), ds.transform)
+        win = Window(win.col_off - 2, win.row_off - 2, win.width + 4, win.height + 4).round_offsets().round_lengths()
+        win = win.intersection(Window(0, 0, ds.width, ds.height)) if _overlaps(win, ds) else None
+        if win is None or win.width <= 0 or win.height <= 0:
+            return out
+        src = ds.read(band, window=win, out_dtype=np.float32, masked=False)
+        if src_nodata is not None:
+            src[src == np.float32(src_nodata)] = np.nan
+        reproject(
+            source=src,
+            destination=out,
+            src_transform=ds.window_transform(win),
+            src_crs=ds.crs or dst_crs,
+            src_nodata=np.nan,
+            dst_transform=dst_transform,
+            dst_crs=dst_crs or ds.crs,
+            dst_nodata=np.nan,
+            resampling=resampling,
+        )
+    return out
+
+
+def _overlaps(win: Window, ds) -> bool:
+    return win.col_off < ds.width and win.row_off < ds.height and win.col_off + win.width > 0 and win.row_off + win.height > 0
+
+
+def write_geotiff(
+    path: str | Path,
+    bands: np.ndarray | Sequence[np.ndarray],
+    transform: Affine,
+    crs: CRS | None,
+    nodata: float | None = None,
+    dtype: str | None = None,
+    compress: str = "deflate",
+) -> None:
+    """Write one or more bands as a tiled GeoTIFF, atomically (temp file + rename)."""
+    arr = np.asarray(bands)
+    if arr.ndim == 2:
+        arr = arr[None]
+    dtype = dtype or arr.dtype.name
+    profile = dict(
+        driver="GTiff",
+        width=arr.shape[2],
+        height=arr.shape[1],
+        count=arr.shape[0],
+        dtype=dtype,
+        transform=transform,
+        crs=crs,
+        nodata=nodata,
+        compress=compress,
+    )
+    if arr.shape[1] >= 16 and arr.shape[2] >= 16:
+        profile.update(tiled=arr.shape[1] > 256 or arr.shape[2] > 256)
+    with atomic_path(path) as tmp:
+        with rasterio.open(tmp, "w", **profile) as dst:
+            dst.write(arr.astype(dtype, copy=False))

@@ -1,0 +1,221 @@
+"""Settings: the legacy PhotometryTK settings file (seed 000 section 5) or TOML.
+
+Two spellings of the same settings are accepted:
+
+* the legacy text file: one ``KEY value`` per line, ``#`` comments, free
+  spacing, empty values allowed (e.g. no DEM in mosaic mode) and
+  ``SIMULATION_BOX lon_min:lon_max:lat_min:lat_max`` with or without spaces;
+* a ``.toml`` file with the same keys in snake_case.
+
+Relative paths resolve against the folder of the settings file.  Unknown keys
+and invalid values raise :class:`~lunaralbedo.errors.SettingsError` naming the
+key and the allowed values.
+"""
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .errors import SettingsError
+
+#: (legacy key, type, default, allowed values or None)
+_SPEC: dict[str, tuple[type, Any, tuple | None]] = {
+    "DRG_DIR": (Path, None, None),
+    "DEM_DIR": (Path, None, None),
+    "SUN_POSITION_FILE": (Path, None, None),
+    "SPACECRAFT_POSITION_FILE": (Path, None, None),
+    "NUM_PROCESSES": (int, 1, None),
+    "TILE_SIZE": (float, 4.0, None),
+    "SIMULATION_BOX": (tuple, (-180.0, 180.0, -90.0, 90.0), None),
+    "REFLECTANCE_TYPE": (int, 2, (0, 1, 2)),
+    "SHADOW_THRESH": (float, 40.0, None),
+    "SHADOW_TYPE": (int, 1, (0, 1, 2, 3)),
+    "TR_CONST": (float, 1.5, None),
+    "PHASE_COEFF_C1": (float, 1.4, None),
+    "PHASE_COEFF_C2": (float, 0.5, None),
+    "MAX_NUM_ITER": (int, 10, None),
+    "NO_DEM_DATA_VAL": (float, -32767.0, None),
+    "USE_WEIGHTS": (int, 1, (0, 1)),
+    "USE_NORMALIZED_COST_FUN": (int, 0, (0, 1)),
+    "COMPUTE_ERRORS": (int, 1, (0, 1)),
+}
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Validated settings of one albedo run (seed 000 section 5).
+
+    Paths are absolute.  ``simulation_box`` is ``(lon_min, lon_max, lat_min,
+    lat_max)`` in degrees; ``tile_size`` is in degrees.
+    """
+
+    drg_dir: Path
+    dem_dir: Path | None = None
+    sun_position_file: Path | None = None
+    spacecraft_position_file: Path | None = None
+    num_processes: int = 1
+    tile_size: float = 4.0
+    simulation_box: tuple[float, float, float, float] = (-180.0, 180.0, -90.0, 90.0)
+    reflectance_type: int = 2
+    shadow_thresh: float = 40.0
+    shadow_type: int = 1
+    tr_const: float = 1.5
+    phase_coeff_c1: float = 1.4
+    phase_coeff_c2: float = 0.5
+    max_num_iter: int = 10
+    no_dem_data_val: float = -32767.0
+    use_weights: int = 1
+    use_normalized_cost_fun: int = 0
+    compute_errors: int = 1
+    source: Path | None = field(default=None, compare=False)
+
+    @property
+    def needs_geometry(self) -> bool:
+        """True when a DEM and Sun/spacecraft positions are required."""
+        return self.reflectance_type != 0
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly echo (paths as strings)."""
+        out = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            out[f.name] = str(v) if isinstance(v, Path) else (list(v) if isinstance(v, tuple) else v)
+        return out
+
+    def to_legacy_text(self) -> str:
+        """Render as a legacy settings file (absolute paths)."""
+        lines = []
+        for key in _SPEC:
+            v = getattr(self, key.lower())
+            if v is None:
+                v = ""
+            elif key == "SIMULATION_BOX":
+                v = ":".join(f"{x:g}" for x in v)
+            lines.append(f"{key:<26}{v}")
+        return "\n".join(lines) + "\n"
+
+
+def _parse_box(text: str, where: str) -> tuple[float, float, float, float]:
+    parts = [p.strip() for p in str(text).split(":")]
+    try:
+        vals = tuple(float(p) for p in parts)
+    except ValueError:
+        vals = ()
+    if len(vals) != 4:
+        raise SettingsError(
+            f"{where}: SIMULATION_BOX must be lon_min:lon_max:lat_min:lat_max (4 numbers), got {text!r}"
+        )
+    lon0, lon1, lat0, lat1 = vals
+    if not (lon0 < lon1 and lat0 < lat1):
+        raise SettingsError(f"{where}: SIMULATION_BOX needs lon_min < lon_max and lat_min < lat_max, got {text!r}")
+    # The legacy sample used -180:180:-180:180 for "the whole Moon": clamp latitudes.
+    return (lon0, lon1, max(lat0, -90.0), min(lat1, 90.0))
+
+
+def _convert(key: str, raw: Any, base: Path, where: str) -> Any:
+    typ, _default, allowed = _SPEC[key]
+    if raw is None or (isinstance(raw, str) and raw.strip() == ""):
+        return None
+    if typ is Path:
+        p = Path(str(raw)).expanduser()
+        return p if p.is_absolute() else (base / p)
+    if typ is tuple:
+        if isinstance(raw, (list, tuple)):
+            raw = ":".join(str(x) for x in raw)
+        return _parse_box(raw, where)
+    try:
+        if typ is int:
+            fv = float(raw)
+            if fv != int(fv):
+                raise ValueError
+            val = int(fv)
+        else:
+            val = float(raw)
+    except (TypeError, ValueError):
+        hint = f"one of {', '.join(map(str, allowed))}" if allowed else f"a {typ.__name__}"
+        raise SettingsError(f"{where}: {key} must be {hint}, got {raw!r}") from None
+    if allowed is not None and val not in allowed:
+        raise SettingsError(f"{where}: {key} must be one of {', '.join(map(str, allowed))}, got {raw!r}")
+    return val
+
+
+def _validate(values: dict[str, Any], where: str) -> None:
+    if values.get("DRG_DIR") is None:
+        raise SettingsError(f"{where}: DRG_DIR is required")
+    if values["TILE_SIZE"] <= 0:
+        raise SettingsError(f"{where}: TILE_SIZE must be > 0 degrees, got {values['TILE_SIZE']}")
+    if values["NUM_PROCESSES"] < 1:
+        raise SettingsError(f"{where}: NUM_PROCESSES must be >= 1, got {values['NUM_PROCESSES']}")
+    if values["MAX_NUM_ITER"] < 0:
+        raise SettingsError(f"{where}: MAX_NUM_ITER must be >= 0, got {values['MAX_NUM_ITER']}")
+    if values["REFLECTANCE_TYPE"] != 0:
+        for key in ("DEM_DIR", "SUN_POSITION_FILE", "SPACECRAFT_POSITION_FILE"):
+            if values.get(key) is None:
+                raise SettingsError(
+                    f"{where}: {key} is required when REFLECTANCE_TYPE is 1 or 2 (only 0, mosaic mode, runs without it)"
+                )
+
+
+def _build(pairs: list[tuple[str, Any, str]], base: Path, source: Path) -> Settings:
+    values: dict[str, Any] = {k: spec[1] for k, spec in _SPEC.items()}
+    seen: set[str] = set()
+    for key, raw, where in pairs:
+        if key not in _SPEC:
+            raise SettingsError(f"{where}: unknown key {key!r}; allowed keys: {', '.join(_SPEC)}")
+        if key in seen:
+            raise SettingsError(f"{where}: key {key} is given twice")
+        seen.add(key)
+        conv = _convert(key, raw, base, where)
+        values[key] = conv if (conv is not None or _SPEC[key][0] is Path) else _SPEC[key][1]
+    _validate(values, str(source))
+    return Settings(**{k.lower(): v for k, v in values.items()}, source=source)
+
+
+def parse_legacy(text: str, source: Path) -> Settings:
+    """Parse the text of a legacy settings file (seed 000 section 5 and appendix)."""
+    pairs = []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        parts = line.split(None, 1)
+        key = parts[0].upper()
+        raw = parts[1].strip() if len(parts) > 1 else ""
+        pairs.append((key, raw, f"{source}:{lineno}"))
+    return _build(pairs, source.parent, source)
+
+
+def parse_toml(text: str, source: Path) -> Settings:
+    """Parse a TOML settings file whose keys are the legacy ones in snake_case."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SettingsError(f"{source}: not valid TOML: {exc}") from None
+    pairs = []
+    for key, raw in data.items():
+        if isinstance(raw, dict):
+            raise SettingsError(f"{source}: tables are not allowed (key {key!r}); write settings at top level")
+        pairs.append((key.upper(), raw, f"{source}: key {key!r}"))
+    return _build(pairs, source.parent, source)
+
+
+def load_settings(path: str | Path) -> Settings:
+    """Read a legacy or TOML settings file (chosen by the ``.toml`` suffix)."""
+    path = Path(path).expanduser().resolve()
+    if not path.is_file():
+        raise SettingsError(f"{path}: settings file not found")
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SettingsError(f"{path}: cannot read settings file: {exc}") from None
+    if path.suffix.lower() == ".toml":
+        return parse_toml(text, path)
+    return parse_legacy(text, path)
+
+
+def replace(settings: Settings, **changes: Any) -> Settings:
+    """A copy of ``settings`` with some fields changed (validated like a file)."""
+    return dataclasses.replace(settings, **changes)
