@@ -1,0 +1,79 @@
+r"""Surface geometry on the Moon: body-fixed points, DEM normals, illumination angles.
+
+Frame: Moon-centred body-fixed, km.  A DEM pixel at planetocentric longitude
+:math:`\lambda`, latitude :math:`\phi` (degrees) and height :math:`h` (metres above
+the 1737.4 km sphere) is the point
+
+.. math:: \mathbf{p} = (R + h/1000)(\cos\phi\cos\lambda, \cos\phi\sin\lambda, \sin\phi).
+
+Normals come from the 3-D points of neighbouring DEM pixels (central differences),
+so they are correct at any latitude, and :math:`\cos i = \mathbf{n}\cdot\mathbf{l}`,
+:math:`\cos e = \mathbf{n}\cdot\mathbf{v}` (seed 001 eqs. 4-5) with unit vectors to
+the Sun and to the spacecraft.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..constants import MOON_RADIUS_KM
+
+
+def lonlat_grid(transform, shape):
+    """Longitude and latitude (degrees) of the pixel centres of a north-up grid."""
+    h, w = shape
+    cols = np.arange(w) + 0.5
+    rows = np.arange(h) + 0.5
+    lon = transform.c + transform.a * cols
+    lat = transform.f + transform.e * rows
+    return np.broadcast_to(lon[None, :], shape), np.broadcast_to(lat[:, None], shape)
+
+
+def body_fixed(lon_deg, lat_deg, height_m):
+    """Body-fixed points (km), shape ``(..., 3)``, from lon/lat (degrees) and height (metres)."""
+    lon = np.radians(np.asarray(lon_deg, dtype=np.float64))
+    lat = np.radians(np.asarray(lat_deg, dtype=np.float64))
+    r = MOON_RADIUS_KM + np.asarray(height_m, dtype=np.float64) / 1000.0
+    cl = np.cos(lat)
+    return np.stack([r * cl * np.cos(lon), r * cl * np.sin(lon), r * np.sin(lat)], axis=-1)
+
+
+def lonlat_height(points_km):
+    """Inverse of :func:`body_fixed`: (lon deg, lat deg, height m) of ``(..., 3)`` points in km."""
+    p = np.asarray(points_km, dtype=np.float64)
+    r = np.linalg.norm(p, axis=-1)
+    lon = np.degrees(np.arctan2(p[..., 1], p[..., 0]))
+    lat = np.degrees(np.arcsin(np.clip(p[..., 2] / r, -1, 1)))
+    return lon, lat, (r - MOON_RADIUS_KM) * 1000.0
+
+
+def _unit(v):
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return v / n
+
+
+def dem_normals(points_km):
+    """Outward unit normals of a grid of body-fixed points ``(H, W, 3)`` (central differences).
+
+    Edge pixels use one-sided differences; pixels next to NaN heights are NaN.
+    """
+    p = np.asarray(points_km, dtype=np.float64)
+    d_col = np.gradient(p, axis=1)  # towards east (increasing column)
+    d_row = np.gradient(p, axis=0)  # towards south (increasing row)
+    n = _unit(np.cross(d_row, d_col))  # south x east = up
+    radial = _unit(p)
+    flip = np.sum(n * radial, axis=-1, keepdims=True) < 0
+    return np.where(flip, -n, n)
+
+
+def illumination(points_km, normals, sun_km, spacecraft_km):
+    """``(cos i, cos e, alpha)`` per pixel; alpha (phase angle) in radians.
+
+    ``sun_km`` and ``spacecraft_km`` are body-fixed positions (km) of one image.
+    """
+    l = _unit(np.asarray(sun_km, dtype=np.float64) - points_km)
+    v = _unit(np.asarray(spacecraft_km, dtype=np.float64) - points_km)
+    cos_i = np.sum(normals * l, axis=-1)
+    cos_e = np.sum(normals * v, axis=-1)
+    alpha = np.arccos(np.clip(np.sum(l * v, axis=-1), -1.0, 1.0))
+    return cos_i, cos_e, alpha
