@@ -1,0 +1,100 @@
+"""ISIS3 pixels through rasterio/GDAL (driver ISIS3), with special pixels masked.
+
+ISIS reserves the lowest values of each pixel type for special pixels (NULL, LRS,
+LIS, HIS, HRS); they become NaN here.  Stored values are then scaled to physical
+ones with the label's ``Base + Multiplier * stored``.
+
+DEM cubes: some (e.g. GLD100) hold planetary **radius** in metres (~1.737e6)
+rather than height; :func:`read_dem_cube` detects this and returns height in
+metres above the 1737.4 km sphere.
+"""
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import rasterio
+from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
+
+from ..constants import MOON_RADIUS_M
+from ..errors import IsisError
+from .labels import IsisLabel, read_label
+
+#: Special-pixel ranges (inclusive) of each ISIS pixel type, as stored values.
+_SPECIAL = {
+    "Real": (-np.inf, float(np.frombuffer(np.uint32(0xFF7FFFFA).tobytes(), "<f4")[0])),
+    "SignedWord": (-32768, -32764),
+    "UnsignedWord": (0, 2),  # NULL=0, LRS=1, LIS=2 (HIS/HRS at the top, see below)
+    "UnsignedByte": (0, 0),
+}
+_SPECIAL_HIGH = {"UnsignedWord": 65534, "UnsignedByte": 255}
+
+#: Radius values (metres) above this are taken as radius, not height.
+RADIUS_THRESHOLD_M = 1.0e6
+
+
+def special_mask(stored: np.ndarray, pixel_type: str) -> np.ndarray:
+    """True where ``stored`` (raw cube values) is an ISIS special pixel (or not finite)."""
+    lo, hi = _SPECIAL.get(pixel_type, (-np.inf, -np.inf))
+    a = np.asarray(stored)
+    mask = (a >= lo) & (a <= hi)
+    if pixel_type == "Real":
+        mask |= ~np.isfinite(a) | (a <= hi)
+    if pixel_type in _SPECIAL_HIGH:
+        mask |= a >= _SPECIAL_HIGH[pixel_type]
+    return mask
+
+
+def read_band(label: IsisLabel | str | Path, band: int = 1) -> np.ndarray:
+    """Band ``band`` (1-based) of a cube as float64 physical values, NaN at special pixels."""
+    if not isinstance(label, IsisLabel):
+        label = read_label(label)
+    data_path = label.data_path
+    if data_path is None:
+        raise IsisError(f"{label.path}: label only, the cube has no pixels to read")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(data_path) as ds:
+                if not 1 <= band <= ds.count:
+                    raise IsisError(f"{data_path}: band {band} out of range 1..{ds.count}")
+                stored = ds.read(band, masked=False)
+    except RasterioIOError as exc:
+        raise IsisError(f"{data_path}: GDAL cannot read the cube: {exc}") from None
+    base, mult = label.base_multiplier
+    out = base + mult * stored.astype(np.float64)
+    out[special_mask(stored, label.pixel_type)] = np.nan
+    return out
+
+
+def cube_georeference(path: str | Path):
+    """``(transform, crs)`` GDAL derives from a map-projected cube's Mapping group."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with rasterio.open(path) as ds:
+            return ds.transform, ds.crs
+
+
+def radius_to_height(values_m: np.ndarray, mode: str = "auto") -> tuple[np.ndarray, bool]:
+    """Heights (metres above 1737.4 km) from DEM values; ``mode`` is auto, radius or height.
+
+    Returns ``(heights, was_radius)``.  In ``auto`` mode the values are radius when
+    their median exceeds :data:`RADIUS_THRESHOLD_M` (1000 km).
+    """
+    if mode not in ("auto", "radius", "height"):
+        raise ValueError(f"mode must be auto, radius or height, got {mode!r}")
+    finite = values_m[np.isfinite(values_m)]
+    is_radius = mode == "radius" or (mode == "auto" and finite.size and float(np.median(finite)) > RADIUS_THRESHOLD_M)
+    return (values_m - MOON_RADIUS_M if is_radius else values_m), bool(is_radius)
+
+
+def read_dem_cube(path: str | Path, mode: str = "auto"):
+    """A DEM cube as ``(heights_m float64 with NaN, transform, crs, was_radius)``."""
+    label = read_label(path)
+    if not label.is_map_projected:
+        raise IsisError(f"{path}: a DEM cube must be map-projected (no Mapping group)")
+    values = read_band(label, 1)
+    heights, was_radius = radius_to_height(values, mode)
+    transform, crs = cube_georeference(label.data_path)
+    return heights, transform, crs, was_radius
