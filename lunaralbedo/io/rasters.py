@@ -195,3 +195,85 @@ def write_geotiff(
     with atomic_path(path) as tmp:
         with rasterio.open(tmp, "w", **profile) as dst:
             dst.write(arr.astype(dtype, copy=False))
+
+
+def read_drg_onto_grid(
+    info: RasterInfo,
+    profile,
+    dst_transform: Affine,
+    dst_shape: tuple[int, int],
+    dst_crs: CRS | None,
+    lit_threshold: float | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """Resample one DRG onto a target grid: ``(value, valid, weight, lit)`` or None if it misses the grid.
+
+    ``value`` is band 1 (float32, bilinear); ``valid`` is True where all four
+    bilinear neighbours are valid (alpha band > 0 and not nodata); ``weight`` the
+    centre-line tent weight of :mod:`lunaralbedo.model.weights` (computed from
+    ``profile`` on the source grid, then resampled); ``lit`` is True where all four
+    neighbours are >= ``lit_threshold`` (always True when it is None).  Only the
+    covering window (plus a 2-pixel margin) of the source is read.
+    """
+    from ..model.weights import window_weights
+
+    h, w = dst_shape
+    west, north = dst_transform * (0, 0)
+    east, south = dst_transform * (w, h)
+    with rasterio.open(info.path) as ds:
+        win = from_bounds(min(west, east), min(south, north), max(west, east), max(south, north), ds.transform)
+        win = Window(win.col_off - 2, win.row_off - 2, win.width + 4, win.height + 4).round_offsets().round_lengths()
+        if not _overlaps(win, ds):
+            return None
+        win = win.intersection(Window(0, 0, ds.width, ds.height))
+        value = ds.read(1, window=win, out_dtype=np.float32)
+        valid = np.isfinite(value)
+        if info.nodata is not None:
+            valid &= value != np.float32(info.nodata)
+        if info.has_alpha:
+            valid &= ds.read(2, window=win) > 0
+        src_transform = ds.window_transform(win)
+        src_crs = ds.crs or dst_crs
+    r0, c0 = int(win.row_off), int(win.col_off)
+    weight = window_weights(profile, r0, c0, value.shape[0], value.shape[1]) * valid
+    lit = valid if lit_threshold is None else valid & (value >= lit_threshold)
+    src = np.stack([np.where(valid, value, 0.0).astype(np.float32), valid.astype(np.float32), weight, lit.astype(np.float32)])
+    dst = np.zeros((4, h, w), dtype=np.float32)
+    reproject(
+        source=src,
+        destination=dst,
+        src_transform=src_transform,
+        src_crs=src_crs,
+        dst_transform=dst_transform,
+        dst_crs=dst_crs or src_crs,
+        resampling=Resampling.bilinear,
+    )
+    ok = dst[1] > 0.9999
+    if not ok.any():
+        return None
+    # Undo the dilution of values by invalid neighbours (none where ok, kept for safety).
+    return dst[0], ok, np.where(ok, dst[2], 0.0).astype(np.float32), ok & (dst[3] > 0.9999)
+
+
+def read_dem_onto_grid(
+    infos: Sequence[RasterInfo], dst_transform: Affine, dst_shape: tuple[int, int], dst_crs: CRS | None, nodata: float
+) -> np.ndarray:
+    """Average of every DEM tile resampled (bilinear) onto the grid; float32 metres, NaN where none.
+
+    Overlapping DEM tiles are averaged (seed 000 section 6); ``nodata`` applies to
+    tiles that do not carry their own no-data value.
+    """
+    h, w = dst_shape
+    west, north = dst_transform * (0, 0)
+    east, south = dst_transform * (w, h)
+    grid_box = (min(west, east), min(south, north), max(west, east), max(south, north))
+    total = np.zeros(dst_shape, np.float64)
+    count = np.zeros(dst_shape, np.int32)
+    for info in infos:
+        if not intersects(info.bounds, grid_box):
+            continue
+        d = read_onto_grid(info, 1, dst_transform, dst_shape, dst_crs, Resampling.bilinear, nodata=nodata)
+        ok = np.isfinite(d)
+        total[ok] += d[ok]
+        count[ok] += 1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / count, np.nan).astype(np.float32)

@@ -1,0 +1,149 @@
+"""Where tile tasks run: in-process, on a local Dask cluster, an existing scheduler, or PBS/Slurm.
+
+Every executor offers ``map(fn, items, desc)`` that returns results **in the order
+of the items**, whatever order workers finish in; the solver reduces them in
+that order, so results are identical for any number of workers.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+from tqdm.auto import tqdm
+
+from ..errors import LunarAlbedoError
+
+
+class SerialExecutor:
+    """Runs tasks one after another in this process (1 worker; no Dask overhead)."""
+
+    workers = 1
+    description = "in-process (1 worker)"
+
+    def __init__(self, progress: bool = False):
+        self.progress = progress
+
+    def map(self, fn: Callable, items: Iterable, desc: str = "", **kwargs: Any) -> list:
+        items = list(items)
+        return [fn(x, **kwargs) for x in tqdm(items, desc=desc, disable=not self.progress, leave=False)]
+
+    def close(self) -> None:
+        pass
+
+
+class DaskExecutor:
+    """Runs tasks on a ``distributed.Client`` (local processes, a remote scheduler, or a job-queue cluster)."""
+
+    def __init__(self, client, description: str, progress: bool = False, owned=()):
+        self.client = client
+        self.description = description
+        self.progress = progress
+        self._owned = owned
+        info = client.scheduler_info() or {}
+        self.workers = max(1, len(info.get("workers", {})))
+
+    def map(self, fn: Callable, items: Iterable, desc: str = "", **kwargs: Any) -> list:
+        from distributed import as_completed
+
+        items = list(items)
+        if not items:
+            return []
+        shared = {k: (self.client.scatter(v, broadcast=True) if _big(v) else v) for k, v in kwargs.items()}
+        futures = [self.client.submit(fn, x, pure=False, **shared) for x in items]
+        with tqdm(total=len(futures), desc=desc, disable=not self.progress, leave=False) as bar:
+            for fut in as_completed(futures):
+                if fut.status == "error":
+                    for f in futures:
+                        f.cancel()
+                    fut.result()  # re-raises the task's exception here
+                bar.update(1)
+        return self.client.gather(futures)
+
+    def close(self) -> None:
+        for obj in (self.client, *self._owned):
+            try:
+                obj.close()
+            except Exception:  # noqa: BLE001 - closing is best effort
+                pass
+
+
+def _big(value) -> bool:
+    from .scene import Scene
+
+    return isinstance(value, Scene)
+
+
+def _local_cluster(workers: int, memory_limit: str | None):
+    from distributed import Client, LocalCluster
+
+    cluster = LocalCluster(
+        n_workers=workers,
+        threads_per_worker=1,
+        processes=True,
+        dashboard_address=None,
+        memory_limit=memory_limit or "auto",
+        silence_logs=40,
+    )
+    return Client(cluster), cluster
+
+
+def _jobqueue_cluster(kind: str, opts: dict):
+    try:
+        import dask_jobqueue
+    except ImportError as exc:  # pragma: no cover - dask-jobqueue is a dependency
+        raise LunarAlbedoError(f"--cluster {kind} needs dask-jobqueue: {exc}") from None
+    from distributed import Client
+
+    cls = {"pbs": dask_jobqueue.PBSCluster, "slurm": dask_jobqueue.SLURMCluster}[kind]
+    jobs = int(opts.pop("jobs", 1) or 1)
+    kwargs = {k: v for k, v in opts.items() if v is not None}
+    kwargs.setdefault("cores", 1)
+    kwargs.setdefault("memory", "4GB")
+    cluster = cls(**kwargs)
+    cluster.scale(jobs=jobs)
+    return Client(cluster), cluster
+
+
+def pbs_nodes(nodefile: str | os.PathLike | None = None) -> list[str]:
+    """Unique host names of ``$PBS_NODEFILE`` (one per line, as PBS writes it), in order."""
+    path = nodefile or os.environ.get("PBS_NODEFILE")
+    if not path:
+        return []
+    try:
+        lines = Path(path).read_text().split()
+    except OSError as exc:
+        raise LunarAlbedoError(f"{path}: cannot read PBS_NODEFILE: {exc}") from None
+    return list(dict.fromkeys(h.strip() for h in lines if h.strip()))
+
+
+def make_executor(
+    workers: int = 1,
+    scheduler: str | None = None,
+    cluster: str | None = None,
+    cluster_options: dict | None = None,
+    progress: bool = False,
+    memory_limit: str | None = None,
+):
+    """Choose an executor.
+
+    * ``scheduler="tcp://host:port"``: connect to an existing ``dask.distributed`` scheduler;
+    * ``cluster="pbs"|"slurm"``: start workers as batch jobs with dask-jobqueue
+      (``cluster_options``: queue, cores, memory, walltime, jobs, account, ...);
+    * otherwise ``workers`` local worker processes (1: in-process, no Dask).
+    """
+    if scheduler:
+        from distributed import Client
+
+        try:
+            client = Client(scheduler, timeout="20s")
+        except OSError as exc:
+            raise LunarAlbedoError(f"cannot connect to Dask scheduler {scheduler}: {exc}") from None
+        return DaskExecutor(client, f"scheduler {scheduler}", progress)
+    if cluster:
+        client, clus = _jobqueue_cluster(cluster, dict(cluster_options or {}))
+        return DaskExecutor(client, f"{cluster} cluster", progress, owned=(clus,))
+    if workers <= 1:
+        return SerialExecutor(progress)
+    client, clus = _local_cluster(workers, memory_limit)
+    return DaskExecutor(client, f"local cluster ({workers} processes)", progress, owned=(clus,))

@@ -1,0 +1,143 @@
+"""The scene of one solve: images, their positions and weight profiles, DEM files and tiles.
+
+Building a scene reads only headers (and, for images with an alpha band or nodata,
+the mask once, strip by strip, to get the compact weight profiles).  A scene is a
+small picklable object that every tile task receives.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import rasterio
+from rasterio.windows import Window
+
+from ..errors import InputError, SolverError
+from ..io.positions import read_positions
+from ..io.rasters import RasterInfo, catalog_drgs, intersects, list_rasters, raster_info
+from ..model.weights import WeightProfile, merge_profiles, profile_from_mask
+from ..settings import Settings
+from .tiles import Tile, make_tiles
+
+#: Pixels of padding around each tile while solving (legacy: 5).
+PAD = 5
+_STRIP_ROWS = 512
+
+
+@dataclass
+class Scene:
+    """Everything a tile task needs to know about the run (no pixels)."""
+
+    settings: Settings
+    images: list[RasterInfo]
+    sun: np.ndarray  # (K, 3) km, body-fixed
+    spacecraft: np.ndarray  # (K, 3) km, body-fixed
+    profiles: list[WeightProfile]
+    dems: list[RasterInfo]
+    tiles: list[Tile]
+    tile_images: list[np.ndarray]  # per tile: global indices of the images that overlap it
+    skipped: dict[str, str] = field(default_factory=dict)  # key -> reason
+
+    @property
+    def keys(self) -> list[str]:
+        return [im.key for im in self.images]
+
+    @property
+    def crs(self):
+        return self.images[0].crs
+
+    def fingerprint(self) -> str:
+        """Hash of what determines the results (settings, inputs, tiles) — guards ``--resume``."""
+        h = hashlib.sha256()
+        h.update(json.dumps(self.settings.to_dict(), sort_keys=True).encode())
+        for im in self.images:
+            st = im.path.stat()
+            h.update(f"{im.key}|{im.path}|{st.st_size}|{st.st_mtime_ns}".encode())
+        for d in self.dems:
+            st = d.path.stat()
+            h.update(f"{d.path}|{st.st_size}|{st.st_mtime_ns}".encode())
+        h.update(np.ascontiguousarray(self.sun).tobytes() + np.ascontiguousarray(self.spacecraft).tobytes())
+        return h.hexdigest()[:16]
+
+
+def weight_profile(info: RasterInfo) -> WeightProfile:
+    """Weight profile of one DRG: valid = alpha band > 0 (if any) and value != nodata."""
+    if not info.has_alpha and info.nodata is None:
+        return WeightProfile.full(info.height, info.width)
+    parts = []
+    with rasterio.open(info.path) as ds:
+        for r0 in range(0, info.height, _STRIP_ROWS):
+            win = Window(0, r0, info.width, min(_STRIP_ROWS, info.height - r0))
+            valid = np.ones((int(win.height), info.width), bool)
+            if info.has_alpha:
+                valid &= ds.read(2, window=win) > 0
+            if info.nodata is not None:
+                v = ds.read(1, window=win)
+                valid &= (v != info.nodata) & np.isfinite(v)
+            parts.append((r0, profile_from_mask(valid)))
+    return merge_profiles(parts, info.height, info.width)
+
+
+def _positions(settings: Settings, images: list[RasterInfo], skip_missing: bool, skipped: dict):
+    if not settings.needs_geometry:
+        z = np.zeros((len(images), 3))
+        return images, z, z.copy()
+    sun_all = read_positions(settings.sun_position_file)
+    sc_all = read_positions(settings.spacecraft_position_file)
+    kept, sun, sc = [], [], []
+    for im in images:
+        for table, path in ((sun_all, settings.sun_position_file), (sc_all, settings.spacecraft_position_file)):
+            if im.key not in table:
+                if not skip_missing:
+                    raise InputError(
+                        f"{path}: no position line for image key {im.key!r} ({im.path}); "
+                        "add it, or pass --skip-missing to leave such images out"
+                    )
+                skipped[im.key] = f"no position in {path.name}"
+                break
+        else:
+            kept.append(im)
+            sun.append(sun_all[im.key])
+            sc.append(sc_all[im.key])
+    return kept, np.array(sun).reshape(-1, 3), np.array(sc).reshape(-1, 3)
+
+
+def build_scene(settings: Settings, skip_missing: bool = False, map_fn=map) -> Scene:
+    """Catalogue inputs, read positions, choose the tile grid and the images of every tile.
+
+    ``map_fn`` maps :func:`weight_profile` over images (pass an executor's map to
+    read masks in parallel).
+    """
+    images = catalog_drgs(settings.drg_dir)
+    crs0 = images[0].crs
+    skipped: dict[str, str] = {}
+    # Legacy convention: the tile grid takes its pixel spacing from the first DRG.
+    tiles = make_tiles(settings.simulation_box, settings.tile_size, images[0].res, pad=PAD, exact=True)
+    for im in images:
+        if not any(intersects(im.bounds, t.padded_bounds) for t in tiles):
+            skipped[im.key] = "overlaps no tile of SIMULATION_BOX"
+    images = [im for im in images if im.key not in skipped]
+    if not images:
+        raise SolverError(f"{settings.drg_dir}: no DRG overlaps the tiles of SIMULATION_BOX {settings.simulation_box}")
+    for im in images:
+        if crs0 is not None and im.crs is not None and im.crs != crs0:
+            raise InputError(f"{im.path}: CRS differs from the first DRG's ({images[0].path}); reproject it first")
+    images, sun, sc = _positions(settings, images, skip_missing, skipped)
+    if not images:
+        raise SolverError("no DRG left after skipping images without positions")
+    dems: list[RasterInfo] = []
+    if settings.needs_geometry:
+        dems = [raster_info(p) for p in list_rasters(settings.dem_dir, "DEM")]
+    tile_images = []
+    for t in tiles:
+        idx = [k for k, im in enumerate(images) if intersects(im.bounds, t.padded_bounds)]
+        tile_images.append(np.array(idx, dtype=np.int32))
+    used = set(np.concatenate(tile_images).tolist()) if tile_images else set()
+    for k, im in enumerate(images):
+        if k not in used:
+            skipped.setdefault(im.key, "overlaps no tile")
+    profiles = list(map_fn(weight_profile, images))
+    return Scene(settings, images, sun, sc, profiles, dems, tiles, tile_images, skipped)

@@ -1,0 +1,223 @@
+"""The three kinds of tile task: prepare, iterate, finalise.
+
+Each task is a plain function of (scene, tile index, small state) that a Dask worker
+(or a plain loop) runs.  ``prepare`` reads the inputs once and caches the tile's
+observation stack inside OUTDIR; ``iterate`` computes one iteration's partial sums
+from the cached stack; ``finalise`` writes the tile's outputs.  Global couplings
+(exposures, phase coefficients, Q) leave a task only as small float64 sums.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..io.cache import load_stack, save_stack
+from ..io.rasters import read_dem_onto_grid, read_drg_onto_grid, write_geotiff
+from ..model import exposure_init, geometry, reflectance, shadows, updates
+from ..constants import MIN_COS_INCIDENCE
+from .scene import Scene
+
+
+@dataclass
+class SolveState:
+    """The global unknowns besides the albedo: exposures and phase coefficients."""
+
+    exposure: np.ndarray  # (K,) per image
+    c: np.ndarray  # (2,) phase coefficients (c1, c2)
+
+
+@dataclass
+class TileSums:
+    """One tile's contribution to an iteration (float64, per local image where indexed)."""
+
+    index: np.ndarray
+    q: float = 0.0
+    exp_num: np.ndarray | None = None
+    exp_den: np.ndarray | None = None
+    jtj: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    jtr: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    alpha_min: float = np.inf
+    alpha_max: float = -np.inf
+    n_obs: int = 0
+
+
+def _cache_dir(cache_root: Path, scene: Scene, t: int) -> Path:
+    return Path(cache_root) / scene.tiles[t].name
+
+
+# --------------------------------------------------------------------------- prepare
+def _geometry_stack(scene: Scene, tile, idx):
+    """DEM (padded grid), and per image cos i, cos e, alpha on the padded grid."""
+    s = scene.settings
+    shape, transform = tile.padded_shape, tile.padded_transform
+    dem = read_dem_onto_grid(scene.dems, transform, shape, scene.crs, s.no_dem_data_val)
+    lon, lat = geometry.lonlat_grid(transform, shape)
+    pts = geometry.body_fixed(lon, lat, np.nan_to_num(dem, nan=0.0))
+    normals = geometry.dem_normals(pts)
+    bad = ~np.isfinite(dem)
+    return dem, pts, normals, bad
+
+
+def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
+    """Read every image over tile ``t`` onto its grid, compute geometry, cache the stack.
+
+    Returns the tile's initialisation sums (also stored in the cache's meta, so a
+    resumed run does not recompute them): per-image reflectance sums for the seed
+    exposure, and pairwise log-ratio sums for the overlap exposure.
+    """
+    folder = _cache_dir(cache_root, scene, t)
+    cached = load_stack(folder)
+    if cached is not None:
+        return cached[1]
+    s = scene.settings
+    tile = scene.tiles[t]
+    inner = tile.inner
+    geo = _geometry_stack(scene, tile, scene.tile_images[t]) if s.needs_geometry else None
+    thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
+    per_image: dict[str, list] = {name: [] for name in ("image", "wblend", "usable", "geometric", "alpha", "cos_i")}
+    keep = []
+    for k in scene.tile_images[t]:
+        got = read_drg_onto_grid(
+            scene.images[k], scene.profiles[k], tile.padded_transform, tile.padded_shape, scene.crs, thresh
+        )
+        if got is None:
+            continue
+        val, ok, wt, use = got
+        use &= val > 0
+        layers = {}
+        if geo is not None:
+            dem, pts, normals, bad = geo
+            ci, ce, al = geometry.illumination(pts, normals, scene.sun[k], scene.spacecraft[k])
+            use &= ~bad & (ci >= MIN_COS_INCIDENCE) & (ce > 0)
+            if s.reflectance_type == reflectance.LUNAR_LAMBERT:
+                layers["geometric"] = reflectance.lunar_lambert_geometric(ci, ce, al)
+            else:
+                layers["geometric"] = np.where(ci > 0, ci, 0.0)
+            layers["alpha"] = al
+            if s.shadow_type == shadows.LAMBERT_RATIO:
+                layers["cos_i"] = ci
+        if not use[inner].any():
+            continue
+        keep.append(int(k))
+        layers.update(image=val, wblend=wt if s.use_weights else ok, usable=use)
+        for name, arr in layers.items():
+            per_image[name].append(arr[inner])
+    h, w = tile.height, tile.width
+    arrays: dict[str, np.ndarray] = {"index": np.array(keep, np.int32)}
+    for name, dtype in (("image", np.float32), ("wblend", np.float32), ("usable", bool)):
+        arrays[name] = np.array(per_image[name], dtype).reshape(-1, h, w)
+    arrays["weights_sum"] = arrays["wblend"].sum(axis=0, dtype=np.float64).astype(np.float32)
+    if s.use_normalized_cost_fun:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            wb = arrays["wblend"]
+            arrays["wblend"] = np.where(wb > 0, wb / arrays["weights_sum"][None], 0.0).astype(np.float32)
+    if geo is not None:
+        arrays["dem"] = geo[0][inner]
+        for name in ("geometric", "alpha", "cos_i"):
+            if per_image[name] or name != "cos_i" or s.shadow_type == shadows.LAMBERT_RATIO:
+                arrays[name] = np.array(per_image[name], np.float32).reshape(-1, h, w)
+    meta = _init_sums(scene, arrays)
+    meta["tile"] = tile.name
+    save_stack(folder, arrays, meta)
+    return meta
+
+
+def _reflectance(arrays, kind, c):
+    """Full reflectance R of the stack (eq. 2) and the phase-factor pieces."""
+    if kind == reflectance.MOSAIC:
+        return np.ones_like(arrays["image"]), None, None
+    g = np.asarray(arrays["geometric"])
+    if kind == reflectance.LAMBERT:
+        return g, None, None
+    a = np.asarray(arrays["alpha"])
+    p = (np.exp(-c[0] * a) + c[1]).astype(np.float32)
+    return p * g, p, a
+
+
+def _init_sums(scene: Scene, arrays) -> dict:
+    s = scene.settings
+    c0 = (s.phase_coeff_c1, s.phase_coeff_c2)
+    r, _, _ = _reflectance(arrays, s.reflectance_type, c0)
+    use = arrays["usable"] & (arrays["wblend"] > 0) & (r > 0)
+    rs, n = exposure_init.mean_reflectance_sums(r, use)
+    pairs = exposure_init.log_ratio_sums(arrays["image"], r, use, arrays["index"])
+    return {
+        "index": arrays["index"].tolist(),
+        "r_sum": rs.tolist(),
+        "r_count": n.tolist(),
+        "pairs": [[j, k, n_, d] for (j, k), (n_, d) in sorted(pairs.items())],
+    }
+
+
+# --------------------------------------------------------------------------- iterate
+def _weights(arrays, kind, shadow_type, thresh, t_local, r):
+    w = np.where(arrays["usable"], arrays["wblend"], 0.0).astype(np.float32)
+    if shadow_type in (shadows.LAMBERT_RATIO, shadows.LUNAR_LAMBERT_RATIO) and kind != reflectance.MOSAIC:
+        rr = arrays["cos_i"] if (shadow_type == shadows.LAMBERT_RATIO and "cos_i" in arrays) else r
+        lit = shadows.dynamic_lit(arrays["image"], rr, t_local[:, None, None], thresh)
+        w = np.where(lit, w, 0.0).astype(np.float32)
+    return w
+
+
+def tile_model(scene: Scene, arrays, state: SolveState):
+    """Albedo of a cached tile stack for the given exposures and phase coefficients (eq. 3)."""
+    s = scene.settings
+    idx = arrays["index"]
+    t_local = state.exposure[idx].astype(np.float32)
+    r, p, a = _reflectance(arrays, s.reflectance_type, state.c)
+    w = _weights(arrays, s.reflectance_type, s.shadow_type, s.shadow_thresh, t_local, r)
+    tr = (t_local[:, None, None] * r).astype(np.float32)
+    alb = updates.albedo(arrays["image"], tr, w)
+    return alb, r, p, a, w, tr, t_local
+
+
+def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> TileSums:
+    """Partial sums of one iteration over tile ``t`` (eqs. 1, 3, 4, 5)."""
+    loaded = load_stack(_cache_dir(cache_root, scene, t))
+    arrays = loaded[0]
+    idx = np.asarray(arrays["index"])
+    out = TileSums(index=idx, exp_num=np.zeros(len(idx)), exp_den=np.zeros(len(idx)))
+    if len(idx) == 0:
+        return out
+    alb, r, p, a, w, tr, t_local = tile_model(scene, arrays, state)
+    image = arrays["image"]
+    res = updates.residuals(image, alb, tr, w)
+    out.q = updates.cost(res, w)
+    out.exp_num, out.exp_den = updates.exposure_sums(image, alb, r, w)
+    out.n_obs = int(np.count_nonzero(w))
+    if want_phase and p is not None:
+        dp1, _ = reflectance.phase_factor_derivatives(a, state.c[0])
+        out.jtj, out.jtr = updates.phase_sums(res, alb, t_local, arrays["geometric"], dp1.astype(np.float32), p, w)
+        used = a[w > 0]
+        if used.size:
+            out.alpha_min, out.alpha_max = float(used.min()), float(used.max())
+    return out
+
+
+# --------------------------------------------------------------------------- finalise
+def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, state: SolveState) -> dict:
+    """Write the albedo, error, DEM and weight-sum tiles of tile ``t``; return a small report."""
+    s = scene.settings
+    tile = scene.tiles[t]
+    arrays, _ = load_stack(_cache_dir(cache_root, scene, t))
+    idx = np.asarray(arrays["index"])
+    h, w_ = tile.height, tile.width
+    if len(idx):
+        alb, r, p, a, w, tr, _ = tile_model(scene, arrays, state)
+    else:
+        alb = np.full((h, w_), np.nan, np.float32)
+    name = f"{tile.name}.tif"
+    write_geotiff(out_dir / "albedo" / name, alb, tile.transform, scene.crs, nodata=float("nan"))
+    if s.compute_errors and len(idx):
+        err = updates.error_map(arrays["image"], alb, tr, w, np.asarray(arrays["wblend"]))
+        write_geotiff(out_dir / "error" / name, err, tile.transform, scene.crs, nodata=float("nan"))
+    if "dem" in arrays:
+        write_geotiff(out_dir / "DEM" / name, np.asarray(arrays["dem"]), tile.transform, scene.crs, nodata=float("nan"))
+    write_geotiff(out_dir / "weightsSum" / name, np.asarray(arrays["weights_sum"]), tile.transform, scene.crs)
+    return {
+        "tile": tile.name,
+        "images": [scene.images[k].key for k in idx],
+        "valid_pixels": int(np.count_nonzero(np.isfinite(alb))),
+    }

@@ -1,0 +1,97 @@
+"""Run-level outputs: exposure table, phase coefficients, report, plots, weight profiles.
+
+All writes are atomic.  Plots use matplotlib's non-interactive Agg backend.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .atomic import atomic_path, atomic_write_text
+
+
+def write_exposure_csv(path: Path, keys: Sequence[str], exposure: np.ndarray, initial: np.ndarray) -> None:
+    """``key,exposure,initial_exposure`` per image (exposure: the solved T^k)."""
+    lines = ["key,exposure,initial_exposure"]
+    lines += [f"{k},{t:.9g},{t0:.9g}" for k, t, t0 in zip(keys, exposure, initial)]
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def read_exposure_csv(path: Path) -> dict[str, float]:
+    """``{key: exposure}`` from an ``exposure.csv``."""
+    rows = Path(path).read_text().splitlines()[1:]
+    return {r.split(",")[0]: float(r.split(",")[1]) for r in rows if r.strip()}
+
+
+def write_phase_csv(path: Path, history: Sequence[Sequence[float]]) -> None:
+    """``iteration,c1,c2`` (iteration 0 is the initial value)."""
+    lines = ["iteration,c1,c2"] + [f"{i},{c[0]:.9g},{c[1]:.9g}" for i, c in enumerate(history)]
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def write_json(path: Path, data: dict) -> None:
+    atomic_write_text(path, json.dumps(data, indent=2, sort_keys=False, default=_jsonable) + "\n")
+
+
+def _jsonable(obj):
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj)}")
+
+
+def write_weight_profile(path: Path, profile) -> None:
+    """Per-image weight profile: 4 lines (row first/last valid column, column first/last valid row)."""
+    lines = [" ".join(str(int(v)) for v in arr) for arr in (profile.row_first, profile.row_last, profile.col_first, profile.col_last)]
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def plot_exposures(path: Path, keys: Sequence[str], exposure: np.ndarray, initial: np.ndarray) -> None:
+    """Exposure per image (as seed 001 fig. 4): solved and initial, normalised to their mean."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(max(6, 0.18 * len(keys)), 3.5))
+    x = np.arange(len(keys))
+    ax.plot(x, exposure / np.mean(exposure), "o-", label="solved")
+    ax.plot(x, initial / np.mean(initial), ".", color="grey", label="initial")
+    ax.set_xticks(x)
+    ax.set_xticklabels(keys, rotation=90, fontsize=6)
+    ax.set_ylabel("relative exposure T / mean(T)")
+    ax.set_title("Estimated relative exposure times")
+    ax.legend()
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def plot_cost(path: Path, q: Sequence[float]) -> None:
+    """Cost Q (eq. 1) per iteration, log scale."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    ax.semilogy(np.arange(len(q)), q, "o-")
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("cost Q (eq. 1)")
+    ax.set_title("Convergence")
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def _save(fig, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)

@@ -1,0 +1,180 @@
+r"""Solver updates of seed 000 section 7 (eqs. 1 and 3-7) as partial sums over a tile.
+
+Notation: image stack index :math:`k` first, then pixels; ``I`` is the observed
+value, ``R`` the reflectance, ``T`` the per-image exposure, ``w`` the product of the
+blending weight and the shadow mask :math:`S w` (zero where unusable).
+
+Every quantity that couples tiles (exposure and phase-coefficient updates, the
+cost :math:`Q`) is returned as float64 *sums* so a driver can add them over all
+tiles in a fixed order and apply the update once.  Pixel arrays stay float32.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def _f64sum(x, axis=None):
+    return np.sum(x, axis=axis, dtype=np.float64)
+
+
+def albedo(image, tr, w):
+    r"""Albedo that minimises :math:`Q` for fixed exposure and reflectance (eqs. 3 and 6).
+
+    .. math:: A_{ij} = \frac{\sum_k I^k_{ij} T^k R^k_{ij} S^k_{ij} w^k_{ij}}{\sum_k (T^k R^k_{ij})^2 S^k_{ij} w^k_{ij}}
+
+    Eq. 6 (one Gauss-Newton step from any :math:`A`) lands exactly on eq. 3 because
+    :math:`Q` is quadratic in :math:`A`.  ``tr`` is :math:`T^k R^k_{ij}`.  Returns
+    float32 albedo, NaN where no image contributes.
+    """
+    trw = tr * w
+    num = _f64sum(np.where(w > 0, image, 0.0) * trw, axis=0)
+    den = _f64sum(tr * trw, axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = np.where(den > 0, num / den, np.nan)
+    return a.astype(np.float32)
+
+
+def residuals(image, a, tr, w):
+    r""":math:`I - A T R` where ``w > 0``, else 0 (float32)."""
+    r = image - a[None] * tr
+    return np.where(w > 0, r, 0.0).astype(np.float32)
+
+
+def cost(res, w):
+    r"""The cost :math:`Q = \sum_k\sum_{ij}(I - ATR)^2 S w` of eq. 1 (float64)."""
+    return float(_f64sum(res * res * w))
+
+
+def exposure_sums(image, a, r, w):
+    r"""Per-image numerator and denominator of the exposure update (eq. 4).
+
+    .. math:: \tilde T^k = T^k + \frac{\sum_{ij}(I - ATR) A R S w}{\sum_{ij} (AR)^2 S w}
+              = \frac{\sum_{ij} I A R S w}{\sum_{ij} (AR)^2 S w}
+
+    Returns ``(num, den)`` arrays of shape ``(K,)``; the update is ``num / den``
+    after summing over every tile.
+    """
+    ar = np.where(w > 0, a[None] * r, 0.0)
+    arw = ar * w
+    num = _f64sum(np.where(w > 0, image, 0.0) * arw, axis=(1, 2))
+    den = _f64sum(ar * arw, axis=(1, 2))
+    return num, den
+
+
+def exposure_update(t, num, den):
+    """Apply eq. 4 from summed ``(num, den)``; images without data keep their exposure."""
+    t = np.asarray(t, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(den > 0, num / den, t)
+
+
+def phase_sums(res, a, t, geometric, dp_dc1, p, w):
+    r"""Normal equations of the phase-coefficient update (eq. 5) over a tile.
+
+    Columns of the Jacobian of the prediction :math:`A T R` with
+    :math:`R = P(\alpha; c_1, c_2)\,G`:
+
+    * :math:`J_1 = A T G\,\partial P/\partial c_1` (with :math:`\partial P/\partial c_1 = -\alpha e^{-c_1\alpha}`),
+    * :math:`J_2 = A T G` (:math:`\partial P/\partial c_2 = 1`),
+    * :math:`J_0 = A T G P` — the prediction itself, i.e. a global brightness scale.
+
+    Returns ``(JtWJ, JtWr)`` of shapes ``(3, 3)`` and ``(3,)`` (float64), order
+    ``(J1, J2, J0)``.  Eq. 5 uses the diagonal entries of the first two columns.
+    """
+    atg = np.where(w > 0, a[None] * t[:, None, None] * geometric, 0.0).astype(np.float32)
+    cols = (atg * dp_dc1, atg, atg * p)
+    jtj = np.empty((3, 3))
+    jtr = np.empty(3)
+    for m, jm in enumerate(cols):
+        jmw = jm * w
+        jtr[m] = _f64sum(jmw * res)
+        for n in range(m, 3):
+            jtj[m, n] = jtj[n, m] = _f64sum(jmw * cols[n])
+    return jtj, jtr
+
+
+def phase_update_seed(c, jtj, jtr):
+    r"""The seed's update (eq. 5): independent Gauss-Newton steps for :math:`c_1` and :math:`c_2`."""
+    c = np.asarray(c, dtype=np.float64).copy()
+    for m in range(2):
+        if jtj[m, m] > 0:
+            c[m] += jtr[m] / jtj[m, m]
+    return c
+
+
+def phase_update_damped(c, jtj, jtr, alpha_range, damping=0.1, max_rel_change=0.02):
+    r"""Damped joint update of :math:`(c_1, c_2)` with the global scale projected out.
+
+    Solves the 3-parameter Levenberg-Marquardt system for :math:`(\delta c_1,
+    \delta c_2, \delta s)` — :math:`s` absorbs any change that a global brightness
+    scale (free between :math:`A` and :math:`T`) explains equally well — and keeps
+    only :math:`\delta c`.  The step is then shortened so that the phase factor
+    :math:`P(\alpha)` changes by at most ``max_rel_change`` anywhere in the observed
+    phase-angle range ``alpha_range`` (radians).  A poorly conditioned
+    :math:`(c_1, c_2)` therefore moves slowly instead of wrecking the albedo.
+    """
+    c = np.asarray(c, dtype=np.float64)
+    if not np.all(np.isfinite(jtj)) or jtj[2, 2] <= 0:
+        return c.copy()
+    m = jtj + damping * np.diag(np.diag(jtj))
+    try:
+        step = np.linalg.solve(m, jtr)[:2]
+    except np.linalg.LinAlgError:
+        return c.copy()
+    alphas = np.linspace(alpha_range[0], alpha_range[1], 9)
+    p0 = np.exp(-c[0] * alphas) + c[1]
+    p1 = np.exp(-(c[0] + step[0]) * alphas) + c[1] + step[1]
+    rel = float(np.max(np.abs(p1 / p0 - 1.0))) if np.all(p0 > 0) else np.inf
+    if rel > max_rel_change:
+        step = step * (max_rel_change / rel)
+    return c + step
+
+
+def error_map(image, a, tr, w_shadow, w_blend):
+    r"""Per-pixel albedo error (eq. 7).
+
+    .. math:: E_{ij} = \frac{\sum_k (I^k_{ij}/(T^k R^k_{ij}) - A_{ij})^2 S^k_{ij} w^k_{ij}}{\sum_k w^k_{ij}}
+
+    ``w_shadow`` is :math:`S w`, ``w_blend`` is :math:`w`.  NaN where no weight.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dev = np.where(w_shadow > 0, image / tr - a[None], 0.0)
+    num = _f64sum(dev * dev * w_shadow, axis=0)
+    den = _f64sum(w_blend, axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.where(den > 0, num / den, np.nan)
+    return e.astype(np.float32)
+
+
+@dataclass
+class PassSums:
+    """Global sums one iteration needs, accumulated tile by tile (float64)."""
+
+    n_images: int
+    q: float = 0.0
+    exp_num: np.ndarray = field(default=None)
+    exp_den: np.ndarray = field(default=None)
+    jtj: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    jtr: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    alpha_min: float = np.inf
+    alpha_max: float = -np.inf
+    n_obs: int = 0
+
+    def __post_init__(self):
+        if self.exp_num is None:
+            self.exp_num = np.zeros(self.n_images)
+        if self.exp_den is None:
+            self.exp_den = np.zeros(self.n_images)
+
+    def add(self, other: "PassSums") -> None:
+        """Accumulate another tile's sums (call in a fixed tile order for reproducible results)."""
+        self.q += other.q
+        self.exp_num += other.exp_num
+        self.exp_den += other.exp_den
+        self.jtj += other.jtj
+        self.jtr += other.jtr
+        self.alpha_min = min(self.alpha_min, other.alpha_min)
+        self.alpha_max = max(self.alpha_max, other.alpha_max)
+        self.n_obs += other.n_obs

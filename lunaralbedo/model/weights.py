@@ -1,0 +1,94 @@
+r"""Blending weights :math:`w_{ij}^k` (seed 000 section 7, eq. 1).
+
+The weights decrease linearly from the centre of an image (:math:`w = 1`) to its
+boundary (:math:`w = 0`) so that the albedo mosaic is seamless.  Each image is
+described by compact *profiles*: for every row the first and last valid column,
+for every column the first and last valid row.  The weight of pixel
+:math:`(r, c)` is the product of a row tent and a column tent,
+
+.. math::
+
+    w(r, c) = t\bigl(c; c_0(r), c_1(r)\bigr)\; t\bigl(r; r_0(c), r_1(c)\bigr),
+    \qquad t(x; a, b) = \max\Bigl(0, 1 - \frac{|x - (a+b)/2|}{(b-a)/2}\Bigr).
+
+Profiles cost O(rows + columns) memory, so the weight of any window can be
+computed without holding the image.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class WeightProfile:
+    """Per-row valid column range and per-column valid row range of one image (pixel indices).
+
+    Rows (columns) without any valid pixel have ``first > last``.
+    """
+
+    row_first: np.ndarray  # (H,) first valid column of each row
+    row_last: np.ndarray  # (H,) last valid column of each row
+    col_first: np.ndarray  # (W,) first valid row of each column
+    col_last: np.ndarray  # (W,) last valid row of each column
+
+    @classmethod
+    def full(cls, height: int, width: int) -> "WeightProfile":
+        """Profile of an image whose pixels are all valid."""
+        return cls(
+            np.zeros(height, np.int32),
+            np.full(height, width - 1, np.int32),
+            np.zeros(width, np.int32),
+            np.full(width, height - 1, np.int32),
+        )
+
+
+def profile_from_mask(valid: np.ndarray) -> WeightProfile:
+    """Profiles of a boolean validity mask ``(H, W)``."""
+    valid = np.asarray(valid, dtype=bool)
+    h, w = valid.shape
+    any_r, any_c = valid.any(axis=1), valid.any(axis=0)
+    rf = np.where(any_r, valid.argmax(axis=1), w)
+    rl = np.where(any_r, w - 1 - valid[:, ::-1].argmax(axis=1), -1)
+    cf = np.where(any_c, valid.argmax(axis=0), h)
+    cl = np.where(any_c, h - 1 - valid[::-1, :].argmax(axis=0), -1)
+    return WeightProfile(rf.astype(np.int32), rl.astype(np.int32), cf.astype(np.int32), cl.astype(np.int32))
+
+
+def merge_profiles(parts: list[tuple[int, WeightProfile]], height: int, width: int) -> WeightProfile:
+    """Combine profiles of horizontal strips ``(row_offset, profile)`` into one for the whole image."""
+    rf = np.full(height, width, np.int32)
+    rl = np.full(height, -1, np.int32)
+    cf = np.full(width, height, np.int32)
+    cl = np.full(width, -1, np.int32)
+    for off, p in parts:
+        n = len(p.row_first)
+        rf[off : off + n] = p.row_first
+        rl[off : off + n] = p.row_last
+        has = p.col_first <= p.col_last
+        cf = np.where(has, np.minimum(cf, p.col_first + off), cf)
+        cl = np.where(has, np.maximum(cl, p.col_last + off), cl)
+    return WeightProfile(rf, rl, cf, cl)
+
+
+def tent(x: np.ndarray, first: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """:math:`t(x; a, b)`: 1 at the centre of ``[a, b]``, 0 at and beyond its ends."""
+    x = np.asarray(x, dtype=np.float64)
+    a = np.asarray(first, dtype=np.float64)
+    b = np.asarray(last, dtype=np.float64)
+    half = (b - a) / 2.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = 1.0 - np.abs(x - (a + b) / 2.0) / half
+    return np.where(half > 0, np.clip(t, 0.0, 1.0), 0.0)
+
+
+def window_weights(profile: WeightProfile, row_off: int, col_off: int, height: int, width: int) -> np.ndarray:
+    """Tent weights (float32) of the image window starting at ``(row_off, col_off)``."""
+    rows = np.arange(row_off, row_off + height)
+    cols = np.arange(col_off, col_off + width)
+    rows_c = np.clip(rows, 0, len(profile.row_first) - 1)
+    cols_c = np.clip(cols, 0, len(profile.col_first) - 1)
+    w_row = tent(cols[None, :], profile.row_first[rows_c][:, None], profile.row_last[rows_c][:, None])
+    w_col = tent(rows[:, None], profile.col_first[cols_c][None, :], profile.col_last[cols_c][None, :])
+    return (w_row * w_col).astype(np.float32)

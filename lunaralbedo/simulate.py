@@ -1,0 +1,171 @@
+"""Forward model: render a scene from a known albedo, DEM, Sun/spacecraft geometry and exposures.
+
+The scene is written in the exact input contract of ``lunaralbedo solve``:
+
+* ``DRG/<KEY>_drg.tif`` — uint8 gray + alpha band (255 = data), geographic Moon CRS;
+* ``DEM/dem.tif`` — float32 heights in metres above the 1737.4 km sphere;
+* ``meta/sunpos.txt``, ``meta/spacecraftpos.txt`` — ``KEY x y z`` in km, body-fixed;
+* ``settings.txt`` — a legacy settings file for the scene;
+* ``truth/albedo.tif`` and ``truth/truth.json`` — the truth to compare against.
+
+Images are :math:`I = \\mathrm{round}(A\\,T\\,R + n)` clipped to 0..255 (eq. 1's model),
+with :math:`R` from :func:`lunaralbedo.model.reflectance.reflectance`, Gaussian noise
+``n`` and 8-bit quantisation.  Geometry: a strip of images along longitude near
+the equator, each with its own Sun and spacecraft position.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from rasterio.transform import Affine
+
+from .constants import MOON_RADIUS_KM
+from .io.atomic import atomic_write_text
+from .io.positions import write_positions
+from .io.rasters import MOON_CRS, write_geotiff
+from .model import geometry
+from .model.reflectance import reflectance
+
+
+@dataclass
+class SceneSpec:
+    """Parameters of a synthetic strip (degrees, pixels, metres, km)."""
+
+    n_images: int = 6
+    image_px: int = 120  # square images, pixels
+    res_deg: float = 0.01  # pixel size, degrees
+    overlap: float = 0.5  # fraction of an image shared with the next
+    lon0: float = 10.0  # west edge of the strip, degrees
+    lat0: float = -5.0  # south edge, degrees
+    exposure_spread: float = 0.4  # exposures in 1 +- spread
+    reflectance_type: int = 2
+    c1: float = 1.4
+    c2: float = 0.5
+    noise_dn: float = 1.0
+    dem_relief_m: float = 600.0
+    sun_incidence_deg: float = 35.0
+    altitude_km: float = 100.0
+    tile_size: float = 1.0
+    max_num_iter: int = 10
+    use_normalized_cost_fun: int = 0
+    shadow_thresh: float = 10.0
+    seed: int = 7
+
+    @property
+    def step_px(self) -> int:
+        return max(1, int(round(self.image_px * (1 - self.overlap))))
+
+    @property
+    def width_px(self) -> int:
+        return self.image_px + self.step_px * (self.n_images - 1)
+
+
+def truth_albedo(lon, lat, rng_seed=3):
+    """A smooth, textured albedo field (dimensionless, ~0.6..1.4) as a function of lon/lat (degrees)."""
+    rng = np.random.default_rng(rng_seed)
+    a = np.ones_like(lon, dtype=np.float64)
+    for _ in range(6):
+        kx, ky = rng.uniform(2, 9, 2)
+        ph = rng.uniform(0, 2 * np.pi, 2)
+        a += 0.06 * np.sin(kx * lon + ph[0]) * np.cos(ky * lat + ph[1])
+    for _ in range(8):  # bright ejecta / dark patches
+        cx, cy = rng.uniform(lon.min(), lon.max()), rng.uniform(lat.min(), lat.max())
+        r = rng.uniform(0.05, 0.2)
+        a += rng.choice([-0.25, 0.3]) * np.exp(-((lon - cx) ** 2 + (lat - cy) ** 2) / (2 * r * r))
+    return np.clip(a, 0.3, 1.8)
+
+
+def truth_dem(lon, lat, relief_m, rng_seed=5):
+    """Heights (metres) with gentle hills and a few craters."""
+    rng = np.random.default_rng(rng_seed)
+    h = relief_m * 0.3 * np.sin(2.5 * lon) * np.cos(3.1 * lat)
+    for _ in range(5):
+        cx, cy = rng.uniform(lon.min(), lon.max()), rng.uniform(lat.min(), lat.max())
+        r = rng.uniform(0.08, 0.25)
+        d2 = ((lon - cx) ** 2 + (lat - cy) ** 2) / (r * r)
+        h += relief_m * (np.exp(-d2 * 2) * -1.0 + 0.4 * np.exp(-((np.sqrt(d2) - 1) ** 2) * 8))
+    return h
+
+
+def _sun_and_spacecraft(spec: SceneSpec, k: int, lon_c: float, lat_c: float, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Sun 1 AU away at the given incidence from the east-west plane; spacecraft above the centre."""
+    inc = np.radians(spec.sun_incidence_deg + rng.uniform(-3, 3))
+    up = geometry.body_fixed(lon_c, lat_c, 0.0) / MOON_RADIUS_KM
+    east = np.array([-np.sin(np.radians(lon_c)), np.cos(np.radians(lon_c)), 0.0])
+    sun_dir = np.cos(inc) * up + np.sin(inc) * east
+    sun = sun_dir * 1.496e8
+    off = rng.uniform(-0.08, 0.08, 2)  # a little off-nadir, degrees of arc
+    sc = geometry.body_fixed(lon_c + off[0], lat_c + off[1], spec.altitude_km * 1000.0)
+    return sun, sc
+
+
+def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
+    """Render the scene of ``spec`` into ``out_dir`` (see module docstring); return the truth."""
+    spec = spec or SceneSpec()
+    out = Path(out_dir)
+    rng = np.random.default_rng(spec.seed)
+    res = spec.res_deg
+    width, height = spec.width_px, spec.image_px
+    # Global truth grid, with a margin of 8 px for the DEM.
+    m = 8
+    gt = Affine(res, 0, spec.lon0 - m * res, 0, -res, spec.lat0 + height * res + m * res)
+    shape = (height + 2 * m, width + 2 * m)
+    lon, lat = geometry.lonlat_grid(gt, shape)
+    albedo = truth_albedo(lon, lat)
+    dem = truth_dem(lon, lat, spec.dem_relief_m)
+    pts = geometry.body_fixed(lon, lat, dem)
+    normals = geometry.dem_normals(pts)
+    write_geotiff(out / "DEM" / "dem.tif", dem.astype(np.float32), gt, MOON_CRS, nodata=-32767.0)
+    inner = (slice(m, m + height), slice(m, m + width))
+    write_geotiff(out / "truth" / "albedo.tif", albedo[inner].astype(np.float32), gt * Affine.translation(m, m), MOON_CRS)
+    u = np.linspace(-1, 1, spec.n_images)
+    exposures = 1.0 + spec.exposure_spread * rng.permutation(u)
+    # Scale so the brightest pixels stay below 255: DN = gain * A * T * R.
+    gain = 120.0
+    sun_pos, sc_pos, keys = {}, {}, []
+    for k in range(spec.n_images):
+        key = f"SIM-IMG-{k:03d}"
+        c0 = m + k * spec.step_px
+        win = (slice(m, m + height), slice(c0, c0 + spec.image_px))
+        lon_c, lat_c = float(lon[win].mean()), float(lat[win].mean())
+        sun, sc = _sun_and_spacecraft(spec, k, lon_c, lat_c, rng)
+        ci, ce, al = geometry.illumination(pts[win], normals[win], sun, sc)
+        r = reflectance(spec.reflectance_type, ci, ce, al, spec.c1, spec.c2)
+        r = np.where(ci >= 0.3, r, 0.0)
+        signal = gain * albedo[win] * exposures[k] * r
+        dn = np.clip(np.round(signal + rng.normal(0, spec.noise_dn, signal.shape)), 0, 255).astype(np.uint8)
+        alpha = np.full(dn.shape, 255, np.uint8)
+        transform = gt * Affine.translation(c0, m)
+        write_geotiff(out / "DRG" / f"{key}_drg.tif", np.stack([dn, alpha]), transform, MOON_CRS)
+        sun_pos[key], sc_pos[key] = sun, sc
+        keys.append(key)
+    write_positions(out / "meta" / "sunpos.txt", sun_pos)
+    write_positions(out / "meta" / "spacecraftpos.txt", sc_pos)
+    box = (spec.lon0, spec.lon0 + width * res, spec.lat0, spec.lat0 + height * res)
+    settings = f"""# Synthetic scene rendered by lunaralbedo.simulate (seed {spec.seed})
+DRG_DIR                   DRG
+DEM_DIR                   {'DEM' if spec.reflectance_type else ''}
+SUN_POSITION_FILE         {'meta/sunpos.txt' if spec.reflectance_type else ''}
+SPACECRAFT_POSITION_FILE  {'meta/spacecraftpos.txt' if spec.reflectance_type else ''}
+NUM_PROCESSES             1
+TILE_SIZE                 {spec.tile_size}
+SIMULATION_BOX            {box[0]:.6f}:{box[1]:.6f}:{box[2]:.6f}:{box[3]:.6f}
+REFLECTANCE_TYPE          {spec.reflectance_type}
+SHADOW_THRESH             {spec.shadow_thresh}
+SHADOW_TYPE               1
+TR_CONST                  1.5
+PHASE_COEFF_C1            {spec.c1}
+PHASE_COEFF_C2            {spec.c2}
+MAX_NUM_ITER              {spec.max_num_iter}
+NO_DEM_DATA_VAL           -32767
+USE_WEIGHTS               1
+USE_NORMALIZED_COST_FUN   {spec.use_normalized_cost_fun}
+COMPUTE_ERRORS            1
+"""
+    atomic_write_text(out / "settings.txt", settings)
+    truth = {"keys": keys, "exposure": exposures.tolist(), "gain": gain, "spec": asdict(spec)}
+    atomic_write_text(out / "truth" / "truth.json", json.dumps(truth, indent=2))
+    return truth
