@@ -169,3 +169,39 @@ COMPUTE_ERRORS            1
     truth = {"keys": keys, "exposure": exposures.tolist(), "gain": gain, "spec": asdict(spec)}
     atomic_write_text(out / "truth" / "truth.json", json.dumps(truth, indent=2))
     return truth
+
+
+def score(result_dir: str | Path, scene_dir: str | Path) -> dict:
+    """Compare a solve's outputs with the truth of a rendered scene.
+
+    Returns ``albedo_rel_rmse`` (relative RMSE of the albedo after the one global
+    scale that A*T leaves free, least squares), ``exposure_max_rel_err`` (largest
+    relative exposure error after normalising both to the same geometric mean),
+    ``coverage`` (fraction of truth pixels with a solved albedo).
+    """
+    import glob
+
+    import rasterio
+    from rasterio.merge import merge
+
+    from .io.outputs import read_exposure_csv
+
+    result_dir, scene_dir = Path(result_dir), Path(scene_dir)
+    truth = json.loads((scene_dir / "truth" / "truth.json").read_text())
+    with rasterio.open(scene_dir / "truth" / "albedo.tif") as t:
+        ta, tt, tb = t.read(1), t.transform, t.bounds
+    files = sorted(glob.glob(str(result_dir / "albedo" / "*.tif")))
+    mos, _ = merge(files, bounds=tb, res=(tt.a, -tt.e), nodata=np.nan, dtype="float32")
+    a = mos[0]
+    ok = np.isfinite(a) & np.isfinite(ta)
+    s = np.sum(a[ok] * ta[ok]) / np.sum(a[ok] ** 2)
+    rel = (s * a[ok] - ta[ok]) / ta[ok]
+    est = read_exposure_csv(result_dir / "exposure.csv")
+    te = np.array(truth["exposure"])
+    ratio = np.array([est[k] for k in truth["keys"]]) / te
+    ratio /= np.exp(np.mean(np.log(ratio)))
+    return {
+        "albedo_rel_rmse": float(np.sqrt(np.mean(rel**2))),
+        "exposure_max_rel_err": float(np.max(np.abs(ratio - 1))),
+        "coverage": float(ok.mean()),
+    }

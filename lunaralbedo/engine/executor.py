@@ -40,6 +40,7 @@ class DaskExecutor:
         self.description = description
         self.progress = progress
         self._owned = owned
+        self._scattered: dict[int, tuple[Any, Any]] = {}
         info = client.scheduler_info() or {}
         self.workers = max(1, len(info.get("workers", {})))
 
@@ -49,7 +50,7 @@ class DaskExecutor:
         items = list(items)
         if not items:
             return []
-        shared = {k: (self.client.scatter(v, broadcast=True) if _big(v) else v) for k, v in kwargs.items()}
+        shared = {k: (self._scatter(v) if _big(v) else v) for k, v in kwargs.items()}
         futures = [self.client.submit(fn, x, pure=False, **shared) for x in items]
         with tqdm(total=len(futures), desc=desc, disable=not self.progress, leave=False) as bar:
             for fut in as_completed(futures):
@@ -60,7 +61,14 @@ class DaskExecutor:
                 bar.update(1)
         return self.client.gather(futures)
 
+    def _scatter(self, value):
+        """Send a large shared argument (the scene) to every worker once and keep the future alive."""
+        if id(value) not in self._scattered:
+            self._scattered[id(value)] = (value, self.client.scatter(value, broadcast=True, hash=False))
+        return self._scattered[id(value)][1]
+
     def close(self) -> None:
+        self._scattered.clear()
         for obj in (self.client, *self._owned):
             try:
                 obj.close()
