@@ -1,0 +1,89 @@
+"""Image times as ISIS ``campt`` reports them (s, TDB past J2000).
+
+* Frame camera: ``StartTime + ExposureDuration / 2`` (exposure in ms unless the
+  label says seconds; 0 when absent, e.g. Apollo Metric).
+* Line scanner: line ``L`` (parent/alpha line, 1-based) is exposed at
+  ``et0 + (L - 0.5) * rate`` with ``rate = LineExposureDuration`` (ms -> s);
+  ``et0`` is ``StartTime`` - except for LRO NAC, which ISIS times from the
+  ``SpacecraftClockPrerollCount`` plus ``ADDITIONAL_PREROLL`` lines, with the IK's
+  ``MULTIPLI_LINE_ERROR``/``ADDITIVE_LINE_ERROR``/``CONSTANT_TIME_OFFSET``.
+* The centre pixel is ``((samples+1)/2, (lines+1)/2)`` of the cube, mapped through
+  ``AlphaCube`` when the cube is a crop.
+"""
+from __future__ import annotations
+
+import struct
+
+import spiceypy
+
+from ..errors import SpiceError
+from ..isis.labels import IsisLabel, time_string, value_of
+from ..spice.kernels import pool_value, spice_errors
+from .model import LineTiming
+
+
+def naif_value(label: IsisLabel, name: str, default=None):
+    """An IK/IAK/SCLK value: the loaded kernel pool first, then the label's ``NaifKeywords``."""
+    v = pool_value(name)
+    if v is not None:
+        return v
+    return label.naif_keywords.get(name, default)
+
+
+def utc_to_et(label: IsisLabel, key: str) -> float:
+    """ET (s) of an Instrument-group UTC keyword (needs a leapseconds kernel in the pool)."""
+    text = time_string(label.keyword("Instrument", key))
+    with spice_errors(f"{label.path}: cannot convert {key} {text!r} to ET (is a leapseconds kernel loaded?)"):
+        return float(spiceypy.str2et(text))
+
+
+def _seconds(q, default_units: str = "ms") -> float:
+    units = str(getattr(q, "units", "") or default_units).lower()
+    v = float(value_of(q))
+    return v if units.startswith("s") else v / 1000.0
+
+
+def is_line_scanner(label: IsisLabel) -> bool:
+    return "LineExposureDuration" in label.instrument
+
+
+def frame_et(label: IsisLabel) -> float:
+    """Mid-exposure time (s, TDB) of a frame camera."""
+    start = utc_to_et(label, "StartTime")
+    inst = label.instrument
+    exposure = _seconds(inst["ExposureDuration"]) if "ExposureDuration" in inst else 0.0
+    return start + exposure / 2.0
+
+
+def _sclk_et(label: IsisLabel, count: str, code: int) -> float:
+    sc = int(code / 1000)
+    hexval = label.naif_keywords.get(f"CLOCK_ET_{sc}_{count}_COMPUTED")
+    if hexval is not None:
+        return struct.unpack("<d", bytes.fromhex(str(hexval)))[0]
+    with spice_errors(f"{label.path}: cannot convert clock count {count} of spacecraft {sc} (is its SCLK kernel loaded?)"):
+        return float(spiceypy.scs2e(sc, count))
+
+
+def line_timing(label: IsisLabel, code: int | None) -> LineTiming:
+    """Timing of a line scanner (see module docstring)."""
+    inst = label.instrument
+    rate = _seconds(inst["LineExposureDuration"])
+    ik = (lambda name, d=0.0: float(naif_value(label, f"INS{code}_{name}", d))) if code is not None else None
+    preroll = inst.get("SpacecraftClockPrerollCount")
+    if ik is not None and preroll is not None and naif_value(label, f"INS{code}_ADDITIONAL_PREROLL") is not None:
+        rate = rate * (1.0 + ik("MULTIPLI_LINE_ERROR")) + ik("ADDITIVE_LINE_ERROR")
+        et0 = _sclk_et(label, str(value_of(preroll)), code) + ik("CONSTANT_TIME_OFFSET") + ik("ADDITIONAL_PREROLL") * rate
+    else:
+        et0 = utc_to_et(label, "StartTime")
+    if rate <= 0:
+        raise SpiceError(f"{label.path}: LineExposureDuration must be positive")
+    return LineTiming(et0=et0, rate=rate)
+
+
+def center_et(label: IsisLabel, code: int | None) -> float:
+    """The ``campt`` time of the cube's centre pixel (s, TDB)."""
+    if not is_line_scanner(label):
+        return frame_et(label)
+    _bands, lines, samples = label.shape
+    _s, alpha_line = label.to_alpha((samples + 1) / 2.0, (lines + 1) / 2.0)
+    return float(line_timing(label, code).et(alpha_line))

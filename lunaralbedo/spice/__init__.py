@@ -1,0 +1,1 @@
+"""SPICE without ISIS: kernel resolution and loading (spiceypy), table and kernel ephemerides."""
