@@ -1,0 +1,181 @@
+"""``export_kml``: Google Earth and GIS products of a RESULTS_DIR, built as independent dask tasks.
+
+Task graph (no task depends on another of the same stage, so everything in a stage
+runs at once on a local thread/process pool or on a ``distributed.Client``):
+
+1. one task per albedo tile samples its valid values -> the shared percentile stretch
+   (skipped with ``value_range``);
+2. one task per PNG tile per level (each reads the albedo tiles it covers), one
+   task per albedo tile for ``albedo_sub4/``, one task per mosaic.
+
+Folders are built in a ``.tmp-*`` sibling and swapped in at the end, so a re-run
+replaces the previous export cleanly and a failed run leaves the old one intact.
+With a ``distributed.Client`` the RESULTS_DIR must be on a file system the
+workers share.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+import time
+import warnings
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import dask
+import numpy as np
+from rasterio.enums import Resampling
+from rasterio.errors import NotGeoreferencedWarning
+
+from ..errors import InputError
+from ..io.atomic import TMP_PREFIX, atomic_write_text
+from .kml import ROOT_NAME, pyramid_children, render_node
+from .mosaic import write_cog_mosaic, write_sub4
+from .pyramid import Pyramid, plan_pyramid, present_nodes
+from .sources import Grid, Source, find_sources, intersects, native_grid, sample_values
+from .stretch import stretch_from_range, stretch_from_values
+
+STRETCH_FILE = "stretch.json"
+
+
+@contextlib.contextmanager
+def staged_dir(final: Path) -> Iterator[Path]:
+    """Yield an empty sibling folder; on success it replaces ``final`` (old content removed)."""
+    final.parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=f"{TMP_PREFIX}{final.name}-", dir=final.parent))
+    stage.chmod(0o755)
+    try:
+        yield stage
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+    old = None
+    if final.exists():
+        old = final.parent / f"{TMP_PREFIX}old-{final.name}-{os.getpid()}"
+        os.replace(final, old)
+    os.replace(stage, final)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def _compute(tasks: list, client=None, workers: int | None = None, scheduler: str = "threads") -> list:
+    if not tasks:
+        return []
+    if client is not None:
+        return list(client.gather(client.compute(tasks)))
+    if workers == 1:
+        scheduler = "synchronous"
+    with warnings.catch_warnings():
+        # rasterio silences this warning for its in-memory arrays with catch_warnings,
+        # which is not thread-safe: under the threaded scheduler it leaks out.
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        return list(dask.compute(*tasks, scheduler=scheduler, num_workers=workers or os.cpu_count() or 1))
+
+
+def _covering(sources: Sequence[Source], bounds) -> list[Source]:
+    return [s for s in sources if intersects(s.bounds, bounds)]
+
+
+def _level_resampling(pyr: Pyramid, level: int, grid: Grid) -> Resampling:
+    """``nearest`` for levels within 1.5x of the native pixel size, ``average`` for coarser ones."""
+    _, width = pyr.level_shape(level)
+    return Resampling.nearest if grid.width / width < 1.5 else Resampling.average
+
+
+def _check_pixel_size(sources: Sequence[Source], folder: Path) -> None:
+    rx, ry = sources[0].res
+    for s in sources[1:]:
+        if abs(s.res[0] - rx) > 1e-6 * rx or abs(s.res[1] - ry) > 1e-6 * ry:
+            raise InputError(
+                f"{folder}: tiles must share one pixel size; {sources[0].path.name} has {rx:g} x {ry:g} "
+                f"degrees but {s.path.name} has {s.res[0]:g} x {s.res[1]:g}"
+            )
+
+
+def export_kml(
+    results_dir: str | Path,
+    levels: int | None = None,
+    stretch: tuple[float, float] = (2.0, 98.0),
+    value_range: tuple[float, float] | None = None,
+    tile_size: int = 256,
+    client=None,
+    workers: int | None = None,
+    scheduler: str = "threads",
+    name: str | None = None,
+    sub4_resampling: str = "average",
+) -> dict:
+    """Write ``albedo_sub4/``, ``kml/doc.kml`` (+ tree) and ``albedo_mosaic.tif`` (+ ``error_mosaic.tif``).
+
+    ``stretch`` are the low/high percentiles of the 8-bit stretch, unless
+    ``value_range=(lo, hi)`` is given.  ``levels`` None means as many as the data
+    needs.  ``client`` (a ``distributed.Client``) wins over ``workers``/``scheduler``
+    (``"threads"`` or ``"processes"``; ``workers=1`` runs serially).  Returns a
+    summary dict (also the content of the printed summary).  ``sub4_resampling``
+    is ``"average"`` (default) or ``"nearest"`` (PhotometryTK's values).
+    """
+    try:
+        sub4_rs = {"average": Resampling.average, "nearest": Resampling.nearest}[sub4_resampling]
+    except KeyError:
+        raise InputError(f"sub4 resampling must be 'average' or 'nearest', got {sub4_resampling!r}") from None
+    t0 = time.perf_counter()
+    results_dir = Path(results_dir).expanduser().resolve()
+    albedo_dir = results_dir / "albedo"
+    sources = find_sources(albedo_dir, "albedo")
+    _check_pixel_size(sources, albedo_dir)
+    error_dir = results_dir / "error"
+    errors = find_sources(error_dir, "error") if any(error_dir.glob("tile_*.tif")) else []
+    grid = native_grid(sources)
+    pyr = plan_pyramid(grid.bounds, grid.shape, tile_size, levels)
+    present = present_nodes(pyr, [s.bounds for s in sources])
+    children = pyramid_children(pyr, present)
+    run = dict(client=client, workers=workers, scheduler=scheduler)
+    task = dask.delayed(pure=False)
+
+    if value_range is not None:
+        st = stretch_from_range(*value_range)
+    else:
+        samples = _compute([task(sample_values)(s) for s in sources], **run)
+        st = stretch_from_values(np.concatenate(samples), tuple(stretch))
+
+    label = name or results_dir.name
+    with staged_dir(results_dir / "kml") as kml_dir, staged_dir(results_dir / "albedo_sub4") as sub4_dir:
+        tasks = [
+            task(render_node)(
+                kml_dir, node, children[node.key], _covering(sources, node.bounds), st, label, _level_resampling(pyr, k, grid)
+            )
+            for k, nodes in present.items()
+            for node in nodes
+        ]
+        tasks += [task(write_sub4)(s, sub4_dir / s.path.name, sub4_rs) for s in sources]
+        tasks.append(task(write_cog_mosaic)(sources, grid, results_dir / "albedo_mosaic.tif"))
+        if errors:
+            tasks.append(task(write_cog_mosaic)(errors, native_grid(errors), results_dir / "error_mosaic.tif"))
+        done = _compute(tasks, **run)
+        atomic_write_text(kml_dir / STRETCH_FILE, st.to_json())
+    if not errors:
+        with contextlib.suppress(FileNotFoundError):
+            (results_dir / "error_mosaic.tif").unlink()
+
+    n_nodes = sum(len(v) for v in present.values())
+    mosaics = done[n_nodes + len(sources):]
+    fh, fw = pyr.level_shape(pyr.levels - 1)
+    return {
+        "results_dir": str(results_dir),
+        "levels": pyr.levels,
+        "tile_size": pyr.tile_size,
+        "tiles_per_level": [len(present[k]) for k in range(pyr.levels)],
+        "tiles": n_nodes,
+        "bounds": list(pyr.bounds),
+        "kml_size": [fw, fh],
+        "native_size": [grid.width, grid.height],
+        "longitude_shifted": any(s.shift for s in sources),
+        "stretch": {"lo": st.lo, "hi": st.hi, "method": st.method, "percentiles": st.percentiles},
+        "doc_kml": str(results_dir / "kml" / ROOT_NAME),
+        "stretch_file": str(results_dir / "kml" / STRETCH_FILE),
+        "sub4_tiles": len(sources),
+        "albedo_mosaic": mosaics[0],
+        "error_mosaic": mosaics[1] if errors else None,
+        "seconds": round(time.perf_counter() - t0, 3),
+    }

@@ -1,0 +1,106 @@
+"""GIS products: the whole result as one Cloud-Optimized GeoTIFF, and the 1/4-resolution tiles.
+
+* ``albedo_mosaic.tif`` / ``error_mosaic.tif``: one band float32, NaN = no data,
+  on the native grid of the tiles (:func:`~.sources.native_grid`), continuous
+  longitudes, nearest-neighbour copy of the tiles (solver tiles land exactly on
+  it), internal 256-px tiles, deflate, average overviews (rio-cogeo).
+* ``albedo_sub4/tile_*.tif``: each tile on the same bounds with ``w // 4`` by
+  ``h // 4`` pixels (the legacy sizes, e.g. 95 -> 23), by default GDAL average
+  resampling ignoring no-data pixels (when the size divides by 4 this is exactly
+  the mean of the valid pixels of each 4x4 block); ``nearest`` gives the legacy
+  values (PhotometryTK took the pixel nearest to each coarse pixel centre).  Float32 tiles stay float32 (NaN = no
+  data); legacy uint8 tiles stay uint8 gray + alpha (255 where any pixel of the
+  block had data).
+"""
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import rasterio
+from rasterio.crs import CRS
+from rasterio.enums import Resampling
+from rasterio.warp import reproject
+from rio_cogeo.cogeo import cog_translate
+from rio_cogeo.profiles import cog_profiles
+
+from ..io.atomic import TMP_PREFIX, atomic_path
+from ..io.rasters import write_geotiff
+from .sources import Grid, Source, read_masked, read_region
+
+COG_BLOCK = 256
+BLOCK_ROWS = 1024
+
+
+def _crs(sources: Sequence[Source]) -> CRS | None:
+    wkt = sources[0].crs_wkt
+    return CRS.from_wkt(wkt) if wkt else None
+
+
+def write_cog_mosaic(sources: Sequence[Source], grid: Grid, path: str | Path) -> dict:
+    """Mosaic ``sources`` onto ``grid`` and write a COG at ``path`` (atomically)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    profile = dict(
+        driver="GTiff", width=grid.width, height=grid.height, count=1, dtype="float32",
+        transform=grid.transform, crs=_crs(sources), nodata=np.nan,
+        tiled=True, blockxsize=COG_BLOCK, blockysize=COG_BLOCK, compress="deflate",
+    )
+    valid = 0
+    w, s, e, n = grid.bounds
+    dy = (n - s) / grid.height
+    with tempfile.TemporaryDirectory(prefix=TMP_PREFIX, dir=path.parent) as tmpdir:
+        raw = Path(tmpdir) / "raw.tif"
+        with rasterio.open(raw, "w", **profile) as dst:
+            for r0 in range(0, grid.height, BLOCK_ROWS):
+                r1 = min(grid.height, r0 + BLOCK_ROWS)
+                south = s if r1 == grid.height else n - r1 * dy
+                block = read_region(sources, Grid((w, south, e, n - r0 * dy), r1 - r0, grid.width), Resampling.nearest)
+                valid += int(np.isfinite(block).sum())
+                dst.write(block, 1, window=rasterio.windows.Window(0, r0, grid.width, r1 - r0))
+        cog = cog_profiles.get("deflate")
+        cog.update(blockxsize=COG_BLOCK, blockysize=COG_BLOCK, predictor=3)
+        with atomic_path(path) as tmp:
+            with rasterio.Env(GDAL_TIFF_OVR_BLOCKSIZE=str(COG_BLOCK)):
+                cog_translate(str(raw), str(tmp), cog, overview_resampling="average", quiet=True, in_memory=False)
+    with rasterio.open(path) as ds:
+        overviews = ds.overviews(1)
+    return {"path": str(path), "width": grid.width, "height": grid.height, "valid_pixels": valid, "overviews": overviews}
+
+
+def sub4_shape(height: int, width: int) -> tuple[int, int]:
+    """Size of a 1/4-resolution tile (legacy: ``floor(n / 4)``, at least 1)."""
+    return max(1, height // 4), max(1, width // 4)
+
+
+def write_sub4(src: Source, path: str | Path, resampling: Resampling = Resampling.average) -> dict:
+    """One tile at 1/4 resolution on the same bounds (see the module notes).
+
+    ``Resampling.nearest`` reproduces PhotometryTK's ``albedo_sub4`` exactly (it
+    took the pixel nearest to each coarse pixel centre).
+    """
+    h4, w4 = sub4_shape(src.height, src.width)
+    wb, sb, eb, nb = src.file_bounds
+    dst_transform = Grid((wb, sb, eb, nb), h4, w4).transform
+    with rasterio.open(src.path) as ds:
+        vals = read_masked(ds, None, src.legacy)
+        crs = ds.crs
+        out = np.full((h4, w4), np.nan, dtype=np.float32)
+        reproject(
+            source=vals, destination=out,
+            src_transform=ds.transform, src_crs=crs or CRS.from_epsg(4326), src_nodata=np.nan,
+            dst_transform=dst_transform, dst_crs=crs or CRS.from_epsg(4326), dst_nodata=np.nan,
+            resampling=resampling,
+        )
+    if src.legacy:
+        ok = np.isfinite(out)
+        gray = np.where(ok, np.rint(np.where(ok, out, 0)), 0).astype(np.uint8)
+        profile = dict(driver="GTiff", width=w4, height=h4, count=2, dtype="uint8", transform=dst_transform,
+                       crs=crs, compress="deflate", photometric="MINISBLACK", alpha="YES")
+        with atomic_path(path) as tmp, rasterio.open(tmp, "w", **profile) as dst:
+            dst.write(np.stack([gray, np.where(ok, 255, 0).astype(np.uint8)]))
+    else:
+        write_geotiff(path, out, dst_transform, crs, nodata=np.nan, dtype="float32")
+    return {"path": str(path), "width": w4, "height": h4}

@@ -1,0 +1,228 @@
+"""The albedo (or error) tiles of a RESULTS_DIR as export sources, and windowed reads onto any grid.
+
+Two tile forms are accepted (see ``lunaralbedo solve``):
+
+* default mode: one band float32, NaN (or the nodata tag) = no data;
+* legacy mode: uint8 gray + band 2 alpha (0 = no data, 255 = data), like PhotometryTK.
+
+Longitudes are made continuous before anything else: when the tiles cross the
+±180° meridian (e.g. ``tile_176E...`` and ``tile_180W...``) the tiles east of the
+cut are shifted by +360°, so the mosaic and the KML cover e.g. 176°..184°
+(GDAL's ``FIX_ANTIMERIDIAN`` convention, which Google Earth accepts).  The cut is
+placed in the widest longitude gap between tiles.  Latitudes are clipped to
+[-90°, 90°] (legacy tiles can overshoot the pole by a fraction of a pixel).
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import rasterio
+from rasterio.crs import CRS
+from rasterio.enums import Resampling
+from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
+from rasterio.transform import Affine
+from rasterio.warp import reproject
+from rasterio.windows import Window, from_bounds
+
+from ..errors import InputError
+
+TILE_GLOB = "tile_*.tif"
+Bounds = tuple[float, float, float, float]  # (west, south, east, north), degrees
+
+
+@dataclass(frozen=True)
+class Source:
+    """Header facts of one tile; ``bounds`` are in the continuous longitude range (``shift`` applied)."""
+
+    path: Path
+    width: int
+    height: int
+    transform: Affine  # the file's own transform (unshifted)
+    crs_wkt: str
+    legacy: bool  # uint8 gray + alpha band
+    nodata: float | None
+    shift: float = 0.0  # degrees added to the file's longitudes
+
+    @property
+    def res(self) -> tuple[float, float]:
+        return abs(self.transform.a), abs(self.transform.e)
+
+    @property
+    def file_bounds(self) -> Bounds:
+        t = self.transform
+        return (t.c, t.f + t.e * self.height, t.c + t.a * self.width, t.f)
+
+    @property
+    def bounds(self) -> Bounds:
+        w, s, e, n = self.file_bounds
+        return (w + self.shift, max(s, -90.0), e + self.shift, min(n, 90.0))
+
+    @property
+    def shifted_transform(self) -> Affine:
+        return Affine.translation(self.shift, 0.0) @ self.transform
+
+
+def _header(path: Path) -> Source:
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as ds:
+                t = ds.transform
+                if t == Affine.identity() or t.b != 0 or t.d != 0 or t.a <= 0 or t.e >= 0:
+                    raise InputError(f"{path}: tile is not a north-up georeferenced raster")
+                if ds.crs is not None and not ds.crs.is_geographic:
+                    raise InputError(f"{path}: tile CRS must be geographic (lon/lat degrees), got {ds.crs}")
+                legacy = ds.count >= 2 and ds.dtypes[0] == "uint8"
+                return Source(
+                    path=path,
+                    width=ds.width,
+                    height=ds.height,
+                    transform=t,
+                    crs_wkt=ds.crs.to_wkt() if ds.crs is not None else "",
+                    legacy=legacy,
+                    nodata=ds.nodata,
+                )
+    except RasterioIOError as exc:
+        raise InputError(f"{path}: cannot open tile: {exc}") from None
+
+
+def longitude_shifts(intervals: Sequence[tuple[float, float]]) -> list[float]:
+    """Shifts (0 or 360) that make the ``(west, east)`` intervals one continuous range.
+
+    Wests are first normalised to [-180, 180); the cut goes into the widest gap of
+    the circular coverage, so tiles on both sides of ±180° end up side by side.
+    """
+    if not intervals:
+        return []
+    norm = [((w + 180.0) % 360.0) - 180.0 - w for w, _ in intervals]  # shift bringing west into [-180, 180)
+    spans = sorted(((w + d, e + d) for (w, e), d in zip(intervals, norm)))
+    best_gap, start = -math.inf, spans[0][0]
+    reach = spans[0][1]
+    for w, e in spans[1:]:
+        if w - reach > best_gap + 1e-9:
+            best_gap, start = w - reach, w
+        reach = max(reach, e)
+    if spans[0][0] + 360.0 - reach >= best_gap - 1e-9:  # the gap across ±180° is the widest: no cut needed
+        start = spans[0][0]
+    return [d + (360.0 if w + d < start - 1e-9 else 0.0) for (w, _), d in zip(intervals, norm)]
+
+
+def find_sources(folder: str | Path, what: str = "albedo") -> list[Source]:
+    """Every ``tile_*.tif`` of ``folder`` (sorted by name), longitudes made continuous.
+
+    :class:`InputError` naming the folder when it is missing or holds no tile.
+    """
+    folder = Path(folder)
+    files = sorted(folder.glob(TILE_GLOB)) if folder.is_dir() else []
+    if not files:
+        raise InputError(f"{folder}: no {what} tiles (tile_*.tif) found; run `lunaralbedo solve` first")
+    heads = [_header(p) for p in files]
+    shifts = longitude_shifts([(h.file_bounds[0], h.file_bounds[2]) for h in heads])
+    return [Source(**{**h.__dict__, "shift": d}) for h, d in zip(heads, shifts)]
+
+
+@dataclass(frozen=True)
+class Grid:
+    """A north-up lon/lat grid: ``bounds`` (continuous longitudes) and ``(height, width)``."""
+
+    bounds: Bounds
+    height: int
+    width: int
+
+    @property
+    def transform(self) -> Affine:
+        w, s, e, n = self.bounds
+        return Affine((e - w) / self.width, 0.0, w, 0.0, -(n - s) / self.height, n)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.height, self.width)
+
+
+def union_bounds(sources: Sequence[Source]) -> Bounds:
+    """Union of the source bounds (continuous longitudes, latitudes clipped to ±90°)."""
+    b = np.array([s.bounds for s in sources])
+    west, east = float(b[:, 0].min()), float(b[:, 2].max())
+    east = min(east, west + 360.0)
+    return (west, max(float(b[:, 1].min()), -90.0), east, min(float(b[:, 3].max()), 90.0))
+
+
+def native_grid(sources: Sequence[Source]) -> Grid:
+    """The union of the sources at their (shared) pixel size, rounded to whole pixels.
+
+    Solver tiles (whole pixels per tile) give exactly the native grid; legacy tiles,
+    whose edges are not pixel-aligned, give a grid within half a pixel of it.
+    """
+    rx, ry = sources[0].res
+    w, s, e, n = union_bounds(sources)
+    return Grid((w, s, e, n), max(1, round((n - s) / ry)), max(1, round((e - w) / rx)))
+
+
+def intersects(a: Bounds, b: Bounds) -> bool:
+    """Do two rectangles overlap with positive area?"""
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
+def read_masked(ds, window: Window | None = None, legacy: bool | None = None) -> np.ndarray:
+    """Band 1 of an open tile as float32 with NaN where there is no data (alpha 0, nodata or NaN)."""
+    legacy = (ds.count >= 2 and ds.dtypes[0] == "uint8") if legacy is None else legacy
+    vals = ds.read(1, window=window, out_dtype=np.float32)
+    if legacy:
+        vals[ds.read(2, window=window) == 0] = np.nan
+    elif ds.nodata is not None and not np.isnan(ds.nodata):
+        vals[vals == np.float32(ds.nodata)] = np.nan
+    return vals
+
+
+def read_region(
+    sources: Sequence[Source],
+    grid: Grid,
+    resampling: Resampling = Resampling.average,
+) -> np.ndarray:
+    """The sources resampled onto ``grid``: float32, NaN where no source has data.
+
+    Each overlapping source contributes the window that covers the grid (plus a
+    one-pixel margin); where sources overlap, the first one (by name) wins.
+    Average resampling ignores no-data pixels, so coarse pixels are the mean of
+    the valid fine pixels they cover.
+    """
+    out = np.full(grid.shape, np.nan, dtype=np.float32)
+    crs = None
+    for src in sources:
+        if not intersects(src.bounds, grid.bounds):
+            continue
+        w, s, e, n = grid.bounds
+        with rasterio.open(src.path) as ds:
+            win = from_bounds(w - src.shift, s, e - src.shift, n, ds.transform)
+            win = Window(win.col_off - 1, win.row_off - 1, win.width + 2, win.height + 2)
+            win = win.round_offsets(op="floor").round_lengths(op="ceil").intersection(Window(0, 0, ds.width, ds.height))
+            vals = read_masked(ds, win, src.legacy)
+            crs = ds.crs or crs or CRS.from_epsg(4326)
+            part = np.full(grid.shape, np.nan, dtype=np.float32)
+            reproject(
+                source=vals,
+                destination=part,
+                src_transform=Affine.translation(src.shift, 0.0) @ ds.window_transform(win),
+                src_crs=crs,
+                src_nodata=np.nan,
+                dst_transform=grid.transform,
+                dst_crs=crs,
+                dst_nodata=np.nan,
+                resampling=resampling,
+            )
+        hole = np.isnan(out)
+        out[hole] = part[hole]
+    return out
+
+
+def sample_values(src: Source, max_values: int = 250_000) -> np.ndarray:
+    """The valid values of one tile (read decimated when the tile holds more than ``max_values`` pixels)."""
+    step = max(1, math.ceil(math.sqrt(src.width * src.height / max_values)))
+    with rasterio.open(src.path) as ds:
+        vals = read_masked(ds, None, src.legacy)[::step, ::step]
+    return vals[np.isfinite(vals)]
