@@ -1,0 +1,162 @@
+"""Pure math of lunaralbedo.model: reflectance (eq. 2), weights, updates (eqs. 3-7), exposure init."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lunaralbedo.model import exposure_init, geometry, reflectance, updates, weights
+
+
+def test_lunar_lambert_weight_polynomial_in_degrees():
+    assert reflectance.lunar_lambert_weight(0.0) == pytest.approx(1.0)
+    a = 60.0
+    assert reflectance.lunar_lambert_weight(a) == pytest.approx(1 - 0.019 * a + 0.000242 * a**2 - 0.00000146 * a**3)
+
+
+def test_lunar_lambert_reflectance_matches_eq2_and_limits():
+    ci, ce, al = 0.8, 0.9, np.radians(30.0)
+    L = reflectance.lunar_lambert_weight(30.0)
+    expect = (np.exp(-1.4 * al) + 0.5) * ((1 - L) * ci + 2 * L * ci / (ci + ce))
+    assert reflectance.reflectance(2, ci, ce, al, 1.4, 0.5) == pytest.approx(expect)
+    # unlit / unseen pixels reflect nothing
+    assert reflectance.reflectance(2, -0.1, 0.9, al) == 0.0
+    assert reflectance.reflectance(1, 0.7, 0.2, al) == pytest.approx(0.7)
+    assert reflectance.reflectance(0, 0.7, 0.2, al) == pytest.approx(1.0)
+
+
+def test_phase_derivatives_match_finite_differences():
+    al = np.radians(np.array([10.0, 40.0, 80.0]))
+    d1, d2 = reflectance.phase_factor_derivatives(al, 1.4)
+    h = 1e-6
+    fd1 = (reflectance.phase_factor(al, 1.4 + h, 0.5) - reflectance.phase_factor(al, 1.4 - h, 0.5)) / (2 * h)
+    fd2 = (reflectance.phase_factor(al, 1.4, 0.5 + h) - reflectance.phase_factor(al, 1.4, 0.5 - h)) / (2 * h)
+    np.testing.assert_allclose(d1, fd1, rtol=1e-6)
+    np.testing.assert_allclose(d2, fd2, rtol=1e-6)
+
+
+def test_normals_of_a_sphere_are_radial_and_flat_sun_gives_incidence():
+    from rasterio.transform import Affine
+
+    t = Affine(0.01, 0, 30.0, 0, -0.01, 60.0)  # high latitude: 3-D normals must still be radial
+    lon, lat = geometry.lonlat_grid(t, (20, 20))
+    pts = geometry.body_fixed(lon, lat, np.zeros((20, 20)))
+    n = geometry.dem_normals(pts)
+    radial = pts / np.linalg.norm(pts, axis=-1, keepdims=True)
+    assert np.max(np.abs(np.sum(n * radial, axis=-1) - 1)) < 1e-7  # < 0.03 degrees off radial
+    sun = radial[10, 10] * 1.5e8
+    ci, ce, al = geometry.illumination(pts, n, sun, radial[10, 10] * 1837.4)
+    assert ci[10, 10] == pytest.approx(1.0, abs=1e-6) and al[10, 10] == pytest.approx(0.0, abs=1e-3)
+    lo, la, h = geometry.lonlat_height(pts)
+    np.testing.assert_allclose(lo, lon, atol=1e-9)
+    np.testing.assert_allclose(h, 0, atol=1e-6)
+
+
+def test_tent_weights_are_one_at_centre_zero_at_boundary_and_follow_the_mask():
+    mask = np.zeros((9, 11), bool)
+    mask[1:8, 2:11] = True
+    prof = weights.profile_from_mask(mask)
+    w = weights.window_weights(prof, 0, 0, 9, 11)
+    assert w[4, 6] == pytest.approx(1.0)  # centre of rows 1..7 and cols 2..10
+    assert w[4, 2] == 0 and w[4, 10] == 0 and w[1, 6] == 0 and w[7, 6] == 0
+    assert np.all(w[~mask] == 0)
+    # strips merge into the same profile
+    parts = [(0, weights.profile_from_mask(mask[:4])), (4, weights.profile_from_mask(mask[4:]))]
+    merged = weights.merge_profiles(parts, 9, 11)
+    np.testing.assert_array_equal(weights.window_weights(merged, 0, 0, 9, 11), w)
+    # a window reads the same numbers as the full image
+    np.testing.assert_array_equal(weights.window_weights(prof, 3, 4, 4, 5), w[3:7, 4:9])
+
+
+def _stack(seed=0, k=3, shape=(6, 7)):
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(0.5, 1.5, shape)
+    t = rng.uniform(0.6, 1.4, k)
+    r = rng.uniform(0.3, 1.0, (k, *shape))
+    w = rng.uniform(0.1, 1.0, (k, *shape)).astype(np.float32)
+    return a, t, r.astype(np.float32), w
+
+
+def test_albedo_eq3_is_exact_for_noise_free_data_and_eq6_lands_on_it():
+    a, t, r, w = _stack()
+    img = (a[None] * t[:, None, None] * r).astype(np.float32)
+    tr = (t[:, None, None] * r).astype(np.float32)
+    est = updates.albedo(img, tr, w)
+    np.testing.assert_allclose(est, a, rtol=1e-5)
+    # eq. 6 from an arbitrary start gives eq. 3 (Q is quadratic in A)
+    a0 = np.full_like(a, 3.0)
+    res = img - a0[None] * tr
+    eq6 = a0 + np.sum(res * tr * w, 0) / np.sum(tr * tr * w, 0)
+    np.testing.assert_allclose(eq6, est, rtol=1e-5)
+
+
+def test_exposure_update_eq4_recovers_exposure_given_true_albedo():
+    a, t, r, w = _stack(1)
+    img = (a[None] * t[:, None, None] * r).astype(np.float32)
+    num, den = updates.exposure_sums(img, a.astype(np.float32), r, w)
+    np.testing.assert_allclose(updates.exposure_update(np.ones(3), num, den), t, rtol=1e-5)
+    # images without data keep their exposure
+    assert updates.exposure_update(np.array([2.0]), np.array([0.0]), np.array([0.0]))[0] == 2.0
+
+
+def test_cost_and_error_are_zero_for_a_perfect_model_and_positive_otherwise():
+    a, t, r, w = _stack(2)
+    tr = (t[:, None, None] * r).astype(np.float32)
+    img = (a[None] * tr).astype(np.float32)
+    res = updates.residuals(img, a.astype(np.float32), tr, w)
+    assert updates.cost(res, w) == pytest.approx(0.0, abs=1e-8)
+    e = updates.error_map(img, a.astype(np.float32), tr, w, w)
+    assert np.nanmax(e) < 1e-10
+    noisy = img * np.float32(1.1)
+    assert updates.cost(updates.residuals(noisy, a.astype(np.float32), tr, w), w) > 0
+
+
+def test_phase_steps_seed_and_damped():
+    rng = np.random.default_rng(4)
+    k, shape = 4, (10, 10)
+    al = rng.uniform(0.3, 1.2, (k, *shape)).astype(np.float32)
+    g = rng.uniform(0.4, 0.9, (k, *shape)).astype(np.float32)
+    a = rng.uniform(0.5, 1.5, shape).astype(np.float32)
+    t = np.ones(k)
+    w = np.ones((k, *shape), np.float32)
+    true_c = (1.2, 0.45)
+    img = a[None] * (np.exp(-true_c[0] * al) + true_c[1]) * g
+    c = np.array([1.4, 0.5])
+    p = (np.exp(-c[0] * al) + c[1]).astype(np.float32)
+    res = updates.residuals(img, a, (t[:, None, None] * p * g).astype(np.float32), w)
+    d1, _ = reflectance.phase_factor_derivatives(al, c[0])
+    jtj, jtr = updates.phase_sums(res, a, t, g, d1.astype(np.float32), p, w)
+    seed = updates.phase_update_seed(c, jtj, jtr)
+    # eq. 5 written out: c_l + sum(r * A T dR/dc_l w) / sum((A T dR/dc_l)^2 w)
+    j1 = a[None] * g * d1
+    j2 = a[None] * g
+    assert seed[0] == pytest.approx(c[0] + np.sum(res * j1) / np.sum(j1 * j1), rel=1e-5)
+    assert seed[1] == pytest.approx(c[1] + np.sum(res * j2) / np.sum(j2 * j2), rel=1e-5)
+    damped = updates.phase_update_damped(c, jtj, jtr, (0.3, 1.2), max_rel_change=0.02)
+    al_grid = np.linspace(0.3, 1.2, 9)
+    change = (np.exp(-damped[0] * al_grid) + damped[1]) / (np.exp(-c[0] * al_grid) + c[1]) - 1
+    assert np.max(np.abs(change)) <= 0.02 + 1e-9  # the step is capped
+    assert np.any(damped != c)
+
+
+def test_overlap_exposure_recovers_exposures_from_log_ratios():
+    rng = np.random.default_rng(5)
+    t_true = np.array([1.4, 0.7, 1.0, 1.2, 0.6])
+    shape = (30, 30)
+    a = rng.uniform(0.5, 1.5, shape)
+    r = rng.uniform(0.4, 1.0, (5, *shape))
+    img = a[None] * t_true[:, None, None] * r
+    usable = np.zeros((5, *shape), bool)
+    for k in range(5):  # a strip: image k overlaps k+1
+        usable[k, :, 5 * k : 5 * k + 10] = True
+    pairs = exposure_init.log_ratio_sums(img, r, usable, np.arange(5))
+    assert set(pairs) == {(0, 1), (1, 2), (2, 3), (3, 4)}
+    t0 = np.ones(5)
+    t = exposure_init.overlap_exposure(pairs, np.log(t0))
+    ratio = t / t_true
+    np.testing.assert_allclose(ratio / ratio.mean(), 1.0, rtol=1e-6)
+    assert np.mean(np.log(t)) == pytest.approx(0.0, abs=1e-12)  # scale pinned to the seed's
+
+
+def test_seed_exposure_is_tr_const_over_mean_reflectance():
+    t = exposure_init.seed_exposure(1.5, np.array([10.0, 0.0]), np.array([20.0, 0.0]))
+    np.testing.assert_allclose(t, [3.0, 1.5])

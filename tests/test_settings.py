@@ -1,0 +1,128 @@
+"""Settings files: legacy text and TOML, validation messages."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from lunaralbedo.errors import SettingsError
+from lunaralbedo.settings import load_settings
+
+LEGACY = """# Files/directories
+DRG_DIR                   drg
+DEM_DIR                   dem
+SUN_POSITION_FILE         meta/sun.txt   # trailing comment
+SPACECRAFT_POSITION_FILE  meta/sc.txt
+NUM_PROCESSES             4
+TILE_SIZE                 4.0
+SIMULATION_BOX            6 : 10 : -10 : -9 # lon_min:lon_max:lat_min:lat_max
+REFLECTANCE_TYPE          2
+SHADOW_THRESH             40
+SHADOW_TYPE               1
+TR_CONST                  1.5
+PHASE_COEFF_C1            1.4
+PHASE_COEFF_C2            0.5
+MAX_NUM_ITER              2
+NO_DEM_DATA_VAL           -32767
+USE_WEIGHTS               1
+USE_NORMALIZED_COST_FUN   1
+COMPUTE_ERRORS            1
+"""
+
+
+def write(tmp_path: Path, text: str, name: str = "s.txt") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_legacy_file_parses_with_spaces_comments_and_relative_paths(tmp_path):
+    s = load_settings(write(tmp_path, LEGACY))
+    assert s.simulation_box == (6.0, 10.0, -10.0, -9.0)
+    assert s.drg_dir == tmp_path / "drg"
+    assert s.sun_position_file == tmp_path / "meta" / "sun.txt"
+    assert (s.reflectance_type, s.max_num_iter, s.use_normalized_cost_fun, s.num_processes) == (2, 2, 1, 4)
+    assert s.phase_coeff_c1 == 1.4 and s.tr_const == 1.5
+
+
+def test_toml_equals_legacy(tmp_path):
+    toml = """
+drg_dir = "drg"
+dem_dir = "dem"
+sun_position_file = "meta/sun.txt"
+spacecraft_position_file = "meta/sc.txt"
+num_processes = 4
+tile_size = 4.0
+simulation_box = "6:10:-10:-9"
+reflectance_type = 2
+shadow_thresh = 40
+shadow_type = 1
+tr_const = 1.5
+phase_coeff_c1 = 1.4
+phase_coeff_c2 = 0.5
+max_num_iter = 2
+no_dem_data_val = -32767
+use_weights = 1
+use_normalized_cost_fun = 1
+compute_errors = 1
+"""
+    a = load_settings(write(tmp_path, LEGACY))
+    b = load_settings(write(tmp_path, toml, "s.toml"))
+    assert a == b
+
+
+def test_empty_values_allowed_in_mosaic_mode(tmp_path):
+    text = "DRG_DIR d\nDEM_DIR\nSUN_POSITION_FILE  \nSPACECRAFT_POSITION_FILE\nREFLECTANCE_TYPE 0\nSIMULATION_BOX 6:10:-10:-9\n"
+    s = load_settings(write(tmp_path, text))
+    assert s.dem_dir is None and s.reflectance_type == 0 and not s.needs_geometry
+
+
+def test_legacy_whole_moon_box_is_clamped_to_valid_latitudes(tmp_path):
+    s = load_settings(write(tmp_path, "DRG_DIR d\nREFLECTANCE_TYPE 0\nSIMULATION_BOX -180:180:-180:180\n"))
+    assert s.simulation_box == (-180.0, 180.0, -90.0, 90.0)
+
+
+@pytest.mark.parametrize(
+    "line, words",
+    [
+        ("FOO_BAR 3", ["unknown key 'FOO_BAR'", "allowed keys", "DRG_DIR"]),
+        ("REFLECTANCE_TYPE 5", ["REFLECTANCE_TYPE", "one of 0, 1, 2"]),
+        ("SHADOW_TYPE x", ["SHADOW_TYPE", "one of 0, 1, 2, 3"]),
+        ("USE_WEIGHTS 2", ["USE_WEIGHTS", "one of 0, 1"]),
+        ("SIMULATION_BOX 1:2:3", ["SIMULATION_BOX", "lon_min:lon_max:lat_min:lat_max"]),
+        ("SIMULATION_BOX 10:6:-10:-9", ["lon_min < lon_max"]),
+        ("TILE_SIZE -4", ["TILE_SIZE", "> 0"]),
+        ("MAX_NUM_ITER 2.5", ["MAX_NUM_ITER", "int"]),
+    ],
+)
+def test_invalid_values_name_key_and_allowed_values(tmp_path, line, words):
+    text = "DRG_DIR d\nREFLECTANCE_TYPE 0\n" + line + "\n" if not line.startswith("REFLECTANCE") else "DRG_DIR d\n" + line + "\n"
+    with pytest.raises(SettingsError) as exc:
+        load_settings(write(tmp_path, text))
+    for w in words:
+        assert w in str(exc.value)
+    assert str(tmp_path / "s.txt") in str(exc.value)
+
+
+def test_geometry_required_for_lunar_lambert(tmp_path):
+    with pytest.raises(SettingsError, match="DEM_DIR is required when REFLECTANCE_TYPE is 1 or 2"):
+        load_settings(write(tmp_path, "DRG_DIR d\nREFLECTANCE_TYPE 2\n"))
+
+
+def test_duplicate_key_and_unknown_toml_key(tmp_path):
+    with pytest.raises(SettingsError, match="given twice"):
+        load_settings(write(tmp_path, "DRG_DIR d\nDRG_DIR e\nREFLECTANCE_TYPE 0\n"))
+    with pytest.raises(SettingsError, match="unknown key 'COLOUR'"):
+        load_settings(write(tmp_path, 'drg_dir = "d"\nreflectance_type = 0\ncolour = 1\n', "s.toml"))
+
+
+def test_missing_settings_file(tmp_path):
+    with pytest.raises(SettingsError, match="settings file not found"):
+        load_settings(tmp_path / "nope.txt")
+
+
+def test_photk_settings_files_parse(photk_tests):
+    s1 = load_settings(photk_tests / "photometry_settings_1.txt")
+    s2 = load_settings(photk_tests / "photometry_settings_2.txt")
+    assert s1.simulation_box == s2.simulation_box == (6.0, 10.0, -10.0, -9.0)
+    assert s1.reflectance_type == 2 and s2.reflectance_type == 0 and s2.dem_dir is None
