@@ -120,7 +120,7 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
     normals = geometry.dem_normals(pts)
     write_geotiff(out / "DEM" / "dem.tif", dem.astype(np.float32), gt, MOON_CRS, nodata=-32767.0)
     inner = (slice(m, m + height), slice(m, m + width))
-    write_geotiff(out / "truth" / "albedo.tif", albedo[inner].astype(np.float32), gt * Affine.translation(m, m), MOON_CRS)
+    write_geotiff(out / "truth" / "albedo.tif", albedo[inner].astype(np.float32), gt @ Affine.translation(m, m), MOON_CRS)
     u = np.linspace(-1, 1, spec.n_images)
     exposures = 1.0 + spec.exposure_spread * rng.permutation(u)
     # Scale so the brightest pixels stay below 255: DN = gain * A * T * R.
@@ -138,7 +138,7 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
         signal = gain * albedo[win] * exposures[k] * r
         dn = np.clip(np.round(signal + rng.normal(0, spec.noise_dn, signal.shape)), 0, 255).astype(np.uint8)
         alpha = np.full(dn.shape, 255, np.uint8)
-        transform = gt * Affine.translation(c0, m)
+        transform = gt @ Affine.translation(c0, m)
         write_geotiff(out / "DRG" / f"{key}_drg.tif", np.stack([dn, alpha]), transform, MOON_CRS)
         sun_pos[key], sc_pos[key] = sun, sc
         keys.append(key)

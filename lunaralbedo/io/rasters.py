@@ -134,8 +134,8 @@ def read_onto_grid(
     has none.
     """
     h, w = dst_shape
-    west, north = dst_transform * (0, 0)
-    east, south = dst_transform * (w, h)
+    west, north = dst_transform @ (0, 0)
+    east, south = dst_transform @ (w, h)
     src_nodata = info.nodata if info.nodata is not None else nodata
     out = np.full(dst_shape, np.nan, dtype=np.float32)
     with rasterio.open(info.path) as ds:
@@ -217,8 +217,8 @@ def read_drg_onto_grid(
     from ..model.weights import window_weights
 
     h, w = dst_shape
-    west, north = dst_transform * (0, 0)
-    east, south = dst_transform * (w, h)
+    west, north = dst_transform @ (0, 0)
+    east, south = dst_transform @ (w, h)
     with rasterio.open(info.path) as ds:
         win = from_bounds(min(west, east), min(south, north), max(west, east), max(south, north), ds.transform)
         win = Window(win.col_off - 2, win.row_off - 2, win.width + 4, win.height + 4).round_offsets().round_lengths()
@@ -263,8 +263,8 @@ def read_dem_onto_grid(
     tiles that do not carry their own no-data value.
     """
     h, w = dst_shape
-    west, north = dst_transform * (0, 0)
-    east, south = dst_transform * (w, h)
+    west, north = dst_transform @ (0, 0)
+    east, south = dst_transform @ (w, h)
     grid_box = (min(west, east), min(south, north), max(west, east), max(south, north))
     total = np.zeros(dst_shape, np.float64)
     count = np.zeros(dst_shape, np.int32)
