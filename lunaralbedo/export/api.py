@@ -45,12 +45,13 @@ def staged_dir(final: Path) -> Iterator[Path]:
     """Yield an empty sibling folder; on success it replaces ``final`` (old content removed)."""
     final.parent.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix=f"{TMP_PREFIX}{final.name}-", dir=final.parent))
-    stage.chmod(0o755)
     try:
         yield stage
     except BaseException:
         shutil.rmtree(stage, ignore_errors=True)
         raise
+    for path in [stage, *stage.rglob("*")]:
+        _readable(path)
     old = None
     if final.exists():
         old = final.parent / f"{TMP_PREFIX}old-{final.name}-{os.getpid()}"
@@ -58,6 +59,13 @@ def staged_dir(final: Path) -> Iterator[Path]:
     os.replace(stage, final)
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
+
+
+def _readable(path: Path) -> None:
+    """Give ``path`` the usual permissions (temporary files are created owner-only)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    path.chmod((0o777 if path.is_dir() else 0o666) & ~umask)
 
 
 def _compute(tasks: list, client=None, workers: int | None = None, scheduler: str = "threads") -> list:
@@ -153,12 +161,14 @@ def export_kml(
         if errors:
             tasks.append(task(write_cog_mosaic)(errors, native_grid(errors), results_dir / "error_mosaic.tif"))
         done = _compute(tasks, **run)
+        n_nodes = sum(len(v) for v in present.values())
         atomic_write_text(kml_dir / STRETCH_FILE, st.to_json())
+    for mosaic in done[n_nodes + len(sources):]:
+        _readable(Path(mosaic["path"]))
     if not errors:
         with contextlib.suppress(FileNotFoundError):
             (results_dir / "error_mosaic.tif").unlink()
 
-    n_nodes = sum(len(v) for v in present.values())
     mosaics = done[n_nodes + len(sources):]
     fh, fw = pyr.level_shape(pyr.levels - 1)
     return {

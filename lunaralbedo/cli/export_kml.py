@@ -1,0 +1,62 @@
+"""``lunaralbedo export-kml RESULTS_DIR``: Google Earth and GIS products of a solved result."""
+from __future__ import annotations
+
+import json
+
+import click
+
+from ..errors import InputError
+from ._common import reports_errors
+
+
+def _pair(text: str | None, what: str):
+    from ..export.stretch import parse_pair
+
+    return None if text is None else parse_pair(text, what)
+
+
+@click.command("export-kml")
+@click.argument("results_dir", type=click.Path(file_okay=False, path_type=str))
+@click.option("--levels", type=int, default=None, help="Pyramid levels (default: as many as the data needs).")
+@click.option("--stretch", "stretch", default=None, metavar="pLO,pHI", help="Percentile stretch, e.g. p2,p98 (default).")
+@click.option("--range", "value_range", default=None, metavar="LO,HI", help="Fixed stretch: albedo LO -> 0, HI -> 255.")
+@click.option("--tile-size", type=int, default=256, show_default=True, help="PNG tile size in pixels.")
+@click.option("--workers", type=int, default=None, help="Parallel workers (default: all cores; 1 = serial).")
+@click.option("--scheduler", type=click.Choice(["threads", "processes"]), default="threads", show_default=True)
+@click.option("--sub4-resampling", type=click.Choice(["average", "nearest"]), default="average", show_default=True,
+              help="albedo_sub4 resampling; nearest reproduces PhotometryTK's values.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@reports_errors
+def command(results_dir, levels, stretch, value_range, tile_size, workers, scheduler, sub4_resampling, as_json):
+    """Write RESULTS_DIR/albedo_sub4/, RESULTS_DIR/kml/doc.kml (multi-level superoverlay
+    for Google Earth, Moon) and RESULTS_DIR/albedo_mosaic.tif (COG, plus error_mosaic.tif)."""
+    from ..export import export_kml
+
+    if stretch is not None and value_range is not None:
+        raise InputError("give either --stretch or --range, not both")
+    summary = export_kml(
+        results_dir,
+        levels=levels,
+        stretch=_pair(stretch, "--stretch") or (2.0, 98.0),
+        value_range=_pair(value_range, "--range"),
+        tile_size=tile_size,
+        workers=workers,
+        scheduler=scheduler,
+        sub4_resampling=sub4_resampling,
+    )
+    if as_json:
+        click.echo(json.dumps(summary, indent=2))
+        return
+    st = summary["stretch"]
+    how = f"percentiles {st['percentiles'][0]:g},{st['percentiles'][1]:g}" if st["method"] == "percentile" else "fixed range"
+    w, s, e, n = summary["bounds"]
+    click.echo(f"levels     {summary['levels']} ({' + '.join(map(str, summary['tiles_per_level']))} = {summary['tiles']} PNG tiles of {summary['tile_size']} px)")
+    click.echo(f"extent     lon {w:g}..{e:g}, lat {s:g}..{n:g}; finest level {summary['kml_size'][0]} x {summary['kml_size'][1]} px")
+    click.echo(f"stretch    {st['lo']:.6g} -> 0, {st['hi']:.6g} -> 255 ({how}); written to {summary['stretch_file']}")
+    click.echo(f"kml        {summary['doc_kml']}")
+    click.echo(f"sub4       {summary['sub4_tiles']} tiles in {summary['results_dir']}/albedo_sub4")
+    for key in ("albedo_mosaic", "error_mosaic"):
+        m = summary[key]
+        if m:
+            click.echo(f"{key.split('_')[0]:<10} {m['path']} ({m['width']} x {m['height']}, overviews {m['overviews'] or 'none'})")
+    click.echo(f"time       {summary['seconds']:.2f} s")
