@@ -6,8 +6,10 @@ ISIS conventions kept here:
 * detector offsets are relative to the detector origin (``BORESIGHT_SAMPLE/LINE``
   or ``CCD_CENTER``); ``x = TRANSX[0] + TRANSX[1]*ds + TRANSX[2]*dl`` and likewise
   ``y``; the inverse uses ``ITRANSS`` / ``ITRANSL``;
-* the look vector in the instrument frame is ``(ux, uy, FOCAL_LENGTH)`` for the
-  undistorted focal-plane point ``(ux, uy)``.
+* the look vector in the instrument frame is ``(ux, uy, zdir * FOCAL_LENGTH)`` for
+  the undistorted focal-plane point ``(ux, uy)``; ``zdir`` is +1 except for the
+  Apollo Metric camera, whose ISIS distortion map looks along -Z (its CK, checked
+  against ALE's ISD for AS15-M-1450, has +Z pointing away from the Moon).
 """
 from __future__ import annotations
 
@@ -100,6 +102,7 @@ class FocalPlane:
     origin_sample: float
     origin_line: float
     distortion: object = field(default_factory=NoDistortion)
+    z_direction: float = 1.0
 
     def detector_to_focal(self, ds, dl):
         """Detector offsets (pixels from the origin) to distorted focal-plane mm."""
@@ -114,13 +117,13 @@ class FocalPlane:
     def look(self, ds, dl) -> np.ndarray:
         """Unit look vectors ``(..., 3)`` in the instrument frame for detector offsets."""
         ux, uy = self.distortion.undistort(*self.detector_to_focal(np.asarray(ds, float), np.asarray(dl, float)))
-        v = np.stack([ux, uy, np.full(np.shape(ux), self.focal_length)], axis=-1)
+        v = np.stack([ux, uy, np.full(np.shape(ux), self.z_direction * self.focal_length)], axis=-1)
         return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
     def project(self, v):
         """Detector offsets ``(ds, dl)`` of instrument-frame vectors ``(..., 3)``; NaN behind the camera."""
         v = np.asarray(v, dtype=np.float64)
-        z = v[..., 2]
+        z = v[..., 2] * self.z_direction
         with np.errstate(invalid="ignore", divide="ignore"):
             ux = np.where(z > 0, self.focal_length * v[..., 0] / z, np.nan)
             uy = np.where(z > 0, self.focal_length * v[..., 1] / z, np.nan)

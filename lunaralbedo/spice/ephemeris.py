@@ -141,12 +141,20 @@ class KernelEphemeris(Ephemeris):
         self.where = where
         self.describe = describe
         self.body_frame = body_fixed_frame()
-        self.instrument_frame = None
-        if instrument_frame is not None:
-            name = spiceypy.frmnam(int(instrument_frame)) if isinstance(instrument_frame, int) else instrument_frame
-            if not name:
-                raise SpiceError(f"{where}: unknown instrument frame {instrument_frame} (no frames kernel defines it; {describe})")
-            self.instrument_frame = name
+        self._instrument_frame = instrument_frame
+
+    @property
+    def instrument_frame(self) -> str:
+        """Name of the instrument frame (resolved on first use; SpiceError when unknown)."""
+        code = self._instrument_frame
+        if code is None:
+            raise SpiceError(f"{self.where}: no instrument frame (label Kernels group lacks NaifFrameCode)")
+        name = spiceypy.frmnam(int(code)) if isinstance(code, int) else str(code)
+        if not name or spiceypy.namfrm(name) == 0:
+            raise SpiceError(
+                f"{self.where}: unknown instrument frame {code} (load the frames kernel that defines it; {self.describe})"
+            )
+        return name
 
     def _ctx(self, what: str, et) -> str:
         t = float(np.ravel(et)[0])
@@ -186,6 +194,4 @@ class KernelEphemeris(Ephemeris):
         return self._rotation(self.body_frame, et)
 
     def instrument_rotation(self, et):
-        if self.instrument_frame is None:
-            raise SpiceError(f"{self.where}: no instrument frame (label Kernels group lacks NaifFrameCode)")
         return self._rotation(self.instrument_frame, et)

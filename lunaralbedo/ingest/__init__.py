@@ -1,0 +1,1 @@
+"""Ingest: ISIS cubes + SPICE + DEM -> DRG GeoTIFFs, position files and a settings file."""
