@@ -71,14 +71,14 @@ def _readable(path: Path) -> None:
 def _compute(tasks: list, client=None, workers: int | None = None, scheduler: str = "threads") -> list:
     if not tasks:
         return []
-    if client is not None:
-        return list(client.gather(client.compute(tasks)))
-    if workers == 1:
-        scheduler = "synchronous"
     with warnings.catch_warnings():
         # rasterio silences this warning for its in-memory arrays with catch_warnings,
-        # which is not thread-safe: under the threaded scheduler it leaks out.
+        # which is not thread-safe: with threads it leaks out.
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        if client is not None:
+            return list(client.gather(client.compute(tasks)))
+        if workers == 1:
+            scheduler = "synchronous"
         return list(dask.compute(*tasks, scheduler=scheduler, num_workers=workers or os.cpu_count() or 1))
 
 
