@@ -1,0 +1,65 @@
+"""``lunaralbedo ingest``: ISIS cubes -> DRGs, positions and settings for ``solve``."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ._common import reports_errors
+
+
+@click.command("ingest")
+@click.argument("cubes", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--dem", "dems", multiple=True, required=True, type=click.Path(path_type=Path),
+              help="DEM GeoTIFF/ISIS cube or folder of them (repeatable).")
+@click.option("-o", "--out", "workdir", required=True, type=click.Path(path_type=Path), help="Work folder to write.")
+@click.option("--kernels", "kernels", multiple=True, type=click.Path(path_type=Path),
+              help="Kernel file, folder or meta-kernel (repeatable); added to the labels' Kernels groups.")
+@click.option("--isisdata", type=click.Path(path_type=Path), default=None,
+              help="ISIS data area for $base/$<mission> kernel paths (default: $ISISDATA).")
+@click.option("--mpp", type=float, default=None, help="Output resolution in metres per pixel.")
+@click.option("--match-dem", is_flag=True, default=False, help="Use the first DEM's grid (the default).")
+@click.option("--source", type=click.Choice(["auto", "table", "kernels"]), default="auto", show_default=True,
+              help="Ephemeris source: attached SPICE tables when present (auto), or kernels.")
+@click.option("--dem-values", type=click.Choice(["auto", "radius", "height"]), default="auto", show_default=True,
+              help="Whether DEM values are radius (m, converted to height above 1737.4 km) or height.")
+@click.option("--legacy-8bit", is_flag=True, default=False, help="Write 8-bit DRGs (stretch + alpha) as the legacy tools did.")
+@click.option("--tile-size", type=float, default=4.0, show_default=True, help="TILE_SIZE (degrees) for settings.txt.")
+@reports_errors
+def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem_values, legacy_8bit, tile_size):
+    """Orthoproject CUBES onto the DEM and write WORKDIR/{DRG,DEM,meta,settings.txt}.
+
+    DRGs are named <KEY>.tif, KEY = the cube name up to its first '.', cut or padded
+    ('_') to 11 characters (duplicates get a 3-digit counter).  Positions are at the
+    campt centre time, km, Moon-centred body-fixed (MOON_ME).
+    """
+    from tqdm import tqdm
+
+    from ..errors import InputError
+    from ..ingest.run import ingest
+
+    if mpp is not None and match_dem:
+        raise InputError("give either --mpp or --match-dem, not both")
+    bar = tqdm(total=len(cubes), unit="cube", desc="ingest", disable=None)
+
+    def on_cube(res):
+        bar.set_postfix_str(res.key)
+        bar.update(1)
+
+    try:
+        report = ingest(list(cubes), list(dems), workdir, kernels, isisdata, mpp, source, dem_values,
+                        legacy_8bit, tile_size, on_cube)
+    finally:
+        bar.close()
+    for p in report.dem_radius_converted:
+        click.echo(f"DEM {p}: values are radius, converted to height above 1737.4 km")
+    for r in report.results:
+        if r.skipped:
+            click.echo(f"skipped {r.key} ({r.path}): {r.skipped}")
+        else:
+            w, s, e, n = r.box
+            click.echo(f"{r.key}  {r.kind:<12} {r.source:<7} lon {w:.4f}..{e:.4f}  lat {s:.4f}..{n:.4f}  "
+                       f"{r.valid_pixels} px  {r.pixels_per_second:,.0f} px/s")
+    lo0, lo1, la0, la1 = report.box
+    click.echo(f"footprint union lon {lo0:.4f}..{lo1:.4f} lat {la0:.4f}..{la1:.4f}; "
+               f"{len(report.done)} of {len(report.results)} cubes ingested; settings: {report.settings}")

@@ -1,0 +1,152 @@
+"""``ingest`` orchestration: cubes + kernels + DEM -> WORKDIR (see :mod:`.workdir` for the layout).
+
+Per cube: open it (kernels loaded, ``campt``-time positions), build the camera,
+find its footprint on the DEM, orthoproject onto the DEM-aligned grid cropped to
+the footprint and write the DRG.  A cube that fails (bad label, missing kernel,
+no footprint) is skipped with its reason; the run fails only when no cube works.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..errors import InputError, LunarAlbedoError
+from ..io.positions import write_positions
+from ..isis.pixels import read_band
+from ..spice.kernels import expand_kernel_args
+from ..camera.build import build_camera
+from .dem import DemMosaic, load_dems
+from .grid import mpp_to_degrees
+from .keys import make_keys
+from .observation import open_observation
+from .orthoproject import footprint, level2_bounds, orthoproject, warp_level2
+from .workdir import write_dem, write_drg, write_settings
+
+
+@dataclass
+class CubeResult:
+    """Outcome for one cube: footprint box (degrees), valid pixels, speed, or why it was skipped."""
+
+    path: Path
+    key: str
+    box: tuple[float, float, float, float] | None = None
+    valid_pixels: int = 0
+    grid_pixels: int = 0
+    seconds: float = 0.0
+    source: str = ""
+    kind: str = ""
+    skipped: str | None = None
+    sun: np.ndarray | None = None
+    spacecraft: np.ndarray | None = None
+
+    @property
+    def pixels_per_second(self) -> float:
+        return self.grid_pixels / self.seconds if self.seconds > 0 else float("nan")
+
+
+@dataclass
+class IngestReport:
+    workdir: Path
+    results: list[CubeResult] = field(default_factory=list)
+    box: tuple[float, float, float, float] | None = None
+    settings: Path | None = None
+    dem_radius_converted: list[Path] = field(default_factory=list)
+
+    @property
+    def done(self) -> list[CubeResult]:
+        return [r for r in self.results if r.skipped is None]
+
+
+def _normalize_lon(lon: np.ndarray, dem: DemMosaic) -> np.ndarray:
+    first = dem.sources[0]
+    if first.geographic and first.lon_range()[1] > 180.0:
+        return np.mod(lon, 360.0)
+    return (lon + 180.0) % 360.0 - 180.0
+
+
+def _box(lon, lat):
+    ok = np.isfinite(lon) & np.isfinite(lat)
+    if ok.sum() < 3:
+        return None
+    return float(lon[ok].min()), float(lat[ok].min()), float(lon[ok].max()), float(lat[ok].max())
+
+
+def _ingest_one(res: CubeResult, obs, dem: DemMosaic, mpp_deg, drg_dir: Path, legacy_8bit: bool):
+    label = obs.label
+    if label.data_path is None:
+        raise InputError(f"{res.path}: label only, no pixels to orthoproject")
+    t0 = time.perf_counter()
+    if label.is_map_projected:
+        res.kind = "level2"
+        lon, lat = level2_bounds(label)
+    else:
+        camera = build_camera(label, obs.ephemeris, obs.code)
+        res.kind = "line scanner" if camera.is_line_scanner else "frame camera"
+        lon, lat = footprint(camera, dem.height)
+    box = _box(_normalize_lon(lon, dem), lat)
+    if box is None:
+        raise InputError(f"{res.path}: the image does not see the Moon's surface (no footprint)")
+    grid = dem.base_grid(box, mpp_deg)
+    heights = dem.onto(grid)
+    if label.is_map_projected:
+        values = warp_level2(label, grid)
+    else:
+        values = orthoproject(camera, read_band(label, 1), grid, heights)
+    res.seconds = time.perf_counter() - t0
+    res.valid_pixels = int(np.isfinite(values).sum())
+    res.grid_pixels = int(values.size)
+    if res.valid_pixels == 0:
+        raise InputError(f"{res.path}: no pixel of the image falls on the DEM")
+    res.box = box
+    write_drg(drg_dir / f"{res.key}.tif", values, grid, legacy_8bit)
+
+
+def ingest(cubes: Sequence[str | Path], dems: Sequence[str | Path], workdir: str | Path,
+           kernels: Sequence[str | Path] = (), isisdata=None, mpp: float | None = None, source: str = "auto",
+           dem_mode: str = "auto", legacy_8bit: bool = False, tile_size: float = 4.0,
+           on_cube: Callable[[CubeResult], None] | None = None) -> IngestReport:
+    """Ingest ``cubes`` into ``workdir``; returns a report of footprints and skipped cubes.
+
+    ``mpp`` (metres per pixel) sets the output resolution; without it the grid is
+    the first DEM's.  Raises :class:`InputError` when no cube could be ingested.
+    """
+    workdir = Path(workdir)
+    if not cubes:
+        raise InputError("no cubes given")
+    extra = expand_kernel_args(kernels)
+    dem = DemMosaic(load_dems(dems, dem_mode))
+    mpp_deg = mpp_to_degrees(mpp) if mpp else None
+    if mpp is not None and mpp <= 0:
+        raise InputError(f"--mpp must be positive, got {mpp}")
+    report = IngestReport(workdir, dem_radius_converted=dem.radius_converted)
+    drg_dir = workdir / "DRG"
+    for path, key in zip(cubes, make_keys(cubes)):
+        res = CubeResult(Path(path), key)
+        try:
+            with open_observation(path, key, extra, isisdata, source) as obs:
+                res.source, res.sun, res.spacecraft = obs.source, obs.sun.copy(), obs.spacecraft.copy()
+                _ingest_one(res, obs, dem, mpp_deg, drg_dir, legacy_8bit)
+        except LunarAlbedoError as exc:
+            res.skipped = str(exc)
+        report.results.append(res)
+        if on_cube is not None:
+            on_cube(res)
+    done = report.done
+    if not done:
+        reasons = "; ".join(r.skipped or "" for r in report.results)
+        raise InputError(f"no cube could be ingested: {reasons}")
+    boxes = np.array([r.box for r in done])
+    west, south, east, north = boxes[:, 0].min(), boxes[:, 1].min(), boxes[:, 2].max(), boxes[:, 3].max()
+    report.box = (west, east, south, north)
+    rx, ry = dem.base_grid((west, south, east, north), mpp_deg).res
+    pad = 10  # pixels of DEM beyond the footprints, for the solver's padded tiles
+    union = dem.base_grid((west - pad * rx, south - pad * ry, east + pad * rx, north + pad * ry), mpp_deg)
+    write_dem(workdir / "DEM" / "dem.tif", dem.onto(union), union)
+    write_positions(workdir / "meta" / "sunpos.txt", {r.key: r.sun for r in done})
+    write_positions(workdir / "meta" / "spacecraftpos.txt", {r.key: r.spacecraft for r in done})
+    report.settings = write_settings(workdir, report.box, tile_size, legacy_8bit)
+    return report

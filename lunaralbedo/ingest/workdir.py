@@ -1,0 +1,67 @@
+"""What ``ingest`` writes besides DRGs: the DEM tile, position files and the legacy settings file.
+
+Layout of WORKDIR (all paths in ``settings.txt`` are relative to WORKDIR)::
+
+    DRG/<KEY>.tif              float32 image values (band 1) + valid mask (band 2), NaN nodata
+    DEM/dem.tif                heights (m above 1737.4 km) on the same grid, nodata -32767
+    meta/sunpos.txt            KEY x y z (km, MOON_ME)
+    meta/spacecraftpos.txt     KEY x y z (km, MOON_ME)
+    settings.txt               legacy settings that ``lunaralbedo solve`` takes as it is
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..io.atomic import atomic_write_text
+from ..io.rasters import MOON_CRS, write_geotiff
+from ..settings import load_settings
+from .grid import Grid
+
+NO_DEM = -32767.0
+
+
+def write_drg(path: Path, values: np.ndarray, grid: Grid, legacy_8bit: bool = False) -> None:
+    """One DRG: float32 value + mask bands, or (legacy) uint8 stretch + 0/255 alpha."""
+    valid = np.isfinite(values)
+    if legacy_8bit:
+        hi = float(np.percentile(values[valid], 99.5)) if valid.any() else 1.0
+        v = np.clip(np.round(values / (hi if hi > 0 else 1.0) * 200.0), 1, 255)
+        bands = np.stack([np.where(valid, v, 0), np.where(valid, 255, 0)]).astype(np.uint8)
+        write_geotiff(path, bands, grid.transform, MOON_CRS, nodata=None, dtype="uint8")
+        return
+    bands = np.stack([np.where(valid, values, np.nan), valid.astype(np.float64)]).astype(np.float32)
+    write_geotiff(path, bands, grid.transform, MOON_CRS, nodata=float("nan"), dtype="float32")
+
+
+def write_dem(path: Path, heights: np.ndarray, grid: Grid) -> None:
+    """DEM tile (float32 metres above 1737.4 km; -32767 where unknown)."""
+    write_geotiff(path, np.where(np.isfinite(heights), heights, NO_DEM).astype(np.float32), grid.transform,
+                  MOON_CRS, nodata=NO_DEM, dtype="float32")
+
+
+def settings_text(box, tile_size: float, legacy_8bit: bool) -> str:
+    """Legacy settings for the ingested products (relative paths; Lunar-Lambertian)."""
+    shadow = ("1", "10") if legacy_8bit else ("0", "0")
+    rows = [
+        ("DRG_DIR", "DRG"), ("DEM_DIR", "DEM"),
+        ("SUN_POSITION_FILE", "meta/sunpos.txt"), ("SPACECRAFT_POSITION_FILE", "meta/spacecraftpos.txt"),
+        ("NUM_PROCESSES", "1"), ("TILE_SIZE", f"{tile_size:g}"),
+        ("SIMULATION_BOX", ":".join(f"{v:.6f}" for v in box)),
+        ("REFLECTANCE_TYPE", "2"), ("SHADOW_THRESH", shadow[1]), ("SHADOW_TYPE", shadow[0]),
+        ("TR_CONST", "1.5"), ("PHASE_COEFF_C1", "1.4"), ("PHASE_COEFF_C2", "0.5"), ("MAX_NUM_ITER", "10"),
+        ("NO_DEM_DATA_VAL", f"{NO_DEM:g}"), ("USE_WEIGHTS", "1"), ("USE_NORMALIZED_COST_FUN", "0"),
+        ("COMPUTE_ERRORS", "1"),
+    ]
+    head = "# Written by lunaralbedo ingest. SIMULATION_BOX = union of image footprints (lon_min:lon_max:lat_min:lat_max).\n"
+    note = "# DRGs are float32 in physical units: SHADOW_TYPE 0 (no DN threshold).\n" if not legacy_8bit else ""
+    return head + note + "".join(f"{k:<26}{v}\n" for k, v in rows)
+
+
+def write_settings(workdir: Path, box, tile_size: float, legacy_8bit: bool) -> Path:
+    """Write ``WORKDIR/settings.txt`` atomically and check that :func:`load_settings` accepts it."""
+    path = workdir / "settings.txt"
+    atomic_write_text(path, settings_text(box, tile_size, legacy_8bit))
+    load_settings(path)
+    return path
