@@ -1,0 +1,180 @@
+"""Georeferencing exactly as the legacy program saw it (Vision Workbench, 2012).
+
+The legacy program addressed pixels by their *centres*: pixel ``(i, j)`` of a
+GeoTIFF whose GDAL geotransform is ``(c, a, 0, f, 0, e)`` lies at
+
+    lon = c + a * (i + 0.5),   lat = f + e * (j + 0.5)
+
+and the inverse maps a lon/lat back to fractional pixel indices on that same
+convention.  Image "corners" (the numbers in its image/tile lists and every
+overlap test) are the centres of the first and last pixels, rounded to float32.
+
+The tile grid (SOURCES.md: grid spacing from the first DRG, 5-pixel padding)
+and the crop of the padding at the end are reproduced here as pure functions.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..engine.tiles import tile_name  # noqa: F401  (re-exported: same naming rule)
+
+#: The legacy program padded every tile by this many pixels while solving.
+PIXEL_PADDING = 5
+
+
+@dataclass(frozen=True)
+class Geo:
+    """A north-up geographic georeference with the legacy pixel-centre convention.
+
+    ``c, f`` are the GDAL (pixel-corner) origin, ``a`` and ``e`` the pixel size
+    (``e`` negative for north-up rasters); ``width``/``height`` in pixels.
+    """
+
+    c: float
+    a: float
+    f: float
+    e: float
+    width: int
+    height: int
+
+    @classmethod
+    def from_gdal(cls, transform, width: int, height: int) -> "Geo":
+        t = tuple(transform)[:6]
+        if abs(t[1]) > 0 or abs(t[3]) > 0:
+            raise ValueError("rotated rasters are not supported by the legacy grid")
+        return cls(c=float(t[2]), a=float(t[0]), f=float(t[5]), e=float(t[4]), width=int(width), height=int(height))
+
+    @property
+    def gdal(self) -> tuple[float, float, float, float, float, float]:
+        """The rasterio ``Affine`` coefficients ``(a, b, c, d, e, f)``."""
+        return (self.a, 0.0, self.c, 0.0, self.e, self.f)
+
+    # Centre-of-pixel convention (VW pixel_to_lonlat / lonlat_to_pixel).
+    def lon(self, i):
+        return self.a * np.asarray(i, dtype=np.float64) + (self.c + 0.5 * self.a)
+
+    def lat(self, j):
+        return self.e * np.asarray(j, dtype=np.float64) + (self.f + 0.5 * self.e)
+
+    def col(self, lon):
+        return (np.asarray(lon, dtype=np.float64) - (self.c + 0.5 * self.a)) / self.a
+
+    def row(self, lat):
+        return (np.asarray(lat, dtype=np.float64) - (self.f + 0.5 * self.e)) / self.e
+
+    def crop(self, i0: int, j0: int, width: int, height: int) -> "Geo":
+        """Georeference of the sub-image starting at pixel ``(i0, j0)`` (VW ``crop``)."""
+        return Geo(self.c + i0 * self.a, self.a, self.f + j0 * self.e, self.e, width, height)
+
+    def corners(self) -> tuple[float, float, float, float]:
+        """``(west, east, south, north)`` of the first/last pixel centres, as float32 (legacy lists)."""
+        x0, x1 = float(self.lon(0)), float(self.lon(self.width - 1))
+        y0, y1 = float(self.lat(0)), float(self.lat(self.height - 1))
+        w, e = sorted((float(np.float32(x0)), float(np.float32(x1))))
+        s, n = sorted((float(np.float32(y0)), float(np.float32(y1))))
+        return (w, e, s, n)
+
+
+def boxes_overlap(b1, b2) -> bool:
+    """Legacy overlap test of ``(west, east, south, north)`` boxes (strict inequalities)."""
+    return max(b1[0], b2[0]) < min(b1[1], b2[1]) and max(b1[2], b2[2]) < min(b1[3], b2[3])
+
+
+def legacy_box(box: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+    """The simulation box as the legacy parser widened it (whole sphere -> +-360)."""
+    lon0, lon1, lat0, lat1 = box
+    if lon0 <= -180.0:
+        lon0 = min(-360.0, lon0)
+    if lon1 >= 180.0:
+        lon1 = max(360.0, lon1)
+    if lat0 <= -90.0 and lat1 >= 90.0:  # settings.py clamps the legacy -180:180 latitudes to +-90
+        lat0, lat1 = -360.0, 360.0
+    return (lon0, lon1, lat0, lat1)
+
+
+@dataclass(frozen=True)
+class LegacyTile:
+    """One padded legacy tile: name, unpadded bounds and padded georeference."""
+
+    name: str
+    min_x: float
+    max_x: float
+    min_y: float
+    max_y: float
+    geo: Geo
+    pad: int = PIXEL_PADDING
+
+    @property
+    def corners(self) -> tuple[float, float, float, float]:
+        return self.geo.corners()
+
+    @property
+    def crop_window(self) -> tuple[int, int, int, int]:
+        """``(col0, row0, ncols, nrows)`` kept on the last iteration (legacy cropImageAndGeoRefInPlace)."""
+        g = self.geo
+        bc, br = g.col(self.min_x), g.row(self.max_y)
+        ec, er = g.col(self.max_x), g.row(self.min_y)
+        c0 = max(0, math.ceil(bc))
+        r0 = max(0, math.ceil(br))
+        c1 = min(g.width, int(_round_half_away(ec)) + 1)
+        r1 = min(g.height, int(_round_half_away(er)) + 1)
+        return (c0, r0, max(c1 - c0, 0), max(r1 - r0, 0))
+
+
+def _round_half_away(x: float) -> float:
+    """C ``round``: halves away from zero."""
+    return math.floor(x + 0.5) if x >= 0 else -math.floor(-x + 0.5)
+
+
+def tiles_for_images(image_corners, tile_size: float, ref: Geo, pad: int = PIXEL_PADDING) -> list[LegacyTile]:
+    """Every tile touching one of the images, in the legacy order (south to north, west to east).
+
+    ``image_corners`` are ``(west, east, south, north)`` of the selected DRGs;
+    ``ref`` is the georeference of the first DRG of the folder, whose pixel size
+    the tiles take.  ``tile_size`` is used as the float32 the legacy parser stored.
+    """
+    ts = float(np.float32(tile_size))
+    keys: set[tuple[float, float]] = set()
+    for w, e, s, n in image_corners:
+        y = ts * math.floor(s / ts)
+        while y < n:
+            x = ts * math.floor(w / ts)
+            while x < e:
+                keys.add((y, x))
+                x += ts
+            y += ts
+    tiles = []
+    cur = ref
+    for min_y, min_x in sorted(keys):
+        max_y, max_x = min_y + ts, min_x + ts
+        # Legacy applyPaddingToTileCorners: step `pad` pixels from the corner and back to degrees.
+        # (the legacy loop moved the reference's origin to each new tile; so do we).
+        dx = float(cur.lon(cur.col(min_x) + pad)) - min_x
+        dy = float(cur.lat(cur.row(max_y) + pad)) - max_y  # < 0 for north-up
+        x0p, x1p = min_x - dx, max_x + dx
+        y0p, y1p = min_y + dy, max_y - dy
+        ncols = int(_round_half_away((x1p - x0p) / ref.a))
+        nrows = int(_round_half_away((y0p - y1p) / ref.e))
+        geo = Geo(c=x0p, a=ref.a, f=y1p, e=ref.e, width=ncols, height=nrows)
+        cur = geo
+        tiles.append(LegacyTile(name=_legacy_name(min_x, max_y), min_x=min_x, max_x=max_x, min_y=min_y, max_y=max_y, geo=geo, pad=pad))
+    return tiles
+
+
+def _legacy_name(min_x: float, max_y: float) -> str:
+    """``tile_<lon>{E|W}<lat>{N|S}`` as C++ ``ostream`` printed the doubles (``%g``, 6 digits)."""
+    e, se = (min_x + 0.0, "E") if min_x >= 0 else (-min_x, "W")
+    n, sn = (max_y + 0.0, "N") if max_y >= 0 else (-max_y, "S")
+    return f"tile_{e:g}{se}{n:g}{sn}"
+
+
+def unpadded_corners(tile_geo: Geo, tile_size: float, pad: int = PIXEL_PADDING) -> tuple[float, float, float, float]:
+    """Legacy getTileCornersWithoutPadding: ``(min_x, max_x, min_y, max_y)`` snapped to the tile size."""
+    ts = float(np.float32(tile_size))
+    nw_x, nw_y = float(tile_geo.lon(pad)), float(tile_geo.lat(pad))
+    se_x, se_y = float(tile_geo.lon(tile_geo.width - 1 - pad)), float(tile_geo.lat(tile_geo.height - 1 - pad))
+    r = _round_half_away
+    return (ts * r(nw_x / ts), ts * r(se_x / ts), ts * r(se_y / ts), ts * r(nw_y / ts))
