@@ -145,12 +145,14 @@ def test_mosaics_are_valid_cogs_with_overviews_and_exact_values(six):
         with rasterio.open(path) as ds:
             assert (ds.width, ds.height, ds.count, ds.dtypes[0]) == (600, 400, 1, "float32")
             assert tuple(ds.bounds) == pytest.approx((0, -8, 12, 0)) and np.isnan(ds.nodata)
-            assert ds.overviews(1) == [2] and ds.block_shapes[0] == (256, 256)
+            assert ds.overviews(1) == [2, 4] and ds.block_shapes[0] == (256, 256)
             vals = ds.read(1)
             lon, lat = pixel_centres(ds.transform, ds.height, ds.width)
+            half = ds.read(1, out_shape=(200, 300))  # served from the first overview
+        np.testing.assert_allclose(half, vals.reshape(200, 2, 300, 2).mean(axis=(1, 3)), rtol=1e-6)
         np.testing.assert_array_equal(vals, sample_tiles(root / folder, lon, lat).astype(np.float32))
         np.testing.assert_allclose(vals, fn(lon, lat), atol=1e-6)
-    assert summary["error_mosaic"]["overviews"] == [2]
+    assert summary["error_mosaic"]["overviews"] == [2, 4]
 
 
 def test_parallel_output_equals_serial(tmp_path):

@@ -3,7 +3,8 @@
 * ``albedo_mosaic.tif`` / ``error_mosaic.tif``: one band float32, NaN = no data,
   on the native grid of the tiles (:func:`~.sources.native_grid`), continuous
   longitudes, nearest-neighbour copy of the tiles (solver tiles land exactly on
-  it), internal 256-px tiles, deflate, average overviews (rio-cogeo).
+  it), internal 256-px tiles, deflate, average overviews down to one block
+  (none when the image fits in one 256-px block), written with rio-cogeo.
 * ``albedo_sub4/tile_*.tif``: each tile on the same bounds with ``w // 4`` by
   ``h // 4`` pixels (the legacy sizes, e.g. 95 -> 23), by default GDAL average
   resampling ignoring no-data pixels (when the size divides by 4 this is exactly
@@ -14,6 +15,7 @@
 """
 from __future__ import annotations
 
+import math
 import tempfile
 from pathlib import Path
 from typing import Sequence
@@ -37,6 +39,11 @@ BLOCK_ROWS = 1024
 def _crs(sources: Sequence[Source]) -> CRS | None:
     wkt = sources[0].crs_wkt
     return CRS.from_wkt(wkt) if wkt else None
+
+
+def overview_count(height: int, width: int, block: int = COG_BLOCK) -> int:
+    """Overview levels until the whole image fits in one block (GDAL's COG driver rule)."""
+    return max(0, math.ceil(math.log2(max(height, width) / block)))
 
 
 def write_cog_mosaic(sources: Sequence[Source], grid: Grid, path: str | Path) -> dict:
@@ -64,7 +71,8 @@ def write_cog_mosaic(sources: Sequence[Source], grid: Grid, path: str | Path) ->
         cog.update(blockxsize=COG_BLOCK, blockysize=COG_BLOCK, predictor=3)
         with atomic_path(path) as tmp:
             with rasterio.Env(GDAL_TIFF_OVR_BLOCKSIZE=str(COG_BLOCK)):
-                cog_translate(str(raw), str(tmp), cog, overview_resampling="average", quiet=True, in_memory=False)
+                cog_translate(str(raw), str(tmp), cog, overview_level=overview_count(grid.height, grid.width),
+                              overview_resampling="average", quiet=True, in_memory=False)
     with rasterio.open(path) as ds:
         overviews = ds.overviews(1)
     return {"path": str(path), "width": grid.width, "height": grid.height, "valid_pixels": valid, "overviews": overviews}
