@@ -81,24 +81,28 @@ def read_albedo(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
     return data[0].astype(np.float32), (data[1] != 0) if data.shape[0] > 1 else np.ones(data[0].shape, bool)
 
 
-def write_albedo(out: Path, tile: LegacyTile, res: TileResult, last: bool, c2: float, crs) -> bool:
+def write_albedo(out: Path, tile: LegacyTile, res: TileResult, last: bool, c2: float, crs, scale: bool = True) -> bool:
     """Write ``albedo/<tile>.tif`` (and ``error/`` after the error pass); False if the tile is empty.
 
-    On the last pass the albedo is multiplied by ``1 + c2`` (float32) and the
-    padding is cropped.  A tile whose values are all <= 0 is not written (an
-    older file, if any, stays, as in the legacy program).
+    On the last pass the albedo is multiplied by ``1 + c2`` (float32; only when a
+    reflectance model is used, ``scale``) and the padding is cropped.  A tile
+    whose values are all <= 0 is not written; on the last pass an older file is
+    removed, before it an older file stays (legacy behaviour).
     """
     value, valid, geo = res.value, res.valid, tile.geo
     err, err_valid = res.error, res.error_valid
-    if last:
+    if last and scale:
         factor = np.float32(1) + np.float32(c2)
         value = np.where(valid, (value.astype(np.float64) * float(factor)).astype(np.float32), value)
+    if last:
         c0, r0, nc, nr = tile.crop_window
         sl = (slice(r0, r0 + nr), slice(c0, c0 + nc))
         value, valid, geo = value[sl], valid[sl], geo.crop(c0, r0, nc, nr)
         if err is not None:
             err, err_valid = err[sl], err_valid[sl]
     if not np.any(value > 0):
+        if last:
+            (out / "albedo" / f"{tile.name}.tif").unlink(missing_ok=True)
         return False
     write_uint8_tile(out / "albedo" / f"{tile.name}.tif", to_uint8(value), valid, geo, crs)
     if err is not None:

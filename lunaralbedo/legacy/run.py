@@ -10,8 +10,9 @@ Stages (reconstruct.sh numbering, MAX_NUM_ITER = N):
 then N times: exposure update (switched off, as reconstruct.sh had it), phase
 coefficients per tile and combined (``phase/``, albedo modes only), albedo
 update (eq. 6); finally, with COMPUTE_ERRORS, the error pass (eq. 7).  The last
-pass drops tiles outside SIMULATION_BOX, multiplies the albedo by (1 + c2) and
-crops the 5-pixel padding.  Every intermediate albedo is stored as uint8, as
+pass drops tiles outside SIMULATION_BOX, multiplies the albedo by (1 + c2)
+(with a reflectance model only: a plain mosaic is not scaled) and crops the
+5-pixel padding.  Every intermediate albedo is stored as uint8, as
 the legacy program stored and re-read it.
 """
 from __future__ import annotations
@@ -163,7 +164,7 @@ def solve_legacy(settings: Settings, out: Path, progress: bool = True) -> dict:
             if mode != "init":
                 costs[tl.name].append(res.cost)
                 outputs.append_line(out / "costFun" / f"{tl.name}.txt", outputs.fmt_cost(res.cost))
-            if outputs.write_albedo(out, tl, res, last, c2, inp.crs) and last:
+            if outputs.write_albedo(out, tl, res, last, c2, inp.crs, scale=kind != 0) and last:
                 written.append(tl.name)
     timings["albedo"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
