@@ -171,6 +171,7 @@ def solve_legacy(settings: Settings, out: Path, progress: bool = True) -> dict:
     summary = {
         "legacy": True,
         "out": str(out),
+        "out_dir": str(out),
         "images": [im.key for im in inp.images],
         "images_skipped": inp.skipped,
         "grid_reference": str(inp.ref_path),
