@@ -159,7 +159,11 @@ def solve_tile(mode, tile_geo: Geo, inner, images, exposures, p: Params, surface
             eR = np.full((h, w), T)
         if not np.any(m):
             continue
-        wn = wgt / weights_sum.astype(np.float64) if normalized else wgt
+        if normalized:
+            with np.errstate(divide="ignore", invalid="ignore"):  # pixels with a zero sum are masked out above
+                wn = wgt / weights_sum.astype(np.float64)
+        else:
+            wn = wgt
         pix = bilinear_f32(sval, x[m], y[m]).astype(np.float64)
         ws, er_ = wn[m], eR[m]
         if mode == "weights_sum":
