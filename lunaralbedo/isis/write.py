@@ -1,0 +1,66 @@
+"""Write small ISIS3 cubes (attached label, BandSequential, 32-bit Real, LSB) - used for sample data.
+
+Special pixels: NaN values are written as ISIS NULL.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..io.atomic import atomic_write_bytes
+
+ISIS_NULL_REAL = np.frombuffer(np.uint32(0xFF7FFFFB).tobytes(), "<f4")[0]
+_LABEL_BYTES = 16384
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, (list, tuple)):
+        return "(" + ", ".join(_fmt(x) for x in v) + ")"
+    if isinstance(v, bool):
+        return "TRUE" if v else "FALSE"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        return repr(float(v))
+    if isinstance(v, Quantity):
+        return f"{_fmt(v.value)} <{v.units}>"
+    s = str(v)
+    if s and all(c.isalnum() or c in "_-./:$+" for c in s) and not s[0] in "-+.":
+        return s
+    return '"' + s.replace('"', "'") + '"'
+
+
+class Quantity:
+    """A value with units, written as ``value <units>``."""
+
+    def __init__(self, value, units: str):
+        self.value, self.units = value, units
+
+
+def _group(name: str, values: Mapping[str, Any], indent: str = "  ") -> str:
+    width = max((len(k) for k in values), default=0)
+    body = "".join(f"{indent}  {k:<{width}} = {_fmt(v)}\n" for k, v in values.items())
+    return f"{indent}Group = {name}\n{body}{indent}End_Group\n"
+
+
+def write_cube(path: str | Path, data: np.ndarray, groups: Mapping[str, Mapping[str, Any]]) -> None:
+    """Write a one-band float32 cube with extra label groups (e.g. Instrument, Kernels), atomically."""
+    data = np.asarray(data, dtype="<f4")
+    lines, samples = data.shape
+    core = (
+        "Object = IsisCube\n  Object = Core\n"
+        f"    StartByte   = {_LABEL_BYTES + 1}\n    Format      = BandSequential\n"
+        + _group("Dimensions", {"Samples": samples, "Lines": lines, "Bands": 1}, "    ")
+        + _group("Pixels", {"Type": "Real", "ByteOrder": "Lsb", "Base": 0.0, "Multiplier": 1.0}, "    ")
+        + "  End_Object\n"
+    )
+    for name, values in groups.items():
+        core += _group(name, values)
+    text = core + f"End_Object\n\nObject = Label\n  Bytes = {_LABEL_BYTES}\nEnd_Object\nEnd\n"
+    raw = text.encode("ascii")
+    if len(raw) > _LABEL_BYTES:
+        raise ValueError(f"label of {path} is longer than {_LABEL_BYTES} bytes")
+    pixels = np.where(np.isfinite(data), data, ISIS_NULL_REAL).astype("<f4")
+    atomic_write_bytes(path, raw + b"\0" * (_LABEL_BYTES - len(raw)) + pixels.tobytes())
