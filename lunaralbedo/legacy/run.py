@@ -42,6 +42,10 @@ LEGACY_ENTRIES = ("albedo", "albedo_sub4", "blank_tiles", "costFun", "DEM", "err
                   "albedoTilesList.txt", "summary.json")
 
 
+#: Folders of the legacy tree, created even when a mode leaves them empty (e.g. DEM/ for a mosaic).
+LEGACY_DIRS = ("albedo", "blank_tiles", "costFun", "DEM", "error", "exposure", "phase", "weight", "weightsSum")
+
+
 def _kind(settings: Settings) -> tuple[int, bool]:
     """Effective reflectance kind and the legacy forceMosaic flag."""
     if settings.reflectance_type == 0 and settings.shadow_type in (2, 3):
@@ -83,6 +87,8 @@ def solve_legacy(settings: Settings, out: Path, progress: bool = True) -> dict:
         p = out / name
         with contextlib.suppress(FileNotFoundError):
             shutil.rmtree(p) if p.is_dir() else p.unlink()
+    for name in LEGACY_DIRS:  # the legacy program created its whole tree up front
+        (out / name).mkdir(exist_ok=True)
     label = out.name
 
     t = time.perf_counter()
