@@ -31,6 +31,7 @@ from .tilework import SolveState, finalize_tile, iterate_tile, prepare_tile
 
 METHODS = ("overlap", "seed")
 STATE_FILE = ".state.json"
+MARKER = ".lunaralbedo"  # written first into every OUTDIR: marks it as ours
 CACHE_DIR = ".cache"
 _OUTPUT_DIRS = ("albedo", "error", "DEM", "weightsSum", "weight")
 
@@ -64,7 +65,7 @@ def _check_out_dir(out: Path, settings: Settings, resume: bool) -> bool:
         return True
     if not out.is_dir():
         raise SolverError(f"{out}: exists and is not a folder")
-    ours = (out / STATE_FILE).exists() or (out / "report.json").exists()
+    ours = (out / MARKER).exists()
     if any(out.iterdir()) and not ours:
         raise SolverError(f"{out}: folder exists, is not empty and is not a lunaralbedo output; choose another -o")
     if ours and not resume:
@@ -74,7 +75,7 @@ def _check_out_dir(out: Path, settings: Settings, resume: bool) -> bool:
     return False
 
 
-def _reduce_init(scene: Scene, metas: list[dict], method: str) -> tuple[np.ndarray, np.ndarray]:
+def _reduce_init(scene: Scene, metas: list[dict], method: str) -> np.ndarray:
     n = len(scene.images)
     r_sum, r_cnt = np.zeros(n), np.zeros(n)
     pairs: dict = {}
@@ -85,8 +86,8 @@ def _reduce_init(scene: Scene, metas: list[dict], method: str) -> tuple[np.ndarr
         exposure_init.merge_pair_sums(pairs, {(j, k): (nn, d) for j, k, nn, d in meta["pairs"]})
     t_seed = exposure_init.seed_exposure(scene.settings.tr_const, r_sum, r_cnt)
     if method == "seed":
-        return t_seed, t_seed
-    return exposure_init.overlap_exposure(pairs, np.log(t_seed)), t_seed
+        return t_seed
+    return exposure_init.overlap_exposure(pairs, np.log(t_seed))
 
 
 def _reduce_iteration(n_images: int, parts) -> updates.PassSums:
@@ -157,6 +158,7 @@ def solve(
         scene = build_scene(settings, skip_missing, map_fn=lambda f, xs: executor.map(f, xs, "masks"))
         timings["scene"] = time.perf_counter() - t0
         out.mkdir(parents=True, exist_ok=True)
+        (out / MARKER).write_text("lunaralbedo solve output folder\n")
         remove_stale_temporaries(out)
         return _run(scene, out, method, max_iter, tolerance, executor, resume, timings, plots)
     except LunarAlbedoError:
@@ -186,7 +188,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots) ->
     tiles = list(range(len(scene.tiles)))
     t1 = time.perf_counter()
     metas = executor.map(prepare_tile, tiles, "prepare", scene=scene, cache_root=cache)
-    t_init, t_seed = _reduce_init(scene, metas, method)
+    t_init = _reduce_init(scene, metas, method)
     timings["prepare"] = time.perf_counter() - t1
     if ck is None:
         ck = {
@@ -201,6 +203,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots) ->
         }
         outputs.write_json(out / STATE_FILE, ck)
     state = SolveState(np.array(ck["exposure"]), np.array(ck["c"]))
+    resume_info = {"tiles_prepared_before": sum(bool(m.get("reused")) for m in metas), "iterations_done_before": ck["iteration"]}
     t2 = time.perf_counter()
     want_phase = s.reflectance_type == reflectance.LUNAR_LAMBERT
     while not ck["done"] and ck["iteration"] < max_iter:
@@ -216,12 +219,19 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots) ->
         outputs.write_json(out / STATE_FILE, ck)
     timings["iterate"] = time.perf_counter() - t2
     t3 = time.perf_counter()
-    tile_reports = executor.map(finalize_tile, tiles, "write tiles", scene=scene, cache_root=cache, out_dir=out, state=state)
+    skip_done = bool(ck.get("finalising"))
+    if not skip_done:
+        ck["finalising"] = True  # from here on the state is fixed; finished tiles can be kept
+        outputs.write_json(out / STATE_FILE, ck)
+    tile_reports = executor.map(
+        finalize_tile, tiles, "write tiles", scene=scene, cache_root=cache, out_dir=out, state=state, skip_done=skip_done
+    )
+    resume_info["tiles_written_before"] = sum(bool(r.pop("reused")) for r in tile_reports)
     timings["finalise"] = time.perf_counter() - t3
-    return _write_run_outputs(scene, out, method, state, t_seed, t_init, ck, tile_reports, timings, executor, plots)
+    return _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info)
 
 
-def _write_run_outputs(scene, out, method, state, t_seed, t_init, ck, tile_reports, timings, executor, plots):
+def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info):
     keys = scene.keys
     outputs.write_exposure_csv(out / "exposure.csv", keys, state.exposure, t_init)
     outputs.write_phase_csv(out / "phase.csv", ck["c_history"])
@@ -242,6 +252,7 @@ def _write_run_outputs(scene, out, method, state, t_seed, t_init, ck, tile_repor
         "images_used": len(keys),
         "images_skipped": scene.skipped,
         "tiles": tile_reports,
+        "resumed": resume_info if any(resume_info.values()) else None,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
     }
     outputs.write_json(out / "report.json", report)

@@ -70,7 +70,7 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
     folder = _cache_dir(cache_root, scene, t)
     cached = load_stack(folder)
     if cached is not None:
-        return cached[1]
+        return {**cached[1], "reused": True}
     s = scene.settings
     tile = scene.tiles[t]
     inner = tile.inner
@@ -121,7 +121,7 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
     meta = _init_sums(scene, arrays)
     meta["tile"] = tile.name
     save_stack(folder, arrays, meta)
-    return meta
+    return {**meta, "reused": False}
 
 
 def _reflectance(arrays, kind, c):
@@ -197,18 +197,28 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
 
 
 # --------------------------------------------------------------------------- finalise
-def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, state: SolveState) -> dict:
-    """Write the albedo, error, DEM and weight-sum tiles of tile ``t``; return a small report."""
+def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, state: SolveState, skip_done: bool = False) -> dict:
+    """Write the albedo, error, DEM and weight-sum tiles of tile ``t``; return a small report.
+
+    ``weightsSum`` is written last, so with ``skip_done`` (a resumed run whose final
+    state was already fixed) a tile that has it is complete and is not redone.
+    """
     s = scene.settings
     tile = scene.tiles[t]
     arrays, _ = load_stack(_cache_dir(cache_root, scene, t))
     idx = np.asarray(arrays["index"])
     h, w_ = tile.height, tile.width
+    name = f"{tile.name}.tif"
+    if skip_done and (out_dir / "weightsSum" / name).exists():
+        import rasterio
+
+        with rasterio.open(out_dir / "albedo" / name) as ds:
+            valid = int(np.count_nonzero(np.isfinite(ds.read(1))))
+        return {"tile": tile.name, "images": [scene.images[k].key for k in idx], "valid_pixels": valid, "reused": True}
     if len(idx):
         alb, r, p, a, w, tr, _ = tile_model(scene, arrays, state)
     else:
         alb = np.full((h, w_), np.nan, np.float32)
-    name = f"{tile.name}.tif"
     write_geotiff(out_dir / "albedo" / name, alb, tile.transform, scene.crs, nodata=float("nan"))
     if s.compute_errors and len(idx):
         err = updates.error_map(arrays["image"], alb, tr, w, np.asarray(arrays["wblend"]))
@@ -220,4 +230,5 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
         "tile": tile.name,
         "images": [scene.images[k].key for k in idx],
         "valid_pixels": int(np.count_nonzero(np.isfinite(alb))),
+        "reused": False,
     }

@@ -24,6 +24,11 @@ from ..constants import KEY_LENGTH
 from ..errors import DuplicateKeyError, InputError
 from .atomic import atomic_path
 
+#: GDAL's block cache is per process and by default grows to 5 % of RAM; a solve reads
+#: every image once per tile, so a small cache keeps memory bounded by the tile.
+GDAL_CACHE_BYTES = 64 * 2**20
+rasterio.env.set_gdal_config("GDAL_CACHEMAX", GDAL_CACHE_BYTES)
+
 #: Geographic CRS of the IAU 2015 Moon sphere (radius 1737.4 km), planetocentric, east-positive.
 MOON_CRS = CRS.from_string("IAU_2015:30100")
 

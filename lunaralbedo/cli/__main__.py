@@ -1,0 +1,4 @@
+"""``python -m lunaralbedo.cli``: the same as the ``lunaralbedo`` command."""
+from . import main
+
+main()
