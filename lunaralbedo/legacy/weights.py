@@ -66,9 +66,9 @@ def _tent(along: np.ndarray, across: np.ndarray, center: np.ndarray, maxdist: np
     md = (maxdist[p] / 2.0).astype(np.float32)
     ctr = center[p].astype(np.float32)
     dist = np.abs(along - ctr.astype(np.float64)).astype(np.float32)
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):  # zero extents are masked below
         a = (-1.0 / md.astype(np.float64)).astype(np.float32)
-    w = np.maximum(np.float32(0.0), a * dist + np.float32(1.0)).astype(np.float32)
+        w = np.maximum(np.float32(0.0), a * dist + np.float32(1.0)).astype(np.float32)
     return np.where(inside & (md != 0), w, np.float32(0.0)).astype(np.float32)
 
 
