@@ -53,7 +53,8 @@ def test_nac_campt_time_from_preroll_clock(realdata):
         t = line_timing(obs.label, -85600)
         table_start = obs.ephemeris.time_range[0]
         assert t.et(15999.5) == pytest.approx(table_start, abs=1e-6)
-        assert obs.et == pytest.approx(t.et(16200.5), abs=1e-9)  # centre pixel (200.5, 200.5) of the crop
+        # centre pixel (200.5, 200.5) of the crop is alpha line 15999.5 + 200 = 16199.5
+        assert obs.et == pytest.approx(t.et(16199.5), abs=1e-6)
 
 
 def test_apollo_metric_positions_from_kernels_alone(realdata):
