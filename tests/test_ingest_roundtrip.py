@@ -1,0 +1,159 @@
+"""`lunaralbedo ingest`: round trips on forward-model cubes, the real NAC crop, settings and failures."""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+import spiceypy
+from click.testing import CliRunner
+
+from lunaralbedo.cli import main
+from lunaralbedo.ingest.grid import Grid
+from lunaralbedo.ingest.keys import make_keys
+from lunaralbedo.ingest.run import ingest
+from lunaralbedo.ingest.simulate import Scene, build, truth_on_grid
+from lunaralbedo.io.positions import read_positions
+from lunaralbedo.settings import load_settings
+
+REPO = Path(__file__).resolve().parents[1]
+SAMPLE = REPO / "sample_data"
+
+
+@pytest.fixture(autouse=True)
+def clean_pool():
+    spiceypy.kclear()
+    yield
+    assert spiceypy.ktotal("ALL") == 0
+    spiceypy.kclear()
+
+
+def _scene(sample: Path) -> Scene:
+    with rasterio.open(sample / "truth/albedo.tif") as ds:
+        alb, t = ds.read(1).astype(float), ds.transform
+    with rasterio.open(sample / "dem/dem.tif") as ds:
+        dem = ds.read(1).astype(float)
+    return Scene(Grid(t, alb.shape), dem, alb)
+
+
+def _drg_errors(sample: Path, work: Path, key: str, im: dict):
+    """Relative error of a DRG against A*T*R on the DEM grid, away from the footprint edge."""
+    scene = _scene(sample)
+    ref = truth_on_grid(scene, im["exposure"], im["sun_km"], im["spacecraft_km"])
+    with rasterio.open(work / "DRG" / f"{key}.tif") as ds:
+        v, t, mask = ds.read(1).astype(float), ds.transform, ds.read(2)
+        assert ds.crs is not None and ds.res == pytest.approx(scene.grid.res)
+    T = scene.grid.transform
+    c0, r0 = (t.c - T.c) / T.a, (t.f - T.f) / T.e
+    assert abs(c0 - round(c0)) < 1e-6 and abs(r0 - round(r0)) < 1e-6  # same pixel grid as the DEM
+    sub = ref[round(r0):round(r0) + v.shape[0], round(c0):round(c0) + v.shape[1]]
+    ok = np.isfinite(v)
+    assert np.array_equal(ok, mask > 0)
+    inner = ok.copy()
+    for sh in [(1, 0), (-1, 0), (0, 1), (0, -1), (2, 0), (-2, 0), (0, 2), (0, -2)]:
+        inner &= np.roll(ok, sh, axis=(0, 1))
+    return (v[inner] - sub[inner]) / sub[inner], int(ok.sum())
+
+
+def test_sample_data_round_trip(tmp_path):
+    """Frame cameras: ingested DRGs = A*T*R of the forward model (noise 0.5 %), positions = truth."""
+    truth = json.loads((SAMPLE / "truth/truth.json").read_text())
+    cubes = sorted((SAMPLE / "cubes").glob("*.cub"))
+    work = tmp_path / "work"
+    t0 = time.perf_counter()
+    report = ingest(cubes, [SAMPLE / "dem"], work)
+    elapsed = time.perf_counter() - t0
+    assert len(report.done) == len(truth["images"]) == 5
+    sun, sc = read_positions(work / "meta/sunpos.txt"), read_positions(work / "meta/spacecraftpos.txt")
+    for key, im in truth["images"].items():
+        # Sun: the same spkpos(LT+S) convention; spacecraft: the built position, LT+S shifts it by ~10 m
+        assert np.linalg.norm(sun[key] - im["sun_km"]) < 1e-3
+        assert np.linalg.norm(sc[key] - im["spacecraft_km"]) < 0.02
+        rel, n = _drg_errors(SAMPLE, work, key, im)
+        print(f"{key}: {n} px, |rel err| median {np.median(np.abs(rel)):.4f} p99 {np.percentile(np.abs(rel), 99):.4f}")
+        assert n > 10000
+        assert abs(np.mean(rel)) < 0.002
+        assert np.median(np.abs(rel)) < 0.005
+        assert np.percentile(np.abs(rel), 99) < 0.02
+    px = sum(r.grid_pixels for r in report.done) / sum(r.seconds for r in report.done)
+    print(f"frame-camera orthoprojection: {px:,.0f} output px/s; ingest of 5 cubes {elapsed:.2f} s")
+    # settings: accepted by load_settings, relative paths, float32-friendly shadows, box = union of footprints
+    s = load_settings(work / "settings.txt")
+    assert s.drg_dir == (work / "DRG").resolve() and s.dem_dir == (work / "DEM").resolve()
+    assert s.sun_position_file == (work / "meta/sunpos.txt").resolve()
+    assert (s.reflectance_type, s.shadow_type, s.max_num_iter) == (2, 0, 10)
+    boxes = np.array([r.box for r in report.done])
+    assert s.simulation_box == pytest.approx((boxes[:, 0].min(), boxes[:, 2].max(), boxes[:, 1].min(), boxes[:, 3].max()),
+                                             abs=1e-5)
+    assert "DRG" in (work / "settings.txt").read_text() and str(work) not in (work / "settings.txt").read_text()
+    with rasterio.open(work / "DEM/dem.tif") as ds:
+        assert ds.nodata == -32767 and ds.res == pytest.approx((0.01, 0.01))
+
+
+def test_line_scanner_round_trip(tmp_path):
+    """A generated line-scan cube (moving spacecraft, per-point line search) orthoprojects onto the truth."""
+    sample = tmp_path / "sim"
+    truth = build(sample, seed=7, n_frames=1, with_line=True)
+    key = "SIM-L-00001"
+    work = tmp_path / "work"
+    report = ingest([sample / "cubes" / f"{key}.cub"], [sample / "dem"], work)
+    (res,) = report.done
+    assert res.kind == "line scanner"
+    rel, n = _drg_errors(sample, work, key, truth["images"][key])
+    print(f"line scanner: {n} px, |rel err| median {np.median(np.abs(rel)):.4f}; {res.pixels_per_second:,.0f} px/s")
+    assert n > 4000
+    assert abs(np.mean(rel)) < 0.003 and np.median(np.abs(rel)) < 0.006 and np.percentile(np.abs(rel), 99) < 0.03
+
+
+def test_real_nac_crop_orthoprojected_on_ldem(realdata, tmp_path):
+    """The real NAC crop on the LOLA DEM cube (radius values) at 1 m/px: footprint ~0.22 km, I/F preserved."""
+    work = tmp_path / "nac"
+    result = CliRunner().invoke(main, ["ingest", str(realdata / "isis/M143947267L.cal.echo.crop.cub"),
+                                       "--dem", str(realdata / "isis/ldem_4_reduced.cub"), "-o", str(work), "--mpp", "1"])
+    assert result.exit_code == 0, result.output
+    assert "values are radius" in result.output and "line scanner" in result.output
+    with rasterio.open(work / "DRG/M143947267L.tif") as ds:
+        v = ds.read(1)
+        assert ds.res[0] == pytest.approx(np.degrees(1.0 / 1737400.0))
+        w, s, e, n = ds.bounds
+    assert 102.59 < w < e < 102.61 and 35.97 < s < n < 35.99
+    assert 40000 < np.isfinite(v).sum() < 90000  # ~ 220 m x 240 m at 1 m/px
+    assert np.nanmean(v) == pytest.approx(0.10371, rel=0.01)
+    assert load_settings(work / "settings.txt").simulation_box[0] == pytest.approx(102.5958, abs=1e-3)
+
+
+def test_skipped_cubes_are_reported_and_failures_write_nothing(realdata, tmp_path):
+    bad = tmp_path / "broken.cub"
+    bad.write_bytes(b"garbage")
+    cubes = [SAMPLE / "cubes/SIM-F-00001.cub", bad, realdata / "apollo15_metric/AS15-M-1450_isis3.lbl"]
+    out = CliRunner().invoke(main, ["ingest", *map(str, cubes), "--dem", str(SAMPLE / "dem"), "-o", str(tmp_path / "w")])
+    assert out.exit_code == 0, out.output
+    assert "skipped broken_____" in out.output and "skipped AS15-M-1450" in out.output
+    assert sorted(p.name for p in (tmp_path / "w/DRG").iterdir()) == ["SIM-F-00001.tif"]
+    assert list(read_positions(tmp_path / "w/meta/sunpos.txt")) == ["SIM-F-00001"]
+    # nothing ingestible: exit 2 with the reasons, no settings file
+    out = CliRunner().invoke(main, ["ingest", str(bad), "--dem", str(SAMPLE / "dem"), "-o", str(tmp_path / "w2")])
+    assert out.exit_code == 2 and "error: no cube could be ingested" in out.output and "broken.cub" in out.output
+    assert not (tmp_path / "w2/settings.txt").exists()
+    out = CliRunner().invoke(main, ["ingest", str(cubes[0]), "--dem", str(tmp_path / "nodem"), "-o", str(tmp_path / "w3")])
+    assert out.exit_code == 2 and "DEM file or folder not found" in out.output
+
+
+def test_legacy_8bit_drgs(tmp_path):
+    work = tmp_path / "w"
+    ingest([SAMPLE / "cubes/SIM-F-00002.cub"], [SAMPLE / "dem/dem.tif"], work, legacy_8bit=True)
+    with rasterio.open(work / "DRG/SIM-F-00002.tif") as ds:
+        assert ds.dtypes == ("uint8", "uint8")
+        v, a = ds.read(1), ds.read(2)
+    assert set(np.unique(a)) == {0, 255} and v[a == 255].min() >= 1 and v[a == 0].max() == 0
+    assert load_settings(work / "settings.txt").shadow_type == 1
+
+
+def test_key_rule():
+    assert make_keys(["a/M143947267L.cal.echo.crop.cub", "b/AS15-M-1450_isis3.lbl", "x.cub"]) == [
+        "M143947267L", "AS15-M-1450", "x__________"]
+    assert make_keys(["d1/LONGNAME_0001.cub", "d2/LONGNAME_0001.cub", "LONGNAME_0001b.cub"]) == [
+        "LONGNAME_00", "LONGNAME001", "LONGNAME002"]
