@@ -79,7 +79,7 @@ def test_resume_after_kill_9_gives_identical_results(scene, reference, tmp_path,
     markers = {
         "prepare": lambda: len(list((out / ".cache").glob("tile_*"))) >= 3,
         "iterate": lambda: _state(out).get("iteration", 0) >= 2,
-        "finalise": lambda: len(list((out / "weightsSum").glob("*.tif"))) >= 2,
+        "finalise": lambda: len(list((out / "weightsSum").glob("tile_*.tif"))) >= 2,
     }
     proc = _start(scene, out)
     _kill_when(proc, markers[stage])
