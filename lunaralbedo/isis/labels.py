@@ -71,7 +71,10 @@ def time_string(v: Any) -> str:
         return v.replace(tzinfo=None).strftime("%Y-%m-%dT%H:%M:%S.%f")
     if isinstance(v, _dt.date):
         return v.isoformat()
-    return str(v).rstrip("Z")
+    text = str(v).strip()
+    for suffix in ("Z", "+00:00"):
+        text = text[: -len(suffix)] if text.endswith(suffix) else text
+    return text
 
 
 @dataclass

@@ -7,15 +7,22 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Mapping
 
+import datetime as _dt
+
 import numpy as np
 
 from ..io.atomic import atomic_write_bytes
+from .labels import time_string
 
 ISIS_NULL_REAL = np.frombuffer(np.uint32(0xFF7FFFFB).tobytes(), "<f4")[0]
 _LABEL_BYTES = 16384
 
 
 def _fmt(v: Any) -> str:
+    if isinstance(v, (_dt.date, _dt.datetime)):
+        return time_string(v)
+    if hasattr(v, "units") and hasattr(v, "value") and not isinstance(v, Quantity):  # pvl Quantity
+        return f"{_fmt(v.value)} <{v.units}>"
     if isinstance(v, (list, tuple)):
         return "(" + ", ".join(_fmt(x) for x in v) + ")"
     if isinstance(v, bool):
