@@ -136,9 +136,14 @@ def solve_legacy(settings: Settings, out: Path, progress: bool = True) -> dict:
         tile_surf = [(tl.geo, inner[tl.name], surfaces[tl.name]) for tl in tiles]
         for im in inp.images:
             mean_r, n = mean_reflectance(im, tile_surf, params())
-            exposures[im.key] = initial_exposure(mean_r, settings.tr_const) if n else float("inf")
+            # No usable pixel: the legacy program divided by zero and printed nan; so do we, and the
+            # image is then left out of the albedo passes (the legacy run would spread NaNs).
+            exposures[im.key] = initial_exposure(mean_r, settings.tr_const) if n else float("nan")
             outputs.append_line(out / "exposure" / f"{im.key}_exposure.txt", f"{exposures[im.key]:f}")
             exposures[im.key] = outputs.reread_float(exposures[im.key])
+        unusable = [k for k, v in exposures.items() if not np.isfinite(v)]
+        if unusable:
+            _log(progress, f"no usable pixel (exposure undefined), left out: {', '.join(unusable)}")
         timings["exposure"] = time.perf_counter() - t
 
     n_iter = settings.max_num_iter
@@ -183,7 +188,8 @@ def solve_legacy(settings: Settings, out: Path, progress: bool = True) -> dict:
         "grid_reference": str(inp.ref_path),
         "tiles": [tl.name for tl in tiles],
         "tiles_written": written,
-        "exposures": {k: v for k, v in exposures.items()},
+        "exposures": {k: (v if np.isfinite(v) else None) for k, v in exposures.items()},
+        "images_without_exposure": [k for k, v in exposures.items() if not np.isfinite(v)],
         "phase_coefficients": [list(pc) for pc in phase_history],
         "cost_function": costs,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},

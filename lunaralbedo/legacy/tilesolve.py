@@ -150,6 +150,8 @@ def solve_tile(mode, tile_geo: Geo, inner, images, exposures, p: Params, surface
             R, alpha = np.ones((h, w), f32), np.zeros((h, w), f32)
         R = R.astype(np.float64)
         T = float(f32(exposures.get(img.key, 1.0)))
+        if not math.isfinite(T):  # exposure undefined (no usable pixel): the image cannot contribute
+            continue
         m &= R != 0.0
         eR = T * R
         t = shadow_threshold(p, eR.astype(f32)).astype(np.float64)
