@@ -197,11 +197,17 @@ def score(result_dir: str | Path, scene_dir: str | Path) -> dict:
     s = np.sum(a[ok] * ta[ok]) / np.sum(a[ok] ** 2)
     rel = (s * a[ok] - ta[ok]) / ta[ok]
     est = read_exposure_csv(result_dir / "exposure.csv")
-    te = np.array(truth["exposure"])
-    ratio = np.array([est[k] for k in truth["keys"]]) / te
+    if "images" in truth:  # the sample mission of tools/make_sample_data.py
+        true_exp = {k: v["exposure"] for k, v in truth["images"].items()}
+    else:
+        true_exp = dict(zip(truth["keys"], truth["exposure"]))
+    keys = sorted(set(true_exp) & set(est))
+    te = np.array([true_exp[k] for k in keys])
+    ratio = np.array([est[k] for k in keys]) / te
     ratio /= np.exp(np.mean(np.log(ratio)))
     return {
         "albedo_rel_rmse": float(np.sqrt(np.mean(rel**2))),
         "exposure_max_rel_err": float(np.max(np.abs(ratio - 1))),
         "coverage": float(ok.mean()),
+        "images_compared": len(keys),
     }
