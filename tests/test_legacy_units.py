@@ -127,6 +127,9 @@ def test_output_inside_an_input_folder_is_refused(tmp_path):
     _drg(drgs / "AAAA-M-0001.tif", 0.0, 0.0)
     with pytest.raises(SettingsError, match="must not be inside the input folder"):
         solve_legacy(_settings(tmp_path, drgs), drgs / "out", progress=False)
+    with pytest.raises(SettingsError, match="must not contain the input"):
+        solve_legacy(_settings(tmp_path, drgs), tmp_path, progress=False)
+    assert (drgs / "AAAA-M-0001.tif").is_file()
 
 
 def test_missing_position_names_key_and_file(tmp_path):

@@ -39,7 +39,9 @@ from .vwgeo import boxes_overlap, legacy_box, unpadded_corners
 #: Output entries of a legacy run (removed before a new run, like reconstruct.sh's ``rm -rf``).
 LEGACY_ENTRIES = ("albedo", "albedo_sub4", "blank_tiles", "costFun", "DEM", "error", "exposure", "phase",
                   "weight", "weightsSum", "cache", "imagesList.txt", "tilesList.txt", "DEMTilesList.txt",
-                  "albedoTilesList.txt", "summary.json")
+                  "albedoTilesList.txt", "summary.json",
+                  # products export-kml derives from albedo/ (stale after a new run)
+                  "kml", "albedo_mosaic.tif", "error_mosaic.tif")
 
 
 #: Folders of the legacy tree, created even when a mode leaves them empty (e.g. DEM/ for a mosaic).
@@ -57,12 +59,15 @@ def _kind(settings: Settings) -> tuple[int, bool]:
 
 
 def _check_out(settings: Settings, out: Path) -> None:
-    for d in (settings.drg_dir, settings.dem_dir):
+    """Refuse output folders inside an input folder, or containing one (a new run clears OUTDIR)."""
+    for d in (settings.drg_dir, settings.dem_dir, settings.sun_position_file, settings.spacecraft_position_file):
         if d is None:
             continue
         d = Path(d).resolve()
         if out == d or d in out.parents:
             raise SettingsError(f"{out}: the output folder must not be inside the input folder {d}")
+        if out in d.parents:
+            raise SettingsError(f"{out}: the output folder must not contain the input {d} (a new run clears it)")
 
 
 def _log(progress: bool, msg: str) -> None:
