@@ -137,3 +137,11 @@ def test_positions_command_writes_legacy_files(realdata, tmp_path):
 def test_table_ephemeris_requires_tables(realdata):
     with pytest.raises(Exception, match="no SunPosition table"):
         TableEphemeris(read_label(realdata / "isis/wac00002cf4.vis.even.cal.reduced.cub"))
+
+
+def test_kaguya_tc_line_scanner_time_from_sclk(realdata):
+    """Kaguya TC (LineSamplingInterval, SCLK start count): centre time = ALE's ISD center_ephemeris_time."""
+    tc = realdata / "kaguya_tc"
+    (r,) = compute_positions([tc / "TC1S2B0_01_06691S820E0465_isis3.lbl"], [realdata / "kernels/generic", tc])
+    assert r.et == pytest.approx(292234261.12293595, abs=1e-5)
+    assert np.linalg.norm(r.spacecraft) - 1737.4 == pytest.approx(52.93, abs=0.05)

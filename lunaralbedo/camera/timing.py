@@ -3,8 +3,9 @@
 * Frame camera: ``StartTime + ExposureDuration / 2`` (exposure in ms unless the
   label says seconds; 0 when absent, e.g. Apollo Metric).
 * Line scanner: line ``L`` (parent/alpha line, 1-based) is exposed at
-  ``et0 + (L - 0.5) * rate`` with ``rate = LineExposureDuration`` (ms -> s);
-  ``et0`` is ``StartTime`` - except for LRO NAC, which ISIS times from the
+  ``et0 + (L - 0.5) * rate`` with ``rate = LineExposureDuration`` or
+  ``LineSamplingInterval`` (ms -> s); ``et0`` is ``SpacecraftClockStartCount``
+  through the SCLK kernel when one is loaded, else ``StartTime`` - except for LRO NAC, which ISIS times from the
   ``SpacecraftClockPrerollCount`` plus ``ADDITIONAL_PREROLL`` lines, with the IK's
   ``MULTIPLI_LINE_ERROR``/``ADDITIVE_LINE_ERROR``/``CONSTANT_TIME_OFFSET``.
 * The centre pixel is ``((samples+1)/2, (lines+1)/2)`` of the cube, mapped through
@@ -43,8 +44,11 @@ def _seconds(q, default_units: str = "ms") -> float:
     return v if units.startswith("s") else v / 1000.0
 
 
+LINE_RATE_KEYS = ("LineExposureDuration", "LineSamplingInterval")
+
+
 def is_line_scanner(label: IsisLabel) -> bool:
-    return "LineExposureDuration" in label.instrument
+    return any(k in label.instrument for k in LINE_RATE_KEYS)
 
 
 def frame_et(label: IsisLabel) -> float:
@@ -64,15 +68,28 @@ def _sclk_et(label: IsisLabel, count: str, code: int) -> float:
         return float(spiceypy.scs2e(sc, count))
 
 
+def _has_sclk(sc: int) -> bool:
+    from ..spice.kernels import pool_value
+
+    return pool_value(f"SCLK01_COEFFICIENTS_{abs(sc)}") is not None
+
+
+def _count_text(v) -> str:
+    v = value_of(v)
+    return repr(v) if isinstance(v, float) else str(v)
+
+
 def line_timing(label: IsisLabel, code: int | None) -> LineTiming:
     """Timing of a line scanner (see module docstring)."""
     inst = label.instrument
-    rate = _seconds(inst["LineExposureDuration"])
+    rate = _seconds(inst[next(k for k in LINE_RATE_KEYS if k in inst)])
     ik = (lambda name, d=0.0: float(naif_value(label, f"INS{code}_{name}", d))) if code is not None else None
     preroll = inst.get("SpacecraftClockPrerollCount")
     if ik is not None and preroll is not None and naif_value(label, f"INS{code}_ADDITIONAL_PREROLL") is not None:
         rate = rate * (1.0 + ik("MULTIPLI_LINE_ERROR")) + ik("ADDITIVE_LINE_ERROR")
         et0 = _sclk_et(label, str(value_of(preroll)), code) + ik("CONSTANT_TIME_OFFSET") + ik("ADDITIONAL_PREROLL") * rate
+    elif code is not None and "SpacecraftClockStartCount" in inst and _has_sclk(int(code / 1000)):
+        et0 = _sclk_et(label, _count_text(inst["SpacecraftClockStartCount"]), code)
     else:
         et0 = utc_to_et(label, "StartTime")
     if rate <= 0:
