@@ -148,3 +148,16 @@ def test_memory_depends_on_the_tile_not_on_the_number_of_images(tmp_path):
     assert obs[24] - obs[6] > 70  # MB
     assert peaks[24] - peaks[6] < 20, (peaks, obs)
     assert peaks[24] < peaks[6] + 0.25 * (obs[24] - obs[6]), (peaks, obs)
+
+
+def test_pbs_nodefile_starts_workers_on_every_listed_node(scene, reference, tmp_path, monkeypatch):
+    """PBS lists a host once per core; workers start on each distinct host (here: a stand-in remote shell)."""
+    nodefile = tmp_path / "nodes"
+    nodefile.write_text("localhost\nlocalhost\nnode-b\nnode-b\n")
+    monkeypatch.setenv("PBS_NODEFILE", str(nodefile))
+    # like ssh, the launcher gets HOST and a command line to run there; this one runs it here
+    monkeypatch.setenv("LUNARALBEDO_REMOTE_SHELL", "sh -c 'shift; eval \"exec $*\"' launcher")
+    out = tmp_path / "out"
+    res = solve(scene / "settings.txt", out=out, workers=1, plots=False)
+    assert res.report["executor"] == "PBS_NODEFILE (2 nodes x 1 processes)"
+    same_results(reference, out)

@@ -138,6 +138,8 @@ def make_executor(
     * ``scheduler="tcp://host:port"``: connect to an existing ``dask.distributed`` scheduler;
     * ``cluster="pbs"|"slurm"``: start workers as batch jobs with dask-jobqueue
       (``cluster_options``: queue, cores, memory, walltime, jobs, account, ...);
+    * ``$PBS_NODEFILE`` set (inside a PBS job, as the legacy program used it):
+      ``workers`` processes on every node it lists (see :mod:`.nodefile`);
     * otherwise ``workers`` local worker processes (1: in-process, no Dask).
     """
     if scheduler:
@@ -151,6 +153,12 @@ def make_executor(
     if cluster:
         client, clus = _jobqueue_cluster(cluster, dict(cluster_options or {}))
         return DaskExecutor(client, f"{cluster} cluster", progress, owned=(clus,))
+    hosts = pbs_nodes()
+    if hosts:
+        from .nodefile import nodefile_client
+
+        client, owned = nodefile_client(hosts, max(1, workers))
+        return DaskExecutor(client, f"PBS_NODEFILE ({len(hosts)} nodes x {max(1, workers)} processes)", progress, owned=owned)
     if workers <= 1:
         return SerialExecutor(progress)
     client, clus = _local_cluster(workers, memory_limit)

@@ -1,0 +1,73 @@
+"""Workers on the nodes of ``$PBS_NODEFILE`` — the legacy way of spreading a run over a PBS job.
+
+PhotometryTK ran GNU parallel over ssh to every host listed in ``PBS_NODEFILE``
+(seed 000 section 4), NUM_PROCESSES processes per node.  Here the same file
+starts a Dask scheduler on this node and ``NUM_PROCESSES`` Dask worker processes on
+every listed node: the local node directly, the others through a remote shell
+(``ssh -o BatchMode=yes`` by default; set ``LUNARALBEDO_REMOTE_SHELL`` to another
+launcher such as ``rsh`` or ``ssh -i KEY``; it is called as ``SHELL HOST COMMAND...``).
+The nodes must share the file system, as the legacy program required.
+"""
+from __future__ import annotations
+
+import os
+import shlex
+import socket
+import subprocess
+import sys
+
+from ..errors import LunarAlbedoError
+
+REMOTE_SHELL_ENV = "LUNARALBEDO_REMOTE_SHELL"
+_LOCAL_NAMES = {"localhost", "127.0.0.1", socket.gethostname(), socket.getfqdn()}
+
+
+class _WorkerProcesses:
+    """The launcher processes of the remote workers; closing terminates them."""
+
+    def __init__(self, procs: list[subprocess.Popen]):
+        self.procs = procs
+
+    def close(self) -> None:
+        for p in self.procs:
+            if p.poll() is None:
+                p.terminate()
+        for p in self.procs:
+            try:
+                p.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+
+
+def nodefile_client(hosts: list[str], processes_per_node: int, timeout: float = 120.0):
+    """Start a scheduler here and workers on ``hosts``; return ``(client, [owned objects])``."""
+    from distributed import Client, LocalCluster
+
+    cluster = LocalCluster(n_workers=0, host="0.0.0.0", scheduler_port=0, dashboard_address=None, silence_logs=40)
+    port = cluster.scheduler_address.rsplit(":", 1)[1]
+    address = f"tcp://{socket.getfqdn()}:{port}"
+    shell = shlex.split(os.environ.get(REMOTE_SHELL_ENV, "ssh -o BatchMode=yes"))
+    worker = [
+        sys.executable, "-m", "distributed.cli.dask_worker", address,
+        "--nworkers", str(processes_per_node), "--nthreads", "1",
+        "--no-dashboard", "--death-timeout", "60",
+    ]
+    procs = []
+    for host in hosts:
+        cmd = worker if host in _LOCAL_NAMES else [*shell, host, *(shlex.quote(w) for w in worker)]
+        procs.append(subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True))
+    owned = _WorkerProcesses(procs)
+    client = Client(cluster)
+    try:
+        client.wait_for_workers(processes_per_node * len(hosts), timeout=timeout)
+    except Exception as exc:  # noqa: BLE001 - report which nodes did not come up
+        failed = [h for h, p in zip(hosts, procs) if p.poll() is not None]
+        owned.close()
+        client.close()
+        cluster.close()
+        raise LunarAlbedoError(
+            f"workers on the PBS_NODEFILE nodes did not start within {timeout:.0f} s"
+            f"{' (launcher exited on: ' + ', '.join(failed) + ')' if failed else ''}: {exc}; "
+            f"check that `{' '.join(shell)} HOST` works without a password, or set {REMOTE_SHELL_ENV}"
+        ) from None
+    return client, [owned, cluster]
