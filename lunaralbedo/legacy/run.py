@@ -159,7 +159,9 @@ def solve_legacy(settings: Settings, out: Path, progress: bool = True) -> dict:
     t = time.perf_counter()
     for ip, mode in enumerate(passes):
         last = ip == len(passes) - 1
-        if mode == "update" and kind != 0:  # the phase stages (7, 8) precede each albedo update
+        # The phase stages (7, 8) precede each albedo update.  Only the Lunar-Lambertian model has a
+        # phase angle; the legacy code fed an unset angle to the update in Lambertian mode (NaN).
+        if mode == "update" and kind == 2:
             c1, c2 = _phase_stage(out, tiles, inner, inp, exposures, params(), surfaces, wsum, costs, c1, c2)
             phase_history.append((c1, c2))
         for tl in tiles:
