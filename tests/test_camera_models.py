@@ -10,7 +10,7 @@ from lunaralbedo.camera.intersect import ray_sphere
 from lunaralbedo.camera.optics import ApolloMetricDistortion, FocalPlane, LroNacDistortion, RadialOdk
 from lunaralbedo.ingest.observation import open_observation
 from lunaralbedo.model.geometry import lonlat_height
-from lunaralbedo.spice.interp import interp_hermite, interp_quaternions, quat_to_matrix
+from lunaralbedo.spice.interp import interp_hermite, interp_quaternions, poly_function, quat_to_matrix
 from lunaralbedo.spice.kernels import expand_kernel_args
 
 
@@ -50,6 +50,9 @@ def test_quaternion_and_hermite_interpolation():
     pos = np.stack([t**3, t, 0 * t], axis=1)
     vel = np.stack([3 * t**2, 1 + 0 * t, 0 * t], axis=1)
     np.testing.assert_allclose(interp_hermite(t, pos, vel, 1.5), [1.5**3, 1.5, 0.0], atol=1e-12)
+    # ISIS PolyFunction cache: sum_k c_k ((et - base) / scale)^k per axis
+    coeffs = np.array([[1.0, 2.0, 3.0], [0.5, 0.0, -1.0], [0.25, 1.0, 0.0]])
+    np.testing.assert_allclose(poly_function(coeffs, 10.0, 2.0, 14.0), [1 + 0.5 * 2 + 0.25 * 4, 2 + 4, 3 - 2])
 
 
 def test_nac_crop_footprint_consistent_with_tables(realdata):

@@ -138,6 +138,11 @@ def test_skipped_cubes_are_reported_and_failures_write_nothing(realdata, tmp_pat
     out = CliRunner().invoke(main, ["ingest", str(bad), "--dem", str(SAMPLE / "dem"), "-o", str(tmp_path / "w2")])
     assert out.exit_code == 2 and "error: no cube could be ingested" in out.output and "broken.cub" in out.output
     assert not (tmp_path / "w2/settings.txt").exists()
+    # re-ingesting into the same WORKDIR with other cubes removes the earlier run's DRGs
+    out = CliRunner().invoke(main, ["ingest", str(SAMPLE / "cubes/SIM-F-00002.cub"), "--dem", str(SAMPLE / "dem"),
+                                    "-o", str(tmp_path / "w")])
+    assert out.exit_code == 0 and "removed" in out.output
+    assert sorted(p.name for p in (tmp_path / "w/DRG").iterdir()) == ["SIM-F-00002.tif"]
     out = CliRunner().invoke(main, ["ingest", str(cubes[0]), "--dem", str(tmp_path / "nodem"), "-o", str(tmp_path / "w3")])
     assert out.exit_code == 2 and "DEM file or folder not found" in out.output
 

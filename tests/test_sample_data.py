@@ -7,7 +7,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import rasterio
 
 from lunaralbedo.model.geometry import body_fixed, dem_normals, illumination, lonlat_grid

@@ -82,8 +82,6 @@ class CameraModel:
                 raise ValueError("a frame camera needs frame_et")
             self.knots = np.array([float(frame_et)])
         else:
-            a0, _ = self.detector.alpha(1.0, 0.5)
-            a1, _ = self.detector.alpha(1.0, self.lines + 0.5)
             l0 = self.detector.alpha(1.0, 0.5)[1]
             l1 = self.detector.alpha(1.0, self.lines + 0.5)[1]
             pad = 0.05 * (l1 - l0) + 2

@@ -53,6 +53,8 @@ def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem
         bar.close()
     for p in report.dem_radius_converted:
         click.echo(f"DEM {p}: values are radius, converted to height above 1737.4 km")
+    for p in report.removed:
+        click.echo(f"removed {p} (a DRG of an earlier run that this run did not produce)")
     for r in report.results:
         if r.skipped:
             click.echo(f"skipped {r.key} ({r.path}): {r.skipped}")

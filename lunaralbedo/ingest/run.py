@@ -24,7 +24,7 @@ from .grid import mpp_to_degrees
 from .keys import make_keys
 from .observation import open_observation
 from .orthoproject import footprint, level2_bounds, orthoproject, warp_level2
-from .workdir import write_dem, write_drg, write_settings
+from .workdir import remove_stale_drgs, write_dem, write_drg, write_settings
 
 
 @dataclass
@@ -55,6 +55,7 @@ class IngestReport:
     box: tuple[float, float, float, float] | None = None
     settings: Path | None = None
     dem_radius_converted: list[Path] = field(default_factory=list)
+    removed: list[Path] = field(default_factory=list)
 
     @property
     def done(self) -> list[CubeResult]:
@@ -117,11 +118,11 @@ def ingest(cubes: Sequence[str | Path], dems: Sequence[str | Path], workdir: str
     workdir = Path(workdir)
     if not cubes:
         raise InputError("no cubes given")
+    if mpp is not None and mpp <= 0:
+        raise InputError(f"--mpp must be positive, got {mpp}")
     extra = expand_kernel_args(kernels)
     dem = DemMosaic(load_dems(dems, dem_mode))
     mpp_deg = mpp_to_degrees(mpp) if mpp else None
-    if mpp is not None and mpp <= 0:
-        raise InputError(f"--mpp must be positive, got {mpp}")
     report = IngestReport(workdir, dem_radius_converted=dem.radius_converted)
     drg_dir = workdir / "DRG"
     for path, key in zip(cubes, make_keys(cubes)):
@@ -139,6 +140,8 @@ def ingest(cubes: Sequence[str | Path], dems: Sequence[str | Path], workdir: str
     if not done:
         reasons = "; ".join(r.skipped or "" for r in report.results)
         raise InputError(f"no cube could be ingested: {reasons}")
+    stale = remove_stale_drgs(drg_dir, {f"{r.key}.tif" for r in done})
+    report.removed = stale
     boxes = np.array([r.box for r in done])
     west, south, east, north = boxes[:, 0].min(), boxes[:, 1].min(), boxes[:, 2].max(), boxes[:, 3].max()
     report.box = (west, east, south, north)

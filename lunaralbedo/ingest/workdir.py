@@ -35,6 +35,17 @@ def write_drg(path: Path, values: np.ndarray, grid: Grid, legacy_8bit: bool = Fa
     write_geotiff(path, bands, grid.transform, MOON_CRS, nodata=float("nan"), dtype="float32")
 
 
+def remove_stale_drgs(drg_dir: Path, keep: set[str]) -> list[Path]:
+    """Delete DRGs of an earlier run in ``drg_dir`` that this run did not write (the solver reads the whole folder)."""
+    from ..io.atomic import remove_stale_temporaries
+
+    remove_stale_temporaries(drg_dir)
+    removed = [p for p in sorted(drg_dir.glob("*.tif")) if p.name not in keep]
+    for p in removed:
+        p.unlink()
+    return removed
+
+
 def write_dem(path: Path, heights: np.ndarray, grid: Grid) -> None:
     """DEM tile (float32 metres above 1737.4 km; -32767 where unknown)."""
     write_geotiff(path, np.where(np.isfinite(heights), heights, NO_DEM).astype(np.float32), grid.transform,

@@ -150,8 +150,7 @@ class IsisLabel:
         k = self.group("Kernels", required=False)
         if k is not None and "NaifFrameCode" in k:
             return int(value_of(k["NaifFrameCode"]))
-        nk = self.group("NaifKeywords", required=False)
-        return None if nk is None else None
+        return None
 
     @property
     def naif_keywords(self) -> dict[str, Any]:
