@@ -162,3 +162,40 @@ def test_key_rule():
         "M143947267L", "AS15-M-1450", "x__________"]
     assert make_keys(["d1/LONGNAME_0001.cub", "d2/LONGNAME_0001.cub", "LONGNAME_0001b.cub"]) == [
         "LONGNAME_00", "LONGNAME001", "LONGNAME002"]
+
+
+@pytest.mark.slow
+def test_ingested_sample_data_solves_to_the_truth_albedo(tmp_path):
+    """Cubes -> ingest -> solve: the albedo equals the truth up to the global albedo*exposure scale."""
+    import lunaralbedo
+    from rasterio.warp import Resampling, reproject
+
+    truth = json.loads((SAMPLE / "truth/truth.json").read_text())
+    work = tmp_path / "work"
+    ingest(sorted((SAMPLE / "cubes").glob("*.cub")), [SAMPLE / "dem"], work)
+    lunaralbedo.solve(work / "settings.txt", out=tmp_path / "albedo", plots=False)
+    tiles = sorted((tmp_path / "albedo/albedo").glob("*.tif"))
+    assert tiles
+    ratios = []
+    with rasterio.open(SAMPLE / "truth/albedo.tif") as tds:
+        true_alb, tt, tcrs = tds.read(1), tds.transform, tds.crs
+    for tile in tiles:
+        with rasterio.open(tile) as ds:
+            a = ds.read(1).astype(np.float64)
+            ref = np.full(a.shape, np.nan, dtype=np.float32)
+            reproject(true_alb, ref, src_transform=tt, src_crs=tcrs, dst_transform=ds.transform, dst_crs=ds.crs,
+                      resampling=Resampling.bilinear, dst_nodata=np.nan)
+            ok = np.isfinite(a) & np.isfinite(ref) & (a > 0)
+            if ds.nodata is not None and np.isfinite(ds.nodata):
+                ok &= a != ds.nodata
+            ratios.append(a[ok] / ref[ok])
+    r = np.concatenate(ratios)
+    assert r.size > 20000
+    dev = np.abs(r / np.median(r) - 1.0)
+    print(f"albedo/truth scale {np.median(r):.4f}; |deviation| median {np.median(dev):.4f} p95 {np.percentile(dev, 95):.4f}")
+    assert np.median(dev) < 0.01 and np.percentile(dev, 95) < 0.03
+    # exposure ratios between images are the true ones (the solver's exposure.csv)
+    lines = (tmp_path / "albedo/exposure.csv").read_text().splitlines()[1:]
+    solved = {ln.split(",")[0]: float(ln.split(",")[1]) for ln in lines}
+    scale = [solved[k] / im["exposure"] for k, im in truth["images"].items()]
+    assert np.ptp(scale) / np.mean(scale) < 0.01

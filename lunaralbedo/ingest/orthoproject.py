@@ -25,19 +25,21 @@ from .grid import Grid, bilinear
 def orthoproject(camera, image: np.ndarray, grid: Grid, heights_m: np.ndarray, block_rows: int = 256) -> np.ndarray:
     """Image values (float64, NaN where not seen) on ``grid`` with DEM ``heights_m`` (metres) on that grid."""
     lon, lat = grid.lonlat()
-    points = body_fixed(lon, lat, heights_m)
-    normals = dem_normals(points)
+    h = grid.shape[0]
     out = np.full(grid.shape, np.nan)
     center_pos = camera.positions[len(camera.positions) // 2]
-    for r0 in range(0, grid.shape[0], block_rows):
-        sl = slice(r0, r0 + block_rows)
-        p = points[sl]
+    for r0 in range(0, h, block_rows):
+        r1 = min(h, r0 + block_rows)
+        lo, hi = max(0, r0 - 1), min(h, r1 + 1)  # one halo row each side for the normals
+        pts = body_fixed(lon[lo:hi], lat[lo:hi], heights_m[lo:hi])
+        normals = dem_normals(pts)[r0 - lo:r1 - lo]
+        p = pts[r0 - lo:r1 - lo]
         finite = np.all(np.isfinite(p), axis=-1)
         s, l = camera.ground_to_image(np.where(finite[..., None], p, 0.0))
         vals = bilinear(image, s - 1.0, l - 1.0)
         view = center_pos - p
-        cos_e = np.sum(normals[sl] * view, axis=-1) / np.linalg.norm(view, axis=-1)
-        out[sl] = np.where(finite & (cos_e > 0), vals, np.nan)
+        cos_e = np.sum(normals * view, axis=-1) / np.linalg.norm(view, axis=-1)
+        out[r0:r1] = np.where(finite & (cos_e > 0), vals, np.nan)
     return out
 
 
