@@ -71,7 +71,8 @@ def level2_bounds(label: IsisLabel):
     t = np.linspace(0, 1, 16)
     cols = np.concatenate([t * samples, np.full(16, samples), t * samples, np.zeros(16)])
     rows = np.concatenate([np.zeros(16), t * lines, np.full(16, lines), t * lines])
-    xs, ys = transform * (cols, rows)
+    xs = transform.a * cols + transform.b * rows + transform.c
+    ys = transform.d * cols + transform.e * rows + transform.f
     if crs is None or crs.is_geographic:
         return np.asarray(xs), np.asarray(ys)
     lon, lat = warp_transform(crs, MOON_CRS, list(np.ravel(xs)), list(np.ravel(ys)))
