@@ -102,3 +102,19 @@ def test_reconstruct_sh_drop_in(photk_tests, tmp_path):
     bad = subprocess.run(["bash", str(REPO / "tools" / "reconstruct.sh"), "only-one-arg"], cwd=tmp_path, env=env,
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "Usage" in bad.stderr
+
+
+@pytest.mark.parametrize("changes", [dict(reflectance_type=1), dict(reflectance_type=0, shadow_type=3)],
+                         ids=["lambertian", "mosaic-adaptive-shadow"])
+def test_other_legacy_modes_run(photk_tests, tmp_path, changes):
+    """Lambertian albedo, and the legacy 'forceMosaic' (mosaic with a reflectance-based shadow test)."""
+    from lunaralbedo.settings import replace
+
+    s = replace(load_settings(photk_tests / "photometry_settings_1.txt"), max_num_iter=0, compute_errors=0, **changes)
+    summary = solve_legacy(s, tmp_path / "out", progress=False)
+    assert summary["tiles_written"] == ["tile_4E8S", "tile_8E8S"]
+    assert len(summary["phase_coefficients"]) == 1
+    with rasterio.open(tmp_path / "out" / "albedo" / "tile_4E8S.tif") as ds:
+        d = ds.read()
+    assert d.shape == (2, 95, 95) and (d[1] > 0).mean() > 0.9
+    assert 60 < d[0][d[1] > 0].mean() < 250

@@ -153,12 +153,24 @@ def solve_tile(mode, tile_geo: Geo, inner, images, exposures, p: Params, surface
         if not math.isfinite(T):  # exposure undefined (no usable pixel): the image cannot contribute
             continue
         m &= R != 0.0
-        eR = T * R
-        t = shadow_threshold(p, eR.astype(f32)).astype(np.float64)
-        m &= (sval[i0, j0] >= t) & (sval[i1, j0] >= t) & (sval[i0, j1] >= t) & (sval[i1, j1] >= t)
+
+        def lit(exposure: float) -> np.ndarray:
+            t = shadow_threshold(p, (exposure * R).astype(f32)).astype(np.float64)
+            return (sval[i0, j0] >= t) & (sval[i1, j0] >= t) & (sval[i0, j1] >= t) & (sval[i1, j1] >= t)
+
+        lit_t = lit(T)
         if p.force_mosaic:
-            T = float(f32(p.tr_const))
-            eR = np.full((h, w), T)
+            # Legacy forceMosaic set the image's exposure to TR_CONST at its first lit pixel, so the
+            # adaptive shadow test of every later pixel (row-major) used TR_CONST.
+            tr = float(f32(p.tr_const))
+            first = np.flatnonzero((m & lit_t).ravel())
+            if first.size and p.shadow_type in (2, 3):
+                idx = np.arange(h * w).reshape(h, w)
+                lit_t = np.where(idx <= first[0], lit_t, lit(tr))
+            T = tr
+            R = np.ones((h, w))
+        m &= lit_t
+        eR = T * R
         if not np.any(m):
             continue
         if normalized:
