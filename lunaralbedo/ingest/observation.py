@@ -54,7 +54,10 @@ class Observation:
     def __enter__(self) -> "Observation":
         self.pool.__enter__()
         try:
-            self._compute()
+            try:
+                self._compute()
+            except (KeyError, ValueError, TypeError, IndexError) as exc:
+                raise IsisError(f"{self.path}: unexpected label content ({type(exc).__name__}: {exc})") from None
         except BaseException:
             self.pool.__exit__(None, None, None)
             raise

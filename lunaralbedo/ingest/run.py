@@ -130,7 +130,10 @@ def ingest(cubes: Sequence[str | Path], dems: Sequence[str | Path], workdir: str
         try:
             with open_observation(path, key, extra, isisdata, source) as obs:
                 res.source, res.sun, res.spacecraft = obs.source, obs.sun.copy(), obs.spacecraft.copy()
-                _ingest_one(res, obs, dem, mpp_deg, drg_dir, legacy_8bit)
+                try:
+                    _ingest_one(res, obs, dem, mpp_deg, drg_dir, legacy_8bit)
+                except (KeyError, ValueError, TypeError, IndexError) as exc:
+                    raise InputError(f"{path}: unexpected label content ({type(exc).__name__}: {exc})") from None
         except LunarAlbedoError as exc:
             res.skipped = str(exc)
         report.results.append(res)
