@@ -3,6 +3,7 @@ PhotometryTK settings-1 gold result (legacy uint8 + alpha tiles)."""
 from __future__ import annotations
 
 import shutil
+import warnings
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -11,6 +12,7 @@ import rasterio
 from rio_cogeo.cogeo import cog_validate
 
 from lunaralbedo.export import export_kml
+from lunaralbedo.export.kml import merge_children
 from lunaralbedo.export.pyramid import plan_pyramid
 from lunaralbedo.export.sources import longitude_shifts
 from test_export_common import albedo_fn, kml_vs_albedo, make_result, pixel_centres, sample_tiles
@@ -148,3 +150,39 @@ def test_photometrytk_gold_sub4(gold_result):
     with rasterio.open(root / "albedo_sub4" / "tile_4E8S.tif") as ours, rasterio.open(root / "albedo" / "tile_4E8S.tif") as full:
         assert (ours.width, ours.height) == (23, 23)
         assert abs(ours.read(1).astype(float).mean() - full.read(1).astype(float).mean()) < 1.0
+
+
+def test_coarser_levels_are_count_weighted_means_of_the_finest_level():
+    # uneven edges (13 x 7 root, 16-px tiles) and holes: every level must equal the
+    # mean of the valid finest-level pixels below each of its pixels
+    t = 16
+    pyr = plan_pyramid((0.0, 0.0, 10.0, 6.0), (56, 104), tile_size=t, levels=4)
+    assert (pyr.root_width, pyr.root_height) == (13, 7)
+    assert [pyr.level_counts(k) for k in range(4)] == [(1, 1), (1, 2), (2, 4), (4, 7)]
+    rng = np.random.default_rng(1)
+    finest = rng.random(pyr.level_shape(3))
+    finest[rng.random(finest.shape) < 0.3] = np.nan
+    finest[:16, :32] = np.nan  # two whole tiles without data
+    results = {}
+    for level in range(3, -1, -1):
+        rows, cols = pyr.level_counts(level)
+        for r in range(rows):
+            for c in range(cols):
+                node = pyr.node(level, c, r)
+                if level == 3:
+                    vals = finest[r * t:r * t + node.height, c * t:c * t + node.width].astype(np.float32)
+                    results[node.key] = (vals, np.isfinite(vals).astype(np.float32))
+                else:
+                    kids = [pyr.node(*k) for k in pyr.children(node)]
+                    results[node.key] = merge_children(node, kids, [results[k.key] for k in kids])
+        f = 1 << (3 - level)
+        h, w = pyr.level_shape(level)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            want = np.nanmean(finest.reshape(h, f, w, f).transpose(0, 2, 1, 3).reshape(h, w, -1), axis=2)
+        got = np.full((h, w), np.nan)
+        for r in range(rows):
+            for c in range(cols):
+                vals, _ = results[(level, c, r)]
+                got[r * t:r * t + vals.shape[0], c * t:c * t + vals.shape[1]] = vals
+        np.testing.assert_allclose(got, want, rtol=1e-5)

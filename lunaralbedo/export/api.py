@@ -5,8 +5,10 @@ runs at once on a local thread/process pool or on a ``distributed.Client``):
 
 1. one task per albedo tile samples its valid values -> the shared percentile stretch
    (skipped with ``value_range``);
-2. one task per PNG tile per level (each reads the albedo tiles it covers), one
-   task per albedo tile for ``albedo_sub4/``, one task per mosaic.
+2. one task per PNG tile per level: finest-level tiles read the albedo tiles they
+   cover, each coarser tile waits only for its (up to 4) children and averages
+   them, so a level's tiles run in parallel and the albedo is read once; one task
+   per albedo tile for ``albedo_sub4/``; one task per mosaic.
 
 Folders are built in a ``.tmp-*`` sibling and swapped in at the end, so a re-run
 replaces the previous export cleanly and a failed run leaves the old one intact.
@@ -31,7 +33,7 @@ from rasterio.errors import NotGeoreferencedWarning
 
 from ..errors import InputError
 from ..io.atomic import TMP_PREFIX, atomic_write_text
-from .kml import ROOT_NAME, pyramid_children, render_node
+from .kml import ROOT_NAME, pyramid_children, render_leaf, render_parent
 from .mosaic import write_cog_mosaic, write_sub4
 from .pyramid import Pyramid, plan_pyramid, present_nodes
 from .sources import Grid, Source, find_sources, intersects, native_grid, sample_values
@@ -84,6 +86,23 @@ def _compute(tasks: list, client=None, workers: int | None = None, scheduler: st
 
 def _covering(sources: Sequence[Source], bounds) -> list[Source]:
     return [s for s in sources if intersects(s.bounds, bounds)]
+
+
+def _pyramid_tasks(kml_dir, pyr, present, children, sources, st, label, resampling) -> list:
+    """One task per written tile: finest level from the albedo, each coarser tile from its children."""
+    task = dask.delayed(pure=False)
+    done: dict = {}
+    for level in range(pyr.levels - 1, -1, -1):
+        for node in present[level]:
+            if level == pyr.levels - 1:
+                done[node.key] = task(render_leaf)(kml_dir, node, _covering(sources, node.bounds), st, label, resampling)
+            else:
+                kids = children[node.key]
+                done[node.key] = task(render_parent)(kml_dir, node, kids, [done[k.key] for k in kids], st, label)
+    # Every written tile is below the root, so computing the root computes all of them,
+    # and each tile's arrays are freed once its parent has used them.
+    (root,) = present[0]
+    return [done[root.key]]
 
 
 def _level_resampling(pyr: Pyramid, level: int, grid: Grid) -> Resampling:
@@ -149,34 +168,26 @@ def export_kml(
 
     label = name or results_dir.name
     with staged_dir(results_dir / "kml") as kml_dir, staged_dir(results_dir / "albedo_sub4") as sub4_dir:
-        tasks = [
-            task(render_node)(
-                kml_dir, node, children[node.key], _covering(sources, node.bounds), st, label, _level_resampling(pyr, k, grid)
-            )
-            for k, nodes in present.items()
-            for node in nodes
-        ]
-        tasks += [task(write_sub4)(s, sub4_dir / s.path.name, sub4_rs) for s in sources]
-        tasks.append(task(write_cog_mosaic)(sources, grid, results_dir / "albedo_mosaic.tif"))
+        pyramid = _pyramid_tasks(kml_dir, pyr, present, children, sources, st, label, _level_resampling(pyr, pyr.levels - 1, grid))
+        sub4 = [task(write_sub4)(s, sub4_dir / s.path.name, sub4_rs) for s in sources]
+        mosaics = [task(write_cog_mosaic)(sources, grid, results_dir / "albedo_mosaic.tif")]
         if errors:
-            tasks.append(task(write_cog_mosaic)(errors, native_grid(errors), results_dir / "error_mosaic.tif"))
-        done = _compute(tasks, **run)
-        n_nodes = sum(len(v) for v in present.values())
+            mosaics.append(task(write_cog_mosaic)(errors, native_grid(errors), results_dir / "error_mosaic.tif"))
+        mosaics = _compute(pyramid + sub4 + mosaics, **run)[len(pyramid) + len(sub4):]
         atomic_write_text(kml_dir / STRETCH_FILE, st.to_json())
-    for mosaic in done[n_nodes + len(sources):]:
+    for mosaic in mosaics:
         _readable(Path(mosaic["path"]))
     if not errors:
         with contextlib.suppress(FileNotFoundError):
             (results_dir / "error_mosaic.tif").unlink()
 
-    mosaics = done[n_nodes + len(sources):]
     fh, fw = pyr.level_shape(pyr.levels - 1)
     return {
         "results_dir": str(results_dir),
         "levels": pyr.levels,
         "tile_size": pyr.tile_size,
         "tiles_per_level": [len(present[k]) for k in range(pyr.levels)],
-        "tiles": n_nodes,
+        "tiles": sum(len(v) for v in present.values()),
         "bounds": list(pyr.bounds),
         "kml_size": [fw, fh],
         "native_size": [grid.width, grid.height],

@@ -101,27 +101,67 @@ def write_png(path: Path, rgba: np.ndarray, transform) -> None:
             aux.unlink()
 
 
-def render_node(
+def _write_node(out_dir: Path, node: Node, children: Sequence[Node], values: np.ndarray, stretch: Stretch, name: str) -> None:
+    write_png(out_dir / png_relpath(*node.key), to_rgba(values, stretch), node.grid.transform)
+    atomic_write_text(out_dir / kml_relpath(*node.key), node_kml(node, children, name))
+
+
+def render_leaf(
     out_dir: str | Path,
     node: Node,
-    children: Sequence[Node],
     sources: Sequence[Source],
     stretch: Stretch,
     name: str = "albedo",
-    resampling: Resampling = Resampling.average,
-) -> dict:
-    """One task of the pyramid: resample the albedo onto the tile, write its PNG and KML.
+    resampling: Resampling = Resampling.nearest,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Task for a tile of the finest level: resample the albedo onto it, write its PNG and KML.
 
-    Independent of every other tile (each level is read from the albedo tiles
-    directly), so all tiles of all levels can run at once.  Levels at about the
-    native resolution use ``nearest`` (values are copied, not blurred), coarser
-    levels ``average`` (each PNG pixel is the mean of the albedo pixels it covers).
+    ``nearest`` when the level has about the native resolution (values copied,
+    not blurred), ``average`` when ``--levels`` makes it coarser.  Returns
+    ``(mean, count)`` for the parent: the values and how many finest-level pixels
+    each one stands for (1 or 0).
     """
-    out_dir = Path(out_dir)
     values = read_region(sources, node.grid, resampling)
-    write_png(out_dir / png_relpath(*node.key), to_rgba(values, stretch), node.grid.transform)
-    atomic_write_text(out_dir / kml_relpath(*node.key), node_kml(node, children, name))
-    return {"key": node.key, "valid": int(np.isfinite(values).sum())}
+    _write_node(Path(out_dir), node, [], values, stretch, name)
+    return values, np.isfinite(values).astype(np.float32)
+
+
+def render_parent(
+    out_dir: str | Path,
+    node: Node,
+    children: Sequence[Node],
+    child_results: Sequence[tuple[np.ndarray, np.ndarray]],
+    stretch: Stretch,
+    name: str = "albedo",
+) -> tuple[np.ndarray, np.ndarray]:
+    """Task for a tile of a coarser level: 2x2 means of its children's pixels, PNG and KML.
+
+    Each pixel is the mean of the valid finest-level pixels below it (counts carry
+    the weights), so every level is the block mean of the finest one.
+    """
+    values, counts = merge_children(node, children, child_results)
+    _write_node(Path(out_dir), node, children, values, stretch, name)
+    return values, counts
+
+
+def merge_children(
+    node: Node, children: Sequence[Node], child_results: Sequence[tuple[np.ndarray, np.ndarray]]
+) -> tuple[np.ndarray, np.ndarray]:
+    """(mean, count) of ``node`` from its children's (pure; missing children hold no data)."""
+    total = np.zeros((2 * node.height, 2 * node.width), dtype=np.float64)
+    count = np.zeros_like(total)
+    r0, c0 = 2 * node.row, 2 * node.col
+    for child, (vals, cnt) in zip(children, child_results):
+        rs = 0 if child.row == r0 else total.shape[0] - child.height  # the first child is a full tile
+        cs = 0 if child.col == c0 else total.shape[1] - child.width
+        ok = cnt > 0
+        total[rs:rs + child.height, cs:cs + child.width] = np.where(ok, vals, 0.0) * cnt
+        count[rs:rs + child.height, cs:cs + child.width] = cnt
+    total = total.reshape(node.height, 2, node.width, 2).sum(axis=(1, 3))
+    count = count.reshape(node.height, 2, node.width, 2).sum(axis=(1, 3))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(count > 0, total / count, np.nan)
+    return mean.astype(np.float32), count.astype(np.float32)
 
 
 def pyramid_children(pyr: Pyramid, present: dict[int, list[Node]]) -> dict[tuple[int, int, int], list[Node]]:
