@@ -63,31 +63,62 @@ class SceneSpec:
         return self.image_px + self.step_px * (self.n_images - 1)
 
 
-def truth_albedo(lon, lat, rng_seed=3):
-    """A smooth, textured albedo field (dimensionless, ~0.6..1.4) as a function of lon/lat (degrees)."""
-    rng = np.random.default_rng(rng_seed)
-    a = np.ones_like(lon, dtype=np.float64)
+def _features(extent, per_square_degree, seed):
+    """Random blobs ``(cx, cy, r, sign)`` over ``extent`` (lon_min, lon_max, lat_min, lat_max), degrees."""
+    rng = np.random.default_rng(seed)
+    area = (extent[1] - extent[0]) * (extent[3] - extent[2])
+    n = max(3, int(round(per_square_degree * area)))
+    return [(rng.uniform(extent[0], extent[1]), rng.uniform(extent[2], extent[3]), rng.uniform(0.05, 0.2), rng.choice([-1.0, 1.0]))
+            for _ in range(n)]
+
+
+def _near(features, lon, lat, reach):
+    """The features within ``reach`` radii of the window (the others add less than 1e-5 there)."""
+    lo0, lo1, la0, la1 = np.min(lon), np.max(lon), np.min(lat), np.max(lat)
+    return [f for f in features if lo0 - reach * f[2] <= f[0] <= lo1 + reach * f[2] and la0 - reach * f[2] <= f[1] <= la1 + reach * f[2]]
+
+
+def truth_albedo(lon, lat, extent, seed=3):
+    """A textured albedo field (dimensionless, 0.3..1.8) of lon/lat (degrees) over ``extent``.
+
+    A pure function of position: any window of the scene can be evaluated alone.
+    """
+    rng = np.random.default_rng(seed)
+    a = np.ones(np.broadcast(lon, lat).shape, dtype=np.float64)
     for _ in range(6):
         kx, ky = rng.uniform(2, 9, 2)
         ph = rng.uniform(0, 2 * np.pi, 2)
         a += 0.06 * np.sin(kx * lon + ph[0]) * np.cos(ky * lat + ph[1])
-    for _ in range(8):  # bright ejecta / dark patches
-        cx, cy = rng.uniform(lon.min(), lon.max()), rng.uniform(lat.min(), lat.max())
-        r = rng.uniform(0.05, 0.2)
-        a += rng.choice([-0.25, 0.3]) * np.exp(-((lon - cx) ** 2 + (lat - cy) ** 2) / (2 * r * r))
+    for cx, cy, r, sign in _near(_features(extent, 4.0, seed + 100), lon, lat, 5):  # bright ejecta / dark patches
+        a += (0.3 if sign > 0 else -0.25) * np.exp(-((lon - cx) ** 2 + (lat - cy) ** 2) / (2 * r * r))
     return np.clip(a, 0.3, 1.8)
 
 
-def truth_dem(lon, lat, relief_m, rng_seed=5):
-    """Heights (metres) with gentle hills and a few craters."""
-    rng = np.random.default_rng(rng_seed)
+def truth_dem(lon, lat, extent, relief_m, seed=5):
+    """Heights (metres above the 1737.4 km sphere) with gentle hills and craters over ``extent``."""
     h = relief_m * 0.3 * np.sin(2.5 * lon) * np.cos(3.1 * lat)
-    for _ in range(5):
-        cx, cy = rng.uniform(lon.min(), lon.max()), rng.uniform(lat.min(), lat.max())
-        r = rng.uniform(0.08, 0.25)
+    for cx, cy, r, _ in _near(_features(extent, 2.5, seed), lon, lat, 3):
         d2 = ((lon - cx) ** 2 + (lat - cy) ** 2) / (r * r)
-        h += relief_m * (np.exp(-d2 * 2) * -1.0 + 0.4 * np.exp(-((np.sqrt(d2) - 1) ** 2) * 8))
+        h = h + relief_m * (-np.exp(-d2 * 2) + 0.4 * np.exp(-((np.sqrt(d2) - 1) ** 2) * 8))
     return h
+
+
+def _write_field(path: Path, fn, transform: Affine, shape: tuple[int, int], nodata=None, chunk: int = 512) -> None:
+    """Write ``fn(lon, lat)`` (float32) over a grid in column chunks, atomically."""
+    import rasterio
+    from rasterio.windows import Window
+
+    from .io.atomic import atomic_path
+
+    h, w = shape
+    with atomic_path(path) as tmp:
+        profile = dict(driver="GTiff", width=w, height=h, count=1, dtype="float32", crs=MOON_CRS, transform=transform,
+                       nodata=nodata, compress="deflate", tiled=True)
+        with rasterio.open(tmp, "w", **profile) as dst:
+            for c0 in range(0, w, chunk):
+                cw = min(chunk, w - c0)
+                lon, lat = geometry.lonlat_grid(transform @ Affine.translation(c0, 0), (h, cw))
+                dst.write(fn(lon, lat).astype(np.float32), 1, window=Window(c0, 0, cw, h))
 
 
 def _sun_and_spacecraft(spec: SceneSpec, k: int, lon_c: float, lat_c: float, rng) -> tuple[np.ndarray, np.ndarray]:
@@ -109,18 +140,18 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
     rng = np.random.default_rng(spec.seed)
     res = spec.res_deg
     width, height = spec.width_px, spec.image_px
-    # Global truth grid, with a margin of 8 px for the DEM.
+    # Global truth grid, with a margin of 8 px for the DEM; evaluated window by window.
     m = 8
     gt = Affine(res, 0, spec.lon0 - m * res, 0, -res, spec.lat0 + height * res + m * res)
-    shape = (height + 2 * m, width + 2 * m)
-    lon, lat = geometry.lonlat_grid(gt, shape)
-    albedo = truth_albedo(lon, lat)
-    dem = truth_dem(lon, lat, spec.dem_relief_m)
-    pts = geometry.body_fixed(lon, lat, dem)
-    normals = geometry.dem_normals(pts)
-    write_geotiff(out / "DEM" / "dem.tif", dem.astype(np.float32), gt, MOON_CRS, nodata=-32767.0)
-    inner = (slice(m, m + height), slice(m, m + width))
-    write_geotiff(out / "truth" / "albedo.tif", albedo[inner].astype(np.float32), gt @ Affine.translation(m, m), MOON_CRS)
+    extent = (spec.lon0, spec.lon0 + width * res, spec.lat0, spec.lat0 + height * res)
+    def dem_fn(lo, la):
+        return truth_dem(lo, la, extent, spec.dem_relief_m)
+
+    def albedo_fn(lo, la):
+        return truth_albedo(lo, la, extent)
+
+    _write_field(out / "DEM" / "dem.tif", dem_fn, gt, (height + 2 * m, width + 2 * m), nodata=-32767.0)
+    _write_field(out / "truth" / "albedo.tif", albedo_fn, gt @ Affine.translation(m, m), (height, width))
     u = np.linspace(-1, 1, spec.n_images)
     exposures = 1.0 + spec.exposure_spread * rng.permutation(u)
     # Scale so the brightest pixels stay below 255: DN = gain * A * T * R.
@@ -129,16 +160,19 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
     for k in range(spec.n_images):
         key = f"SIM-IMG-{k:03d}"
         c0 = m + k * spec.step_px
-        win = (slice(m, m + height), slice(c0, c0 + spec.image_px))
-        lon_c, lat_c = float(lon[win].mean()), float(lat[win].mean())
-        sun, sc = _sun_and_spacecraft(spec, k, lon_c, lat_c, rng)
-        ci, ce, al = geometry.illumination(pts[win], normals[win], sun, sc)
+        transform = gt @ Affine.translation(c0, m)
+        # the image window plus one pixel all round, so normals use the same neighbours as the solver
+        lon, lat = geometry.lonlat_grid(transform @ Affine.translation(-1, -1), (height + 2, spec.image_px + 2))
+        pts = geometry.body_fixed(lon, lat, dem_fn(lon, lat))
+        normals = geometry.dem_normals(pts)[1:-1, 1:-1]
+        pts, lon, lat = pts[1:-1, 1:-1], lon[1:-1, 1:-1], lat[1:-1, 1:-1]
+        sun, sc = _sun_and_spacecraft(spec, k, float(lon.mean()), float(lat.mean()), rng)
+        ci, ce, al = geometry.illumination(pts, normals, sun, sc)
         r = reflectance(spec.reflectance_type, ci, ce, al, spec.c1, spec.c2)
         r = np.where(ci >= 0.3, r, 0.0)
-        signal = gain * albedo[win] * exposures[k] * r
+        signal = gain * albedo_fn(lon, lat) * exposures[k] * r
         dn = np.clip(np.round(signal + rng.normal(0, spec.noise_dn, signal.shape)), 0, 255).astype(np.uint8)
         alpha = np.full(dn.shape, 255, np.uint8)
-        transform = gt @ Affine.translation(c0, m)
         write_geotiff(out / "DRG" / f"{key}_drg.tif", np.stack([dn, alpha]), transform, MOON_CRS)
         sun_pos[key], sc_pos[key] = sun, sc
         keys.append(key)
