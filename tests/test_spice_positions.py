@@ -145,3 +145,35 @@ def test_kaguya_tc_line_scanner_time_from_sclk(realdata):
     (r,) = compute_positions([tc / "TC1S2B0_01_06691S820E0465_isis3.lbl"], [realdata / "kernels/generic", tc])
     assert r.et == pytest.approx(292234261.12293595, abs=1e-5)
     assert np.linalg.norm(r.spacecraft) - 1737.4 == pytest.approx(52.93, abs=0.05)
+
+
+def test_label_kernels_resolve_through_isisdata(realdata, tmp_path, monkeypatch):
+    """$base/$apollo15 paths of the AS15-M-1450 label resolve under ISISDATA (a tree of symlinks here)."""
+    a15, gen = realdata / "apollo15_metric", realdata / "kernels/generic"
+    links = {
+        "base/kernels/lsk/naif0012.tls": gen / "naif0012.tls", "base/kernels/pck/pck00009.tpc": gen / "pck00009.tpc",
+        "apollo15/kernels/pck/moon_080317.tf": gen / "moon_080317.tf",
+        "apollo15/kernels/pck/moon_assoc_me.tf": gen / "moon_assoc_me.tf",
+        "apollo15/kernels/tspk/moon_pa_de421_1900-2050.bpc": gen / "moon_pa_de421_1900-2050.bpc",
+        "apollo15/kernels/tspk/de421.bsp": gen / "de421.bsp",
+        "apollo15/kernels/fk/apollo15_v2.0002.tf": a15 / "apollo15_v2.0002.tf",
+        "apollo15/kernels/ik/apollo15_metric_v2.0001.ti": a15 / "apollo15_metric_v2.0001.ti",
+        "apollo15/kernels/sclk/apollo15.0001.tsc": a15 / "apollo15.0001.tsc",
+        "apollo15/kernels/iak/apollo15MetricAddendum002.ti": a15 / "apollo15MetricAddendum002.ti",
+    }
+    for rel, target in links.items():
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).symlink_to(target)
+    label = a15 / "AS15-M-1450_isis3.lbl"
+    found, missing = label_kernels(read_label(label).group("Kernels"), label, tmp_path)
+    assert len(found) == len(links)
+    # (ShapeModel names a DEM, not a kernel: not listed)
+    assert missing == ["$apollo15/kernels/ck/AS15_M_REV35_v2.bc", "$apollo15/kernels/spk/AS15_M_REV35_v2.bsp"]
+    # the ale slices of the SPK/CK have other names: give them with --kernels; ISISDATA from the environment
+    monkeypatch.setenv("ISISDATA", str(tmp_path))
+    slices = [a15 / n for n in ("AS15-M-1450.isis_0.bsp", "AS15-M-1450.isis_1.bsp",
+                                "AS15_M_REV35_v2_0_sliced_-915240.bc", "AS15_M_REV35_v2_1_sliced_-915240.bc")]
+    (r,) = compute_positions([label], slices)
+    (ref,) = compute_positions([label], [gen, a15])
+    np.testing.assert_allclose(r.spacecraft, ref.spacecraft, atol=1e-9)
+    np.testing.assert_allclose(r.sun, ref.sun, atol=1e-6)
