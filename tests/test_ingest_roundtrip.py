@@ -128,10 +128,12 @@ def test_real_nac_crop_orthoprojected_on_ldem(realdata, tmp_path):
 def test_skipped_cubes_are_reported_and_failures_write_nothing(realdata, tmp_path):
     bad = tmp_path / "broken.cub"
     bad.write_bytes(b"garbage")
-    cubes = [SAMPLE / "cubes/SIM-F-00001.cub", bad, realdata / "apollo15_metric/AS15-M-1450_isis3.lbl"]
+    cubes = [SAMPLE / "cubes/SIM-F-00001.cub", bad, realdata / "apollo15_metric/AS15-M-1450_isis3.lbl",
+             realdata / "isis/M1181493219CE.vis.odd.reduced.cub"]
     out = CliRunner().invoke(main, ["ingest", *map(str, cubes), "--dem", str(SAMPLE / "dem"), "-o", str(tmp_path / "w")])
     assert out.exit_code == 0, out.output
     assert "skipped broken_____" in out.output and "skipped AS15-M-1450" in out.output
+    assert "pushframe geometry is not supported for orthoprojection" in out.output
     assert sorted(p.name for p in (tmp_path / "w/DRG").iterdir()) == ["SIM-F-00001.tif"]
     assert list(read_positions(tmp_path / "w/meta/sunpos.txt")) == ["SIM-F-00001"]
     # nothing ingestible: exit 2 with the reasons, no settings file

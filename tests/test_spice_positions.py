@@ -29,7 +29,11 @@ def clean_pool():
 
 @pytest.mark.parametrize("name", LRO_CUBES)
 def test_lro_table_sun_equals_kernel_sun(realdata, name):
-    """Attached SunPosition/BodyRotation vs de421 + moon_pa_de421 + moon frame kernels: < 1 km (measured ~1e-5 km)."""
+    """Attached SunPosition/BodyRotation vs de421 + moon_pa_de421 + moon frame kernels: < 1 km.
+
+    Measured: NAC 1.3e-5 km, Mini-RF 1.4e-3 km, WAC 0.30 km (its 2-record Linear Sun cache spans
+    15 minutes and is read at its midpoint, where linear interpolation of the curved path errs most).
+    """
     generic = expand_kernel_args([realdata / "kernels/generic"])
     with open_observation(realdata / "isis" / name, name[:11], generic, source="table") as obs:
         table_sun = obs.sun
@@ -42,7 +46,7 @@ def test_lro_table_sun_equals_kernel_sun(realdata, name):
         rot = np.abs(obs.ephemeris.body_rotation(obs.et) - kernels.body_rotation(obs.et)).max()
         assert rot < 1e-9  # BodyRotation table = J2000 -> MOON_PA_DE421 then ConstantRotation -> MOON_ME
         assert 1.4e8 < np.linalg.norm(table_sun) < 1.6e8
-        assert 1737.4 + 30 < np.linalg.norm(obs.spacecraft) < 1737.4 + 120
+        assert 1737.4 + 30 < np.linalg.norm(obs.spacecraft) < 1737.4 + 150
 
 
 def test_nac_campt_time_from_preroll_clock(realdata):
@@ -126,12 +130,24 @@ def test_positions_command_writes_legacy_files(realdata, tmp_path):
     s, c = read_positions(sun), read_positions(sc)
     assert list(s) == ["M143947267L", "AS15-M-1450"] and list(c) == list(s)
     assert np.linalg.norm(c["M143947267L"]) - 1737.4 == pytest.approx(54.473, abs=0.01)
-    # a label without usable kernels: exit 2, "error: ...", nothing written
+    # a cube whose time cannot be modelled (push-frame WAC without tables): exit 2, "error: ...", nothing written
     out2 = tmp_path / "s2.txt"
     bad = CliRunner().invoke(main, ["positions", str(realdata / "isis/wac00002cf4.vis.even.cal.reduced.cub"),
                                     "--sun", str(out2), "--spacecraft", str(tmp_path / "c2.txt")])
-    assert bad.exit_code == 2 and "error:" in bad.output and "IAU_MOON" in bad.output
+    assert bad.exit_code == 2 and "error:" in bad.output and "push-frame camera without SPICE tables" in bad.output
     assert not out2.exists()
+
+
+def test_pushframe_and_radar_times(realdata):
+    """WAC push-frame: middle of its SPICE cache; Mini-RF: centre line of the crop, LineExposureDuration in s."""
+    wac = realdata / "isis/M1181493219CE.vis.odd.reduced.cub"
+    rf = realdata / "isis/LSZ_04866_1CD_XKU_89N109_V1_lev1.crop.cub"
+    w, r = compute_positions([wac, rf])
+    assert w.et == pytest.approx((480126019.21679896 + 480126924.46679896) / 2, abs=1e-6)
+    # Mini-RF crop: alpha line 4906.5 + 2.5 = 4909 at StartTime + (4909 - 0.5) * 0.004651130362 s
+    start = r.et - (4909 - 0.5) * 0.004651130362
+    with KernelPool(expand_kernel_args([realdata / "kernels/generic"])):
+        assert start == pytest.approx(spiceypy.str2et("2010-07-16T05:37:58.417299"), abs=1e-6)
 
 
 def test_table_ephemeris_requires_tables(realdata):

@@ -6,11 +6,11 @@ loaded kernel pool or, failing that, from the label's ``NaifKeywords`` object.
 """
 from __future__ import annotations
 
-from ..errors import SpiceError
+from ..errors import IsisError, SpiceError
 from ..isis.labels import IsisLabel, value_of
 from .model import CameraModel, DetectorMap
 from .optics import ApolloMetricDistortion, FocalPlane, LroNacDistortion, NoDistortion, RadialOdk
-from .timing import frame_et, is_line_scanner, line_timing, naif_value
+from .timing import camera_kind, frame_et, is_line_scanner, line_timing, naif_value
 
 
 def _tuple(v, n=None):
@@ -72,6 +72,9 @@ def detector_map(label: IsisLabel) -> DetectorMap:
 
 def build_camera(label: IsisLabel, ephemeris, code: int) -> CameraModel:
     """A frame camera or a line scanner for the cube (needs the ephemeris' instrument pointing)."""
+    kind = camera_kind(label)
+    if kind in ("pushframe", "radar"):
+        raise IsisError(f"{label.path}: {kind} geometry is not supported for orthoprojection (positions are)")
     _b, lines, samples = label.shape
     focal = focal_plane(label, code)
     det = detector_map(label)

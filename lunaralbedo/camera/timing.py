@@ -17,7 +17,7 @@ import struct
 
 import spiceypy
 
-from ..errors import SpiceError
+from ..errors import IsisError, SpiceError
 from ..isis.labels import IsisLabel, time_string, value_of
 from ..spice.kernels import pool_value, spice_errors
 from .model import LineTiming
@@ -47,8 +47,18 @@ def _seconds(q, default_units: str = "ms") -> float:
 LINE_RATE_KEYS = ("LineExposureDuration", "LineSamplingInterval")
 
 
+def camera_kind(label: IsisLabel) -> str:
+    """``frame``, ``line`` (pushbroom), ``pushframe`` (e.g. LRO WAC framelets) or ``radar`` (e.g. Mini-RF SAR)."""
+    inst = label.instrument
+    if "RangeCoefficientSet" in inst or str(inst.get("InstrumentModeDesc", "")).upper() == "SAR":
+        return "radar"
+    if "InterframeDelay" in inst or "NumFramelets" in inst:
+        return "pushframe"
+    return "line" if any(k in inst for k in LINE_RATE_KEYS) else "frame"
+
+
 def is_line_scanner(label: IsisLabel) -> bool:
-    return any(k in label.instrument for k in LINE_RATE_KEYS)
+    return camera_kind(label) == "line"
 
 
 def frame_et(label: IsisLabel) -> float:
@@ -82,7 +92,8 @@ def _count_text(v) -> str:
 def line_timing(label: IsisLabel, code: int | None) -> LineTiming:
     """Timing of a line scanner (see module docstring)."""
     inst = label.instrument
-    rate = _seconds(inst[next(k for k in LINE_RATE_KEYS if k in inst)])
+    # radar (Mini-RF) gives LineExposureDuration in seconds without units; optical cameras in ms
+    rate = _seconds(inst[next(k for k in LINE_RATE_KEYS if k in inst)], "s" if camera_kind(label) == "radar" else "ms")
     ik = (lambda name, d=0.0: float(naif_value(label, f"INS{code}_{name}", d))) if code is not None else None
     preroll = inst.get("SpacecraftClockPrerollCount")
     if ik is not None and preroll is not None and naif_value(label, f"INS{code}_ADDITIONAL_PREROLL") is not None:
@@ -98,8 +109,15 @@ def line_timing(label: IsisLabel, code: int | None) -> LineTiming:
 
 
 def center_et(label: IsisLabel, code: int | None) -> float:
-    """The ``campt`` time of the cube's centre pixel (s, TDB)."""
-    if not is_line_scanner(label):
+    """The ``campt`` time of the cube's centre pixel (s, TDB).
+
+    Push-frame cubes are not modelled: raises :class:`IsisError` (the caller may then use
+    the midpoint of the cube's SPICE cache, see :func:`cache_midpoint_et`).
+    """
+    kind = camera_kind(label)
+    if kind == "pushframe":
+        raise IsisError(f"{label.path}: push-frame camera (framelets): centre time not modelled")
+    if kind == "frame":
         return frame_et(label)
     _bands, lines, samples = label.shape
     _s, alpha_line = label.to_alpha((samples + 1) / 2.0, (lines + 1) / 2.0)

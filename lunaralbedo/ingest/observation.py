@@ -16,7 +16,15 @@ from ..isis.labels import IsisLabel, read_label
 from ..isis.tables import has_table
 from ..spice.ephemeris import Ephemeris, KernelEphemeris, TableEphemeris
 from ..spice.kernels import KernelPool, label_kernels, pool_value
-from ..camera.timing import center_et
+from ..camera.timing import camera_kind, center_et
+
+
+def cache_midpoint_et(label: IsisLabel) -> float:
+    """Middle of the InstrumentPosition cache (s, TDB): spiceinit caches span the exposure."""
+    from ..isis.tables import read_table
+
+    et = read_table(label, "InstrumentPosition").column("ET")
+    return float((et.min() + et.max()) / 2.0)
 
 SOURCES = ("auto", "table", "kernels")
 _TABLES = ("SunPosition", "InstrumentPosition", "BodyRotation")
@@ -75,7 +83,12 @@ class Observation:
             raise IsisError(f"{self.path}: --source table but the cube has no readable {'/'.join(_TABLES)} tables")
         use_tables = tables_ok and self.source != "kernels"
         code = self.code
-        self.et = center_et(label, code)
+        if camera_kind(label) == "pushframe":
+            if not tables_ok:
+                raise IsisError(f"{self.path}: push-frame camera without SPICE tables: centre time not modelled")
+            self.et = cache_midpoint_et(label)  # framelet timing not modelled: middle of the spiceinit cache
+        else:
+            self.et = center_et(label, code)
         if use_tables:
             self.ephemeris = TableEphemeris(label)
             lo, hi = self.ephemeris.time_range
