@@ -193,30 +193,38 @@ def read_region(
     """
     out = np.full(grid.shape, np.nan, dtype=np.float32)
     crs = None
+    w, s, e, n = grid.bounds
+    gt = grid.transform
     for src in sources:
         if not intersects(src.bounds, grid.bounds):
             continue
-        w, s, e, n = grid.bounds
+        # only the part of the grid this source overlaps is warped
+        sw, ss, se, sn = src.bounds
+        c0, c1 = max(0, math.floor((max(w, sw) - w) / gt.a)), min(grid.width, math.ceil((min(e, se) - w) / gt.a))
+        r0, r1 = max(0, math.floor((n - min(n, sn)) / -gt.e)), min(grid.height, math.ceil((n - max(s, ss)) / -gt.e))
+        if c1 <= c0 or r1 <= r0:
+            continue
         with rasterio.open(src.path) as ds:
             win = from_bounds(w - src.shift, s, e - src.shift, n, ds.transform)
             win = Window(win.col_off - 1, win.row_off - 1, win.width + 2, win.height + 2)
             win = win.round_offsets(op="floor").round_lengths(op="ceil").intersection(Window(0, 0, ds.width, ds.height))
             vals = read_masked(ds, win, src.legacy)
             crs = ds.crs or crs or CRS.from_epsg(4326)
-            part = np.full(grid.shape, np.nan, dtype=np.float32)
+            part = np.full((r1 - r0, c1 - c0), np.nan, dtype=np.float32)
             reproject(
                 source=vals,
                 destination=part,
                 src_transform=Affine.translation(src.shift, 0.0) @ ds.window_transform(win),
                 src_crs=crs,
                 src_nodata=np.nan,
-                dst_transform=grid.transform,
+                dst_transform=gt @ Affine.translation(c0, r0),
                 dst_crs=crs,
                 dst_nodata=np.nan,
                 resampling=resampling,
             )
-        hole = np.isnan(out)
-        out[hole] = part[hole]
+        view = out[r0:r1, c0:c1]
+        hole = np.isnan(view)
+        view[hole] = part[hole]
     return out
 
 
