@@ -205,6 +205,13 @@ def test_missing_albedo_is_an_input_error_naming_the_folder(tmp_path):
     assert result.exit_code == 2 and "error:" in result.output and str(tmp_path / "albedo") in result.output
 
 
+def test_tiles_with_different_pixel_sizes_are_refused(tmp_path):
+    make_result(tmp_path, [(0, 0)], n=40)
+    make_result(tmp_path, [(4, 0)], n=50)
+    with pytest.raises(InputError, match="share one pixel size.*tile_4E0N"):
+        export_kml(tmp_path)
+
+
 def test_cli_prints_a_summary_and_rejects_conflicting_stretches(tmp_path):
     root = make_result(tmp_path, [(0, 0), (4, 0)], n=40)
     result = CliRunner().invoke(main, ["export-kml", str(root), "--stretch", "p5,p95", "--tile-size", "32", "--workers", "1"])

@@ -40,6 +40,7 @@ from .sources import Grid, Source, find_sources, intersects, native_grid, sample
 from .stretch import stretch_from_range, stretch_from_values
 
 STRETCH_FILE = "stretch.json"
+SAMPLE_BUDGET = 20_000_000  # at most about this many albedo values enter the percentiles
 
 
 @contextlib.contextmanager
@@ -163,7 +164,8 @@ def export_kml(
     if value_range is not None:
         st = stretch_from_range(*value_range)
     else:
-        samples = _compute([task(sample_values)(s) for s in sources], **run)
+        budget = max(10_000, SAMPLE_BUDGET // len(sources))  # values per tile for the percentiles
+        samples = _compute([task(sample_values)(s, budget) for s in sources], **run)
         st = stretch_from_values(np.concatenate(samples), tuple(stretch))
 
     label = name or results_dir.name
