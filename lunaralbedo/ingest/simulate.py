@@ -237,10 +237,11 @@ def build(out: str | Path, seed: int = 20240601, n_frames: int = 5, with_line: b
     shots = default_shots(rng, n_frames, with_line)
     kdir = out / "kernels"
     geo = write_kernels(kdir, scene, shots)
+    # compression pinned so the committed files stay byte-identical if the writer's default changes
     write_geotiff(out / "dem" / "dem.tif", scene.heights.astype(np.float32), scene.grid.transform, MOON_CRS,
-                  nodata=-32767.0, dtype="float32")
+                  nodata=-32767.0, dtype="float32", compress="deflate")
     write_geotiff(out / "truth" / "albedo.tif", scene.albedo.astype(np.float32), scene.grid.transform, MOON_CRS,
-                  dtype="float32")
+                  dtype="float32", compress="deflate")
     truth = {"c1": C1, "c2": C2, "reflectance_type": 2, "noise_relative": noise, "seed": seed,
              "albedo": "truth/albedo.tif", "dem": "dem/dem.tif", "frame": "MOON_ME (= IAU_MOON here), km",
              "images": {}}
