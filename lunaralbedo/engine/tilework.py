@@ -113,6 +113,7 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
         with np.errstate(invalid="ignore", divide="ignore"):
             wb = arrays["wblend"]
             arrays["wblend"] = np.where(wb > 0, wb / arrays["weights_sum"][None], 0.0).astype(np.float32)
+    arrays["weight"] = np.where(arrays["usable"], arrays["wblend"], 0.0).astype(np.float32)
     if geo is not None:
         arrays["dem"] = geo[0][inner]
         for name in ("geometric", "alpha", "cos_i"):
@@ -125,21 +126,22 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
 
 
 def _reflectance(arrays, kind, c):
-    """Full reflectance R of the stack (eq. 2) and the phase-factor pieces."""
+    """Full reflectance R of the stack (eq. 2) and the phase pieces ``(P, alpha, exp(-c1 alpha))`` (float32)."""
     if kind == reflectance.MOSAIC:
-        return np.ones_like(arrays["image"]), None, None
+        return np.ones_like(arrays["image"]), None, None, None
     g = np.asarray(arrays["geometric"])
     if kind == reflectance.LAMBERT:
-        return g, None, None
+        return g, None, None, None
     a = np.asarray(arrays["alpha"])
-    p = (np.exp(-c[0] * a) + c[1]).astype(np.float32)
-    return p * g, p, a
+    e = np.exp(np.float32(-c[0]) * a)
+    p = e + np.float32(c[1])
+    return p * g, p, a, e
 
 
 def _init_sums(scene: Scene, arrays) -> dict:
     s = scene.settings
     c0 = (s.phase_coeff_c1, s.phase_coeff_c2)
-    r, _, _ = _reflectance(arrays, s.reflectance_type, c0)
+    r = _reflectance(arrays, s.reflectance_type, c0)[0]
     use = arrays["usable"] & (arrays["wblend"] > 0) & (r > 0)
     rs, n = exposure_init.mean_reflectance_sums(r, use)
     pairs = exposure_init.log_ratio_sums(arrays["image"], r, use, arrays["index"])
@@ -153,7 +155,7 @@ def _init_sums(scene: Scene, arrays) -> dict:
 
 # --------------------------------------------------------------------------- iterate
 def _weights(arrays, kind, shadow_type, thresh, t_local, r):
-    w = np.where(arrays["usable"], arrays["wblend"], 0.0).astype(np.float32)
+    w = np.asarray(arrays["weight"])
     if shadow_type in (shadows.LAMBERT_RATIO, shadows.LUNAR_LAMBERT_RATIO) and kind != reflectance.MOSAIC:
         rr = arrays["cos_i"] if (shadow_type == shadows.LAMBERT_RATIO and "cos_i" in arrays) else r
         lit = shadows.dynamic_lit(arrays["image"], rr, t_local[:, None, None], thresh)
@@ -166,11 +168,11 @@ def tile_model(scene: Scene, arrays, state: SolveState):
     s = scene.settings
     idx = arrays["index"]
     t_local = state.exposure[idx].astype(np.float32)
-    r, p, a = _reflectance(arrays, s.reflectance_type, state.c)
+    r, p, a, e = _reflectance(arrays, s.reflectance_type, state.c)
     w = _weights(arrays, s.reflectance_type, s.shadow_type, s.shadow_thresh, t_local, r)
-    tr = (t_local[:, None, None] * r).astype(np.float32)
+    tr = t_local[:, None, None] * r
     alb = updates.albedo(arrays["image"], tr, w)
-    return alb, r, p, a, w, tr, t_local
+    return alb, r, p, a, e, w, tr, t_local
 
 
 def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> TileSums:
@@ -181,15 +183,15 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
     out = TileSums(index=idx, exp_num=np.zeros(len(idx)), exp_den=np.zeros(len(idx)))
     if len(idx) == 0:
         return out
-    alb, r, p, a, w, tr, t_local = tile_model(scene, arrays, state)
+    alb, r, p, a, e, w, tr, t_local = tile_model(scene, arrays, state)
     image = arrays["image"]
     res = updates.residuals(image, alb, tr, w)
     out.q = updates.cost(res, w)
     out.exp_num, out.exp_den = updates.exposure_sums(image, alb, r, w)
     out.n_obs = int(np.count_nonzero(w))
     if want_phase and p is not None:
-        dp1, _ = reflectance.phase_factor_derivatives(a, state.c[0])
-        out.jtj, out.jtr = updates.phase_sums(res, alb, t_local, arrays["geometric"], dp1.astype(np.float32), p, w)
+        dp1 = -a * e  # dP/dc1 = -alpha exp(-c1 alpha)
+        out.jtj, out.jtr = updates.phase_sums(res, alb, t_local, arrays["geometric"], dp1, p, w)
         used = a[w > 0]
         if used.size:
             out.alpha_min, out.alpha_max = float(used.min()), float(used.max())
@@ -216,7 +218,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
             valid = int(np.count_nonzero(np.isfinite(ds.read(1))))
         return {"tile": tile.name, "images": [scene.images[k].key for k in idx], "valid_pixels": valid, "reused": True}
     if len(idx):
-        alb, r, p, a, w, tr, _ = tile_model(scene, arrays, state)
+        alb, r, p, a, e, w, tr, _ = tile_model(scene, arrays, state)
     else:
         alb = np.full((h, w_), np.nan, np.float32)
     write_geotiff(out_dir / "albedo" / name, alb, tile.transform, scene.crs, nodata=float("nan"))

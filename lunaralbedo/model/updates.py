@@ -4,6 +4,9 @@ Notation: image stack index :math:`k` first, then pixels; ``I`` is the observed
 value, ``R`` the reflectance, ``T`` the per-image exposure, ``w`` the product of the
 blending weight and the shadow mask :math:`S w` (zero where unusable).
 
+Pixel arrays must be finite (zero where unusable): a zero weight then removes an
+observation from every sum without any masking pass.
+
 Every quantity that couples tiles (exposure and phase-coefficient updates, the
 cost :math:`Q`) is returned as float64 *sums* so a driver can add them over all
 tiles in a fixed order and apply the update once.  Pixel arrays stay float32.
@@ -29,7 +32,7 @@ def albedo(image, tr, w):
     float32 albedo, NaN where no image contributes.
     """
     trw = tr * w
-    num = _f64sum(np.where(w > 0, image, 0.0) * trw, axis=0)
+    num = _f64sum(image * trw, axis=0)
     den = _f64sum(tr * trw, axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         a = np.where(den > 0, num / den, np.nan)
@@ -37,9 +40,8 @@ def albedo(image, tr, w):
 
 
 def residuals(image, a, tr, w):
-    r""":math:`I - A T R` where ``w > 0``, else 0 (float32)."""
-    r = image - a[None] * tr
-    return np.where(w > 0, r, 0.0).astype(np.float32)
+    r""":math:`I - A T R` (float32); pixels without albedo (NaN) count as :math:`A = 0` (their weights are 0)."""
+    return image - np.nan_to_num(a)[None] * tr
 
 
 def cost(res, w):
@@ -56,9 +58,9 @@ def exposure_sums(image, a, r, w):
     Returns ``(num, den)`` arrays of shape ``(K,)``; the update is ``num / den``
     after summing over every tile.
     """
-    ar = np.where(w > 0, a[None] * r, 0.0)
+    ar = np.nan_to_num(a)[None] * r
     arw = ar * w
-    num = _f64sum(np.where(w > 0, image, 0.0) * arw, axis=(1, 2))
+    num = _f64sum(image * arw, axis=(1, 2))
     den = _f64sum(ar * arw, axis=(1, 2))
     return num, den
 
@@ -83,7 +85,7 @@ def phase_sums(res, a, t, geometric, dp_dc1, p, w):
     Returns ``(JtWJ, JtWr)`` of shapes ``(3, 3)`` and ``(3,)`` (float64), order
     ``(J1, J2, J0)``.  Eq. 5 uses the diagonal entries of the first two columns.
     """
-    atg = np.where(w > 0, a[None] * t[:, None, None] * geometric, 0.0).astype(np.float32)
+    atg = (np.nan_to_num(a)[None] * geometric) * np.asarray(t, np.float32)[:, None, None]
     cols = (atg * dp_dc1, atg, atg * p)
     jtj = np.empty((3, 3))
     jtr = np.empty(3)
