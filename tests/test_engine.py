@@ -161,3 +161,18 @@ def test_pbs_nodefile_starts_workers_on_every_listed_node(scene, reference, tmp_
     res = solve(scene / "settings.txt", out=out, workers=1, plots=False)
     assert res.report["executor"] == "PBS_NODEFILE (2 nodes x 1 processes)"
     same_results(reference, out)
+
+
+def test_ingest_cubes_in_parallel_match_serial(tmp_path):
+    """Ingest's per-cube tasks on a local Dask cluster write the same DRGs and positions as one process."""
+    from lunaralbedo.ingest.run import ingest
+
+    repo = Path(__file__).resolve().parents[1]
+    cubes = sorted((repo / "sample_data" / "cubes").glob("*.cub"))
+    serial = ingest(cubes, [repo / "sample_data" / "dem"], tmp_path / "w1")
+    parallel = ingest(cubes, [repo / "sample_data" / "dem"], tmp_path / "w2", workers=2)
+    assert [r.key for r in serial.done] == [r.key for r in parallel.done] and len(serial.done) == len(cubes)
+    for p in sorted((tmp_path / "w1" / "DRG").glob("*.tif")):
+        assert filecmp.cmp(p, tmp_path / "w2" / "DRG" / p.name, shallow=False), p.name
+    for f in ("meta/sunpos.txt", "meta/spacecraftpos.txt", "settings.txt"):
+        assert (tmp_path / "w1" / f).read_text().replace("w1", "") == (tmp_path / "w2" / f).read_text().replace("w2", "")

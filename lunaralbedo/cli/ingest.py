@@ -1,6 +1,7 @@
 """``lunaralbedo ingest``: ISIS cubes -> DRGs, positions and settings for ``solve``."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import click
@@ -25,32 +26,24 @@ from ._common import reports_errors
               help="Whether DEM values are radius (m, converted to height above 1737.4 km) or height.")
 @click.option("--legacy-8bit", is_flag=True, default=False, help="Write 8-bit DRGs (stretch + alpha) as the legacy tools did.")
 @click.option("--tile-size", type=float, default=4.0, show_default=True, help="TILE_SIZE (degrees) for settings.txt.")
+@click.option("--workers", type=int, default=1, show_default=True, help="Cubes processed in parallel (local processes).")
+@click.option("--scheduler", default=None, help="Address of an existing dask.distributed scheduler (tcp://host:port).")
 @reports_errors
-def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem_values, legacy_8bit, tile_size):
+def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem_values, legacy_8bit, tile_size,
+            workers, scheduler):
     """Orthoproject CUBES onto the DEM and write WORKDIR/{DRG,DEM,meta,settings.txt}.
 
     DRGs are named <KEY>.tif, KEY = the cube name up to its first '.', cut or padded
     ('_') to 11 characters (duplicates get a 3-digit counter).  Positions are at the
     campt centre time, km, Moon-centred body-fixed (MOON_ME).
     """
-    from tqdm import tqdm
-
     from ..errors import InputError
     from ..ingest.run import ingest
 
     if mpp is not None and match_dem:
         raise InputError("give either --mpp or --match-dem, not both")
-    bar = tqdm(total=len(cubes), unit="cube", desc="ingest", disable=None)
-
-    def on_cube(res):
-        bar.set_postfix_str(res.key)
-        bar.update(1)
-
-    try:
-        report = ingest(list(cubes), list(dems), workdir, kernels, isisdata, mpp, source, dem_values,
-                        legacy_8bit, tile_size, on_cube)
-    finally:
-        bar.close()
+    report = ingest(list(cubes), list(dems), workdir, kernels, isisdata, mpp, source, dem_values,
+                    legacy_8bit, tile_size, workers=workers, scheduler=scheduler, progress=sys.stderr.isatty())
     for p in report.dem_radius_converted:
         click.echo(f"DEM {p}: values are radius, converted to height above 1737.4 km")
     for p in report.removed:

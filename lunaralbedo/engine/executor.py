@@ -24,7 +24,7 @@ class SerialExecutor:
     def __init__(self, progress: bool = False):
         self.progress = progress
 
-    def map(self, fn: Callable, items: Iterable, desc: str = "", **kwargs: Any) -> list:
+    def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), **kwargs: Any) -> list:
         items = list(items)
         return [fn(x, **kwargs) for x in tqdm(items, desc=desc, disable=not self.progress, leave=False)]
 
@@ -44,14 +44,15 @@ class DaskExecutor:
         info = client.scheduler_info() or {}
         self.workers = max(1, len(info.get("workers", {})))
 
-    def map(self, fn: Callable, items: Iterable, desc: str = "", **kwargs: Any) -> list:
+    def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), **kwargs: Any) -> list:
+        """Run ``fn(item, **kwargs)`` for every item; ``shared`` names large kwargs sent to each worker once."""
         from distributed import as_completed
 
         items = list(items)
         if not items:
             return []
-        shared = {k: (self._scatter(v) if _big(v) else v) for k, v in kwargs.items()}
-        futures = [self.client.submit(fn, x, pure=False, **shared) for x in items]
+        args = {k: (self._scatter(v) if k in shared else v) for k, v in kwargs.items()}
+        futures = [self.client.submit(fn, x, pure=False, **args) for x in items]
         with tqdm(total=len(futures), desc=desc, disable=not self.progress, leave=False) as bar:
             for fut in as_completed(futures):
                 if fut.status == "error":
@@ -74,12 +75,6 @@ class DaskExecutor:
                 obj.close()
             except Exception:  # noqa: BLE001 - closing is best effort
                 pass
-
-
-def _big(value) -> bool:
-    from .scene import Scene
-
-    return isinstance(value, Scene)
 
 
 def _local_cluster(workers: int, memory_limit: str | None):

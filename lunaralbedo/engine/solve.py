@@ -187,7 +187,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots) ->
     ck = _load_checkpoint(out, scene, method, resume)
     tiles = list(range(len(scene.tiles)))
     t1 = time.perf_counter()
-    metas = executor.map(prepare_tile, tiles, "prepare", scene=scene, cache_root=cache)
+    metas = executor.map(prepare_tile, tiles, "prepare", shared=("scene",), scene=scene, cache_root=cache)
     t_init = _reduce_init(scene, metas, method)
     timings["prepare"] = time.perf_counter() - t1
     if ck is None:
@@ -207,7 +207,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots) ->
     t2 = time.perf_counter()
     want_phase = s.reflectance_type == reflectance.LUNAR_LAMBERT
     while not ck["done"] and ck["iteration"] < max_iter:
-        parts = executor.map(iterate_tile, tiles, f"iteration {ck['iteration'] + 1}", scene=scene, cache_root=cache, state=state, want_phase=want_phase)
+        parts = executor.map(iterate_tile, tiles, f"iteration {ck['iteration'] + 1}", shared=("scene",), scene=scene, cache_root=cache, state=state, want_phase=want_phase)
         sums = _reduce_iteration(len(scene.images), parts)
         q_prev = ck["q"][-1] if ck["q"] else None
         ck["q"].append(sums.q)
@@ -224,7 +224,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots) ->
         ck["finalising"] = True  # from here on the state is fixed; finished tiles can be kept
         outputs.write_json(out / STATE_FILE, ck)
     tile_reports = executor.map(
-        finalize_tile, tiles, "write tiles", scene=scene, cache_root=cache, out_dir=out, state=state, skip_done=skip_done
+        finalize_tile, tiles, "write tiles", shared=("scene",), scene=scene, cache_root=cache, out_dir=out, state=state, skip_done=skip_done
     )
     resume_info["tiles_written_before"] = sum(bool(r.pop("reused")) for r in tile_reports)
     timings["finalise"] = time.perf_counter() - t3

@@ -106,15 +106,37 @@ def _ingest_one(res: CubeResult, obs, dem: DemMosaic, mpp_deg, drg_dir: Path, le
     write_drg(drg_dir / f"{res.key}.tif", values, grid, legacy_8bit)
 
 
+def _process_cube(item, *, extra, isisdata, source, dem: DemMosaic, mpp_deg, drg_dir: Path, legacy_8bit: bool) -> CubeResult:
+    """One task of the ingest graph: positions and DRG of one cube (skipped with the reason on error)."""
+    path, key = item
+    res = CubeResult(Path(path), key)
+    try:
+        with open_observation(path, key, extra, isisdata, source) as obs:
+            res.source, res.sun, res.spacecraft = obs.source, obs.sun.copy(), obs.spacecraft.copy()
+            try:
+                _ingest_one(res, obs, dem, mpp_deg, drg_dir, legacy_8bit)
+            except (KeyError, ValueError, TypeError, IndexError) as exc:
+                raise InputError(f"{path}: unexpected label content ({type(exc).__name__}: {exc})") from None
+    except LunarAlbedoError as exc:
+        res.skipped = str(exc)
+    return res
+
+
 def ingest(cubes: Sequence[str | Path], dems: Sequence[str | Path], workdir: str | Path,
            kernels: Sequence[str | Path] = (), isisdata=None, mpp: float | None = None, source: str = "auto",
            dem_mode: str = "auto", legacy_8bit: bool = False, tile_size: float = 4.0,
-           on_cube: Callable[[CubeResult], None] | None = None) -> IngestReport:
+           on_cube: Callable[[CubeResult], None] | None = None, workers: int = 1, scheduler: str | None = None,
+           progress: bool = False) -> IngestReport:
     """Ingest ``cubes`` into ``workdir``; returns a report of footprints and skipped cubes.
 
     ``mpp`` (metres per pixel) sets the output resolution; without it the grid is
-    the first DEM's.  Raises :class:`InputError` when no cube could be ingested.
+    the first DEM's.  Cubes are independent tasks: ``workers`` local processes or a
+    Dask ``scheduler`` address run them in parallel (each worker process has its own
+    SPICE kernel pool).  ``on_cube`` is called for each result, in the cubes' order.
+    Raises :class:`InputError` when no cube could be ingested.
     """
+    from ..engine.executor import make_executor
+
     workdir = Path(workdir)
     if not cubes:
         raise InputError("no cubes given")
@@ -125,17 +147,15 @@ def ingest(cubes: Sequence[str | Path], dems: Sequence[str | Path], workdir: str
     mpp_deg = mpp_to_degrees(mpp) if mpp else None
     report = IngestReport(workdir, dem_radius_converted=dem.radius_converted)
     drg_dir = workdir / "DRG"
-    for path, key in zip(cubes, make_keys(cubes)):
-        res = CubeResult(Path(path), key)
-        try:
-            with open_observation(path, key, extra, isisdata, source) as obs:
-                res.source, res.sun, res.spacecraft = obs.source, obs.sun.copy(), obs.spacecraft.copy()
-                try:
-                    _ingest_one(res, obs, dem, mpp_deg, drg_dir, legacy_8bit)
-                except (KeyError, ValueError, TypeError, IndexError) as exc:
-                    raise InputError(f"{path}: unexpected label content ({type(exc).__name__}: {exc})") from None
-        except LunarAlbedoError as exc:
-            res.skipped = str(exc)
+    executor = make_executor(workers, scheduler, progress=progress)
+    try:
+        results = executor.map(
+            _process_cube, list(zip(cubes, make_keys(cubes))), "ingest", shared=("dem",),
+            extra=extra, isisdata=isisdata, source=source, dem=dem, mpp_deg=mpp_deg, drg_dir=drg_dir, legacy_8bit=legacy_8bit,
+        )
+    finally:
+        executor.close()
+    for res in results:
         report.results.append(res)
         if on_cube is not None:
             on_cube(res)
