@@ -60,7 +60,13 @@ def command(settings, out, method, legacy, workers, scheduler, cluster, queue, c
         from ..legacy import solve_legacy
 
         summary = solve_legacy(s, Path(out).resolve() if out else default_out_dir(s), progress=not quiet and sys.stderr.isatty())
-        click.echo(f"lunaralbedo solve --legacy: results in {summary.get('out_dir', out)}")
+        c = summary["phase_coefficients"][-1]
+        click.echo(f"lunaralbedo solve --legacy (PhotometryTK conventions)\n"
+                   f"  images used {len(summary['images'])}, skipped {len(summary['images_skipped'])}\n"
+                   f"  phase coefficients c1={c[0]:.6f} c2={c[1]:.6f}\n"
+                   f"  tiles written: {', '.join(summary['tiles_written'])}\n"
+                   f"  time {summary['timings_s']['total']:.2f}s\n"
+                   f"  results in {summary['out_dir']}/ (legacy tree: albedo/, exposure/, phase/, ...)")
         return
     from ..engine.solve import solve
 
