@@ -70,9 +70,9 @@ def write_cog_mosaic(sources: Sequence[Source], grid: Grid, path: str | Path) ->
         cog = cog_profiles.get("deflate")
         cog.update(blockxsize=COG_BLOCK, blockysize=COG_BLOCK, predictor=3)
         with atomic_path(path) as tmp:
-            with rasterio.Env(GDAL_TIFF_OVR_BLOCKSIZE=str(COG_BLOCK)):
-                cog_translate(str(raw), str(tmp), cog, overview_level=overview_count(grid.height, grid.width),
-                              overview_resampling="average", quiet=True, in_memory=False)
+            cog_translate(str(raw), str(tmp), cog, overview_level=overview_count(grid.height, grid.width),
+                          overview_resampling="average", quiet=True, in_memory=False,
+                          config={"GDAL_TIFF_OVR_BLOCKSIZE": str(COG_BLOCK), "GDAL_NUM_THREADS": "ALL_CPUS"})
     with rasterio.open(path) as ds:
         overviews = ds.overviews(1)
     return {"path": str(path), "width": grid.width, "height": grid.height, "valid_pixels": valid, "overviews": overviews}
