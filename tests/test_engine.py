@@ -176,3 +176,24 @@ def test_ingest_cubes_in_parallel_match_serial(tmp_path):
         assert filecmp.cmp(p, tmp_path / "w2" / "DRG" / p.name, shallow=False), p.name
     for f in ("meta/sunpos.txt", "meta/spacecraftpos.txt", "settings.txt"):
         assert (tmp_path / "w1" / f).read_text().replace("w1", "") == (tmp_path / "w2" / f).read_text().replace("w2", "")
+
+
+@pytest.mark.parametrize(
+    "kind, expect",
+    [
+        ("slurm", ["#SBATCH -p normal", "#SBATCH -A lunar", "#SBATCH -t 04:00:00", "--nworkers 4", "--nthreads 1"]),
+        ("pbs", ["#PBS -q normal", "#PBS -l walltime=04:00:00", "ncpus=4", "--nworkers 4", "--nthreads 1"]),
+    ],
+)
+def test_batch_cluster_job_scripts(kind, expect):
+    """--cluster pbs|slurm: dask-jobqueue job scripts carry the queue, account, walltime and single-threaded workers."""
+    from lunaralbedo.engine.executor import jobqueue_cluster
+
+    opts = dict(queue="normal", cores=4, memory="16GB", walltime="04:00:00", account="lunar", jobs=2)
+    cluster = jobqueue_cluster(kind, opts)
+    try:
+        script = cluster.job_script()
+    finally:
+        cluster.close()
+    for e in expect:
+        assert e in script, script

@@ -91,20 +91,31 @@ def _local_cluster(workers: int, memory_limit: str | None):
     return Client(cluster), cluster
 
 
-def _jobqueue_cluster(kind: str, opts: dict):
+def jobqueue_cluster(kind: str, opts: dict):
+    """A dask-jobqueue PBS or Slurm cluster (no job submitted yet).
+
+    ``opts``: queue, cores, memory, walltime, account and any other keyword of
+    ``dask_jobqueue.PBSCluster``/``SLURMCluster``.  Each job runs ``cores``
+    single-threaded worker processes (tile tasks are single-threaded NumPy).
+    """
     try:
         import dask_jobqueue
     except ImportError as exc:  # pragma: no cover - dask-jobqueue is a dependency
         raise LunarAlbedoError(f"--cluster {kind} needs dask-jobqueue: {exc}") from None
-    from distributed import Client
-
     cls = {"pbs": dask_jobqueue.PBSCluster, "slurm": dask_jobqueue.SLURMCluster}[kind]
-    jobs = int(opts.pop("jobs", 1) or 1)
-    kwargs = {k: v for k, v in opts.items() if v is not None}
+    kwargs = {k: v for k, v in opts.items() if v is not None and k != "jobs"}
     kwargs.setdefault("cores", 1)
     kwargs.setdefault("memory", "4GB")
-    cluster = cls(**kwargs)
-    cluster.scale(jobs=jobs)
+    kwargs.setdefault("processes", kwargs["cores"])
+    kwargs.setdefault("scheduler_options", {"dashboard_address": None})
+    return cls(**kwargs)
+
+
+def _jobqueue_client(kind: str, opts: dict):
+    from distributed import Client
+
+    cluster = jobqueue_cluster(kind, opts)
+    cluster.scale(jobs=int(opts.get("jobs") or 1))
     return Client(cluster), cluster
 
 
@@ -146,7 +157,7 @@ def make_executor(
             raise LunarAlbedoError(f"cannot connect to Dask scheduler {scheduler}: {exc}") from None
         return DaskExecutor(client, f"scheduler {scheduler}", progress)
     if cluster:
-        client, clus = _jobqueue_cluster(cluster, dict(cluster_options or {}))
+        client, clus = _jobqueue_client(cluster, dict(cluster_options or {}))
         return DaskExecutor(client, f"{cluster} cluster", progress, owned=(clus,))
     hosts = pbs_nodes()
     if hosts:

@@ -17,7 +17,7 @@ from rasterio.windows import Window
 
 from ..errors import InputError, SolverError
 from ..io.positions import read_positions
-from ..io.rasters import RasterInfo, catalog_drgs, intersects, list_rasters, raster_info
+from ..io.rasters import RasterInfo, catalog_drgs, geographic_crs, intersects, list_rasters, raster_info
 from ..model.weights import WeightProfile, merge_profiles, profile_from_mask
 from ..settings import Settings
 from .tiles import Tile, make_tiles
@@ -47,7 +47,8 @@ class Scene:
 
     @property
     def crs(self):
-        return self.images[0].crs
+        """The tiles' CRS: geographic degrees of the first DRG's body (each DRG is reprojected to it)."""
+        return geographic_crs(self.images[0].crs)
 
     def fingerprint(self) -> str:
         """Hash of what determines the results (settings, inputs, tiles) — guards ``--resume``."""
@@ -112,19 +113,19 @@ def build_scene(settings: Settings, skip_missing: bool = False, map_fn=map) -> S
     read masks in parallel).
     """
     images = catalog_drgs(settings.drg_dir)
-    crs0 = images[0].crs
+    crs0 = geographic_crs(images[0].crs)
     skipped: dict[str, str] = {}
     # Legacy convention: the tile grid takes its pixel spacing from the first DRG.
-    tiles = make_tiles(settings.simulation_box, settings.tile_size, images[0].res, pad=PAD, exact=True)
+    tiles = make_tiles(settings.simulation_box, settings.tile_size, images[0].lonlat_res, pad=PAD, exact=True)
     for im in images:
-        if not any(intersects(im.bounds, t.padded_bounds) for t in tiles):
+        if not any(intersects(im.lonlat_bounds, t.padded_bounds) for t in tiles):
             skipped[im.key] = "overlaps no tile of SIMULATION_BOX"
     images = [im for im in images if im.key not in skipped]
     if not images:
         raise SolverError(f"{settings.drg_dir}: no DRG overlaps the tiles of SIMULATION_BOX {settings.simulation_box}")
     for im in images:
-        if crs0 is not None and im.crs is not None and im.crs != crs0:
-            raise InputError(f"{im.path}: CRS differs from the first DRG's ({images[0].path}); reproject it first")
+        if crs0 is not None and im.crs is not None and geographic_crs(im.crs) != crs0:
+            raise InputError(f"{im.path}: its body/datum differs from the first DRG's ({images[0].path})")
     images, sun, sc = _positions(settings, images, skip_missing, skipped)
     if not images:
         raise SolverError("no DRG left after skipping images without positions")
@@ -133,7 +134,7 @@ def build_scene(settings: Settings, skip_missing: bool = False, map_fn=map) -> S
         dems = [raster_info(p) for p in list_rasters(settings.dem_dir, "DEM")]
     tile_images = []
     for t in tiles:
-        idx = [k for k, im in enumerate(images) if intersects(im.bounds, t.padded_bounds)]
+        idx = [k for k, im in enumerate(images) if intersects(im.lonlat_bounds, t.padded_bounds)]
         tile_images.append(np.array(idx, dtype=np.int32))
     used = set(np.concatenate(tile_images).tolist()) if tile_images else set()
     for k, im in enumerate(images):

@@ -17,7 +17,7 @@ from rasterio.crs import CRS
 from rasterio.enums import Resampling
 from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 from rasterio.transform import Affine
-from rasterio.warp import reproject
+from rasterio.warp import reproject, transform_bounds
 from rasterio.windows import Window, from_bounds
 
 from ..constants import KEY_LENGTH
@@ -53,6 +53,20 @@ class RasterInfo:
     count: int
     dtype: str
     nodata: float | None
+    geo_bounds: tuple[float, float, float, float] | None = None  # degrees, in geographic_crs(crs)
+
+    @property
+    def lonlat_bounds(self) -> tuple[float, float, float, float]:
+        """``(west, south, east, north)`` in degrees (the bounds themselves for a geographic CRS)."""
+        return self.geo_bounds or self.bounds
+
+    @property
+    def lonlat_res(self) -> tuple[float, float]:
+        """Pixel size in degrees (for a projected CRS: the extent in degrees over the pixel count)."""
+        if self.geo_bounds is None:
+            return self.res
+        w, s, e, n = self.geo_bounds
+        return (e - w) / self.width, (n - s) / self.height
 
     @property
     def has_alpha(self) -> bool:
@@ -64,6 +78,26 @@ class RasterInfo:
         return abs(self.transform.a), abs(self.transform.e)
 
 
+def geographic_crs(crs: CRS | None) -> CRS | None:
+    """The geographic (lon/lat degrees) CRS of ``crs``'s body: itself if already geographic.
+
+    GDAL's ISIS3 driver presents map-projected cubes in metres (e.g. SimpleCylindrical);
+    tiles are always laid out in degrees of their geodetic CRS.
+    """
+    if crs is None or crs.is_geographic:
+        return crs
+    import pyproj
+
+    return CRS.from_wkt(pyproj.CRS.from_wkt(crs.to_wkt()).geodetic_crs.to_wkt())
+
+
+def bounds_in(src_crs: CRS | None, dst_crs: CRS | None, bounds) -> tuple[float, float, float, float]:
+    """``bounds`` (west, south, east, north) of ``src_crs`` expressed in ``dst_crs`` (densified edges)."""
+    if src_crs is None or dst_crs is None or src_crs == dst_crs:
+        return tuple(bounds)
+    return tuple(transform_bounds(src_crs, dst_crs, *bounds, densify_pts=21))
+
+
 def raster_info(path: str | Path, key: str | None = None) -> RasterInfo:
     """Read the header of ``path``; :class:`InputError` naming the file when GDAL cannot open it."""
     path = Path(path)
@@ -73,6 +107,9 @@ def raster_info(path: str | Path, key: str | None = None) -> RasterInfo:
             with rasterio.open(path) as ds:
                 if ds.transform == Affine.identity():
                     raise InputError(f"{path}: raster has no georeferencing (identity transform)")
+                geo = None
+                if ds.crs is not None and not ds.crs.is_geographic:
+                    geo = bounds_in(ds.crs, geographic_crs(ds.crs), ds.bounds)
                 return RasterInfo(
                     key=key if key is not None else path.name[:KEY_LENGTH],
                     path=path,
@@ -84,6 +121,7 @@ def raster_info(path: str | Path, key: str | None = None) -> RasterInfo:
                     count=ds.count,
                     dtype=ds.dtypes[0],
                     nodata=ds.nodata,
+                    geo_bounds=geo,
                 )
     except RasterioIOError as exc:
         raise InputError(f"{path}: cannot open raster: {exc}") from None
@@ -138,13 +176,10 @@ def read_onto_grid(
     interpolation) is read.  ``nodata`` overrides the file's own value when the file
     has none.
     """
-    h, w = dst_shape
-    west, north = dst_transform @ (0, 0)
-    east, south = dst_transform @ (w, h)
     src_nodata = info.nodata if info.nodata is not None else nodata
     out = np.full(dst_shape, np.nan, dtype=np.float32)
     with rasterio.open(info.path) as ds:
-        win = from_bounds(min(west, east), min(south, north), max(west, east), max(south, north), ds.transform)
+        win = _source_window(ds, dst_transform, dst_shape, dst_crs)
         win = Window(win.col_off - 2, win.row_off - 2, win.width + 4, win.height + 4).round_offsets().round_lengths()
         win = win.intersection(Window(0, 0, ds.width, ds.height)) if _overlaps(win, ds) else None
         if win is None or win.width <= 0 or win.height <= 0:
@@ -152,6 +187,9 @@ def read_onto_grid(
         src = ds.read(band, window=win, out_dtype=np.float32, masked=False)
         if src_nodata is not None:
             src[src == np.float32(src_nodata)] = np.nan
+        scale, offset = ds.scales[band - 1], ds.offsets[band - 1]
+        if (scale, offset) != (1.0, 0.0):  # ISIS Base/Multiplier, GeoTIFF scale/offset
+            src = (src.astype(np.float64) * scale + offset).astype(np.float32)
         reproject(
             source=src,
             destination=out,
@@ -164,6 +202,15 @@ def read_onto_grid(
             resampling=resampling,
         )
     return out
+
+
+def _source_window(ds, dst_transform: Affine, dst_shape: tuple[int, int], dst_crs: CRS | None) -> Window:
+    """Window of ``ds`` covering the target grid (in the source's own CRS)."""
+    h, w = dst_shape
+    west, north = dst_transform @ (0, 0)
+    east, south = dst_transform @ (w, h)
+    box = bounds_in(dst_crs, ds.crs, (min(west, east), min(south, north), max(west, east), max(south, north)))
+    return from_bounds(*box, ds.transform)
 
 
 def _overlaps(win: Window, ds) -> bool:
@@ -229,10 +276,8 @@ def read_drg_onto_grid(
     from ..model.weights import window_weights
 
     h, w = dst_shape
-    west, north = dst_transform @ (0, 0)
-    east, south = dst_transform @ (w, h)
     with rasterio.open(info.path) as ds:
-        win = from_bounds(min(west, east), min(south, north), max(west, east), max(south, north), ds.transform)
+        win = _source_window(ds, dst_transform, dst_shape, dst_crs)
         win = Window(win.col_off - 2, win.row_off - 2, win.width + 4, win.height + 4).round_offsets().round_lengths()
         if not _overlaps(win, ds):
             return None
@@ -272,8 +317,12 @@ def read_dem_onto_grid(
     """Average of every DEM tile resampled (bilinear) onto the grid; float32 metres, NaN where none.
 
     Overlapping DEM tiles are averaged (seed 000 section 6); ``nodata`` applies to
-    tiles that do not carry their own no-data value.
+    tiles that do not carry their own no-data value.  Scale/offset (ISIS
+    Base/Multiplier) are applied, and a tile holding radius (e.g. LOLA or GLD100 cubes,
+    ~1.737e6 m) is converted to height above the 1737.4 km sphere.
     """
+    from ..isis.pixels import radius_to_height
+
     h, w = dst_shape
     west, north = dst_transform @ (0, 0)
     east, south = dst_transform @ (w, h)
@@ -281,9 +330,10 @@ def read_dem_onto_grid(
     total = np.zeros(dst_shape, np.float64)
     count = np.zeros(dst_shape, np.int32)
     for info in infos:
-        if not intersects(info.bounds, grid_box):
+        if not intersects(info.lonlat_bounds, grid_box):
             continue
         d = read_onto_grid(info, 1, dst_transform, dst_shape, dst_crs, Resampling.bilinear, nodata=nodata)
+        d = radius_to_height(d)[0]
         ok = np.isfinite(d)
         total[ok] += d[ok]
         count[ok] += 1
