@@ -119,3 +119,13 @@ def test_no_writes_into_input_folders(scene):
     res, _ = run(scene)
     assert res.exit_code == 0
     assert sorted(p.relative_to(scene) for p in scene.rglob("*")) == before
+
+
+def test_bad_input_does_not_destroy_a_previous_result(scene):
+    res, out = run(scene)
+    assert res.exit_code == 0
+    before = (out / "exposure.csv").read_text()
+    (scene / "DRG" / "SIM-IMG-002_drg.tif").write_bytes(b"broken")
+    res, _ = run(scene)
+    assert res.exit_code == 2 and "cannot open raster" in res.output
+    assert (out / "exposure.csv").read_text() == before and (out / "albedo").is_dir()

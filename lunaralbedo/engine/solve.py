@@ -65,14 +65,17 @@ def _check_out_dir(out: Path, settings: Settings, resume: bool) -> bool:
         return True
     if not out.is_dir():
         raise SolverError(f"{out}: exists and is not a folder")
-    ours = (out / MARKER).exists()
-    if any(out.iterdir()) and not ours:
+    if any(out.iterdir()) and not (out / MARKER).exists():
         raise SolverError(f"{out}: folder exists, is not empty and is not a lunaralbedo output; choose another -o")
-    if ours and not resume:
-        for name in (*_OUTPUT_DIRS, CACHE_DIR):
-            shutil.rmtree(out / name, ignore_errors=True)
-        (out / STATE_FILE).unlink(missing_ok=True)
     return False
+
+
+def _clear_previous_run(out: Path) -> None:
+    """Remove an earlier run's outputs and checkpoint (called once the inputs are known to be good)."""
+    for name in (*_OUTPUT_DIRS, CACHE_DIR):
+        shutil.rmtree(out / name, ignore_errors=True)
+    for name in (STATE_FILE, "report.json"):
+        (out / name).unlink(missing_ok=True)
 
 
 def _reduce_init(scene: Scene, metas: list[dict], method: str) -> np.ndarray:
@@ -157,6 +160,8 @@ def solve(
     try:
         scene = build_scene(settings, skip_missing, map_fn=lambda f, xs: executor.map(f, xs, "masks"))
         timings["scene"] = time.perf_counter() - t0
+        if not resume:
+            _clear_previous_run(out)
         out.mkdir(parents=True, exist_ok=True)
         (out / MARKER).write_text("lunaralbedo solve output folder\n")
         remove_stale_temporaries(out)
