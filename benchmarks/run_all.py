@@ -1,0 +1,183 @@
+#!/usr/bin/env python3
+"""`make bench`: throughput, peak memory, worker speed-up and convergence of the solver.
+
+Prints, in one run on this machine:
+
+1. solve throughput (pixel-observations/s = image pixels over the box x iterations) for a
+   forward-model scene of 50 images of 2000x2000 px, 10 iterations, and the time of one
+   plain rasterio read of the same images (ratio solve / read);
+2. peak resident memory (VmHWM) of a solve for 25, 50 and 100 images;
+3. speed-up 1 -> 2 workers;
+4. iterations needed to get within 1 % of the converged albedo, default method vs --method seed.
+
+Scenes are rendered once into ``bench_out/`` and reused.  ``--quick`` uses smaller scenes
+(a smoke run, not the figures of docs/performance.md).
+"""
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import platform
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from lunaralbedo.simulate import SceneSpec, render_scene  # noqa: E402
+
+
+def scene(root: Path, name: str, spec: SceneSpec) -> Path:
+    d = root / name
+    stamp = d / "spec.json"
+    want = json.dumps(spec.__dict__, sort_keys=True)
+    if not (stamp.exists() and stamp.read_text() == want):
+        shutil.rmtree(d, ignore_errors=True)
+        t0 = time.perf_counter()
+        render_scene(d, spec)
+        stamp.write_text(want)
+        print(f"  rendered {name}: {spec.n_images} images of {spec.image_px} px in {time.perf_counter() - t0:.0f} s", flush=True)
+    return d
+
+
+def plain_read_seconds(d: Path) -> float:
+    import rasterio
+
+    t0 = time.perf_counter()
+    for f in sorted((d / "DRG").glob("*.tif")):
+        with rasterio.open(f) as ds:
+            ds.read()
+    return time.perf_counter() - t0
+
+
+SOLVE_CHILD = """
+import json, sys, time
+from lunaralbedo.engine.solve import solve
+t0 = time.perf_counter()
+r = solve(sys.argv[1], out=sys.argv[2], workers=int(sys.argv[3]), plots=False, method=sys.argv[4], max_iter=int(sys.argv[5]), tolerance=0.0)
+dt = time.perf_counter() - t0
+hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM')][0]
+print(json.dumps({"seconds": dt, "peak_mb": int(hwm.split()[1]) / 1024, "iterations": r.iterations, "timings": r.report["timings_s"]}))
+"""
+
+
+def solve_child(d: Path, out: Path, workers: int = 1, method: str = "overlap", max_iter: int = 10) -> dict:
+    """Solve in a fresh process (clean memory figures); returns seconds, peak MB, timings."""
+    shutil.rmtree(out, ignore_errors=True)
+    res = subprocess.run(
+        [sys.executable, "-c", SOLVE_CHILD, str(d / "settings.txt"), str(out), str(workers), method, str(max_iter)],
+        capture_output=True, text=True, cwd=REPO,
+    )
+    if res.returncode:
+        raise RuntimeError(res.stderr[-3000:])
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def observations(spec: SceneSpec) -> int:
+    return spec.n_images * spec.image_px * spec.image_px
+
+
+def albedo_of(out: Path, bounds, res) -> np.ndarray:
+    from rasterio.merge import merge
+
+    mos, _ = merge(sorted(glob.glob(str(out / "albedo" / "*.tif"))), bounds=bounds, res=res, nodata=np.nan, dtype="float32")
+    return mos[0]
+
+
+def rel_diff(a: np.ndarray, ref: np.ndarray) -> float:
+    ok = np.isfinite(a) & np.isfinite(ref)
+    s = np.sum(a[ok] * ref[ok]) / np.sum(a[ok] ** 2)  # one global scale is free (A*T)
+    return float(np.sqrt(np.mean(((s * a[ok] - ref[ok]) / ref[ok]) ** 2)))
+
+
+def iterations_to_converge(d: Path, root: Path, method: str, ref: np.ndarray, bounds, res, limit: int) -> int | None:
+    def err(n):
+        out = root / f"conv_{method}"
+        solve_child(d, out, method=method, max_iter=n)
+        return rel_diff(albedo_of(out, bounds, res), ref)
+
+    lo, hi, n = 0, None, 1
+    while n <= limit:
+        if err(n) < 0.01:
+            hi = n
+            break
+        lo, n = n, n * 2
+    if hi is None:
+        return None
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if err(mid) < 0.01 else (mid, hi)
+    return hi
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default="bench_out")
+    ap.add_argument("--quick", action="store_true", help="small scenes (smoke run)")
+    ap.add_argument("--json", default=None, help="also write the figures as JSON here")
+    args = ap.parse_args()
+    root = (REPO / args.out).resolve()
+    root.mkdir(exist_ok=True)
+    q = args.quick
+    big_px, mem_px = (400, 200) if q else (2000, 1000)
+    res_deg = 0.0005 if not q else 0.0025
+    figures: dict = {"machine": f"{platform.machine()}, {__import__('os').cpu_count()} cores, Python {platform.python_version()}"}
+    print(f"lunaralbedo benchmarks ({'quick' if q else 'full'}) on {figures['machine']}", flush=True)
+
+    # 1 + 3: throughput, read ratio, speed-up
+    spec = SceneSpec(n_images=50, image_px=big_px, res_deg=res_deg, tile_size=round(big_px * res_deg / 2, 6), max_num_iter=10, seed=50)
+    d = scene(root, f"throughput_{big_px}", spec)
+    read_s = min(plain_read_seconds(d) for _ in range(2))
+    runs = {w: solve_child(d, root / f"out_w{w}", workers=w) for w in (1, 2)}
+    obs = observations(spec) * 10
+    figures["throughput"] = {
+        "images": spec.n_images, "image_px": big_px, "iterations": 10, "pixel_observations": obs,
+        "plain_read_s": read_s,
+        **{f"solve_s_{w}w": r["seconds"] for w, r in runs.items()},
+        **{f"timings_{w}w": r["timings"] for w, r in runs.items()},
+        "obs_per_s_1w": obs / runs[1]["seconds"], "obs_per_s_2w": obs / runs[2]["seconds"],
+        "ratio_solve_over_read_1w": runs[1]["seconds"] / read_s, "ratio_solve_over_read_2w": runs[2]["seconds"] / read_s,
+        "speedup_1_to_2": runs[1]["seconds"] / runs[2]["seconds"],
+    }
+    t = figures["throughput"]
+    print(f"1. throughput: {obs:,} pixel-observations; plain read {read_s:.2f} s", flush=True)
+    for w in (1, 2):
+        print(f"   {w} worker(s): solve {runs[w]['seconds']:.1f} s = {obs / runs[w]['seconds'] / 1e6:.1f} M obs/s, "
+              f"solve/read = {runs[w]['seconds'] / read_s:.1f}  (stages: {runs[w]['timings']})", flush=True)
+
+    # 2: peak memory vs number of images
+    figures["memory"] = {}
+    for n in (25, 50, 100):
+        ms = SceneSpec(n_images=n, image_px=mem_px, res_deg=res_deg * 2, tile_size=round(mem_px * res_deg, 6), max_num_iter=3, seed=n)
+        r = solve_child(scene(root, f"memory_{n}_{mem_px}", ms), root / "out_mem", max_iter=3)
+        figures["memory"][n] = {"peak_mb": r["peak_mb"], "seconds": r["seconds"], "image_px": mem_px}
+        print(f"2. peak memory, {n:3d} images of {mem_px} px: {r['peak_mb']:.0f} MB ({r['seconds']:.0f} s)", flush=True)
+    print(f"3. speed-up 1 -> 2 workers: {t['speedup_1_to_2']:.2f}x", flush=True)
+
+    # 4: iterations to within 1 % of the converged albedo
+    cs = SceneSpec(seed=71)
+    dc = scene(root, "convergence", cs)
+    solve_child(dc, root / "conv_ref", max_iter=200)
+    import rasterio
+
+    with rasterio.open(dc / "truth" / "albedo.tif") as tds:
+        bounds, res = tds.bounds, (tds.transform.a, -tds.transform.e)
+    ref = albedo_of(root / "conv_ref", bounds, res)
+    figures["convergence"] = {}
+    for method, limit in (("overlap", 64), ("seed", 256 if q else 2048)):
+        n = iterations_to_converge(dc, root, method, ref, bounds, res, limit)
+        figures["convergence"][method] = n
+        print(f"4. iterations to within 1 % of the converged albedo, {method}: {n if n else f'> {limit}'}", flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(figures, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
