@@ -225,3 +225,14 @@ def test_cli_prints_a_summary_and_rejects_conflicting_stretches(tmp_path):
     assert result.exit_code == 2 and "either --stretch or --range" in result.output
     result = CliRunner().invoke(main, ["export-kml", str(root), "--levels", "0"])
     assert result.exit_code == 2 and "--levels" in result.output
+
+
+def test_fewer_levels_than_needed_average_the_albedo(tmp_path):
+    root = make_result(tmp_path, SIX, n=40)  # 120 x 80 px
+    summary = export_kml(root, levels=2, tile_size=32, workers=1)
+    assert summary["kml_size"] == [64, 42]  # coarser than native
+    _, rgba = read_kml(root)
+    with rasterio.open(root / "albedo_mosaic.tif") as m:
+        ref = m.read(1, out_shape=(42, 64), resampling=rasterio.enums.Resampling.average)
+    assert rgba.shape == (4, 42, 64)
+    assert np.abs(rgba[0].astype(int) - expected_dn(ref, stretch_of(root))).max() <= 2

@@ -1,7 +1,7 @@
 """``export_kml``: Google Earth and GIS products of a RESULTS_DIR, built as independent dask tasks.
 
-Task graph (no task depends on another of the same stage, so everything in a stage
-runs at once on a local thread/process pool or on a ``distributed.Client``):
+Task graph (plain functions, run on a local thread/process pool or on a
+``distributed.Client``):
 
 1. one task per albedo tile samples its valid values -> the shared percentile stretch
    (skipped with ``value_range``);
@@ -107,9 +107,9 @@ def _pyramid_tasks(kml_dir, pyr, present, children, sources, st, label, resampli
 
 
 def _level_resampling(pyr: Pyramid, level: int, grid: Grid) -> Resampling:
-    """``nearest`` for levels within 1.5x of the native pixel size, ``average`` for coarser ones."""
-    _, width = pyr.level_shape(level)
-    return Resampling.nearest if grid.width / width < 1.5 else Resampling.average
+    """``nearest`` for a level at least as fine as the native grid, ``average`` for a coarser one."""
+    height, width = pyr.level_shape(level)
+    return Resampling.nearest if width >= grid.width and height >= grid.height else Resampling.average
 
 
 def _check_pixel_size(sources: Sequence[Source], folder: Path) -> None:
