@@ -50,7 +50,8 @@ def command(results_dir, levels, stretch, value_range, tile_size, workers, sched
     st = summary["stretch"]
     how = f"percentiles {st['percentiles'][0]:g},{st['percentiles'][1]:g}" if st["method"] == "percentile" else "fixed range"
     w, s, e, n = summary["bounds"]
-    click.echo(f"levels     {summary['levels']} ({' + '.join(map(str, summary['tiles_per_level']))} = {summary['tiles']} PNG tiles of {summary['tile_size']} px)")
+    per_level = " + ".join(map(str, summary["tiles_per_level"])) + " = " if summary["levels"] > 1 else ""
+    click.echo(f"levels     {summary['levels']} ({per_level}{summary['tiles']} PNG tiles of at most {summary['tile_size']} px)")
     click.echo(f"extent     lon {w:g}..{e:g}, lat {s:g}..{n:g}; finest level {summary['kml_size'][0]} x {summary['kml_size'][1]} px")
     click.echo(f"stretch    {st['lo']:.6g} -> 0, {st['hi']:.6g} -> 255 ({how}); written to {summary['stretch_file']}")
     click.echo(f"kml        {summary['doc_kml']}")
