@@ -48,16 +48,20 @@ def _cache_dir(cache_root: Path, scene: Scene, t: int) -> Path:
 
 
 # --------------------------------------------------------------------------- prepare
-def _geometry_stack(scene: Scene, tile, idx):
-    """DEM (padded grid), and per image cos i, cos e, alpha on the padded grid."""
+def _geometry_stack(scene: Scene, tile):
+    """DEM, body-fixed points, normals and the no-DEM mask of the unpadded tile.
+
+    The DEM is read on the padded grid so that normals at the tile's edge see their
+    neighbours, then everything is cropped to the tile.
+    """
     s = scene.settings
     shape, transform = tile.padded_shape, tile.padded_transform
     dem = read_dem_onto_grid(scene.dems, transform, shape, scene.crs, s.no_dem_data_val)
     lon, lat = geometry.lonlat_grid(transform, shape)
     pts = geometry.body_fixed(lon, lat, np.nan_to_num(dem, nan=0.0))
     normals = geometry.dem_normals(pts)
-    bad = ~np.isfinite(dem)
-    return dem, pts, normals, bad
+    inner = tile.inner
+    return dem[inner], pts[inner], normals[inner], ~np.isfinite(dem[inner])
 
 
 def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
@@ -73,15 +77,12 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
         return {**cached[1], "reused": True}
     s = scene.settings
     tile = scene.tiles[t]
-    inner = tile.inner
-    geo = _geometry_stack(scene, tile, scene.tile_images[t]) if s.needs_geometry else None
+    geo = _geometry_stack(scene, tile) if s.needs_geometry else None
     thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
     per_image: dict[str, list] = {name: [] for name in ("image", "wblend", "usable", "geometric", "alpha", "cos_i")}
     keep = []
     for k in scene.tile_images[t]:
-        got = read_drg_onto_grid(
-            scene.images[k], scene.profiles[k], tile.padded_transform, tile.padded_shape, scene.crs, thresh
-        )
+        got = read_drg_onto_grid(scene.images[k], scene.profiles[k], tile.transform, (tile.height, tile.width), scene.crs, thresh)
         if got is None:
             continue
         val, ok, wt, use = got
@@ -98,12 +99,12 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
             layers["alpha"] = al
             if s.shadow_type == shadows.LAMBERT_RATIO:
                 layers["cos_i"] = ci
-        if not use[inner].any():
+        if not use.any():
             continue
         keep.append(int(k))
         layers.update(image=val, wblend=wt if s.use_weights else ok, usable=use)
         for name, arr in layers.items():
-            per_image[name].append(arr[inner])
+            per_image[name].append(arr)
     h, w = tile.height, tile.width
     arrays: dict[str, np.ndarray] = {"index": np.array(keep, np.int32)}
     for name, dtype in (("image", np.float32), ("wblend", np.float32), ("usable", bool)):
@@ -115,12 +116,13 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
             arrays["wblend"] = np.where(wb > 0, wb / arrays["weights_sum"][None], 0.0).astype(np.float32)
     arrays["weight"] = np.where(arrays["usable"], arrays["wblend"], 0.0).astype(np.float32)
     if geo is not None:
-        arrays["dem"] = geo[0][inner]
+        arrays["dem"] = geo[0]
         for name in ("geometric", "alpha", "cos_i"):
             if per_image[name] or name != "cos_i" or s.shadow_type == shadows.LAMBERT_RATIO:
                 arrays[name] = np.array(per_image[name], np.float32).reshape(-1, h, w)
     meta = _init_sums(scene, arrays)
     meta["tile"] = tile.name
+    del arrays["usable"]  # folded into "weight"; only the initialisation needed it
     save_stack(folder, arrays, meta)
     return {**meta, "reused": False}
 

@@ -292,9 +292,11 @@ def read_drg_onto_grid(
         src_crs = ds.crs or dst_crs
     r0, c0 = int(win.row_off), int(win.col_off)
     weight = window_weights(profile, r0, c0, value.shape[0], value.shape[1]) * valid
-    lit = valid if lit_threshold is None else valid & (value >= lit_threshold)
-    src = np.stack([np.where(valid, value, 0.0).astype(np.float32), valid.astype(np.float32), weight, lit.astype(np.float32)])
-    dst = np.zeros((4, h, w), dtype=np.float32)
+    bands = [np.where(valid, value, 0.0).astype(np.float32), valid.astype(np.float32), weight]
+    if lit_threshold is not None:
+        bands.append((valid & (value >= lit_threshold)).astype(np.float32))
+    src = np.stack(bands)
+    dst = np.zeros((len(bands), h, w), dtype=np.float32)
     reproject(
         source=src,
         destination=dst,
@@ -307,8 +309,8 @@ def read_drg_onto_grid(
     ok = dst[1] > 0.9999
     if not ok.any():
         return None
-    # Undo the dilution of values by invalid neighbours (none where ok, kept for safety).
-    return dst[0], ok, np.where(ok, dst[2], 0.0).astype(np.float32), ok & (dst[3] > 0.9999)
+    lit = ok if lit_threshold is None else ok & (dst[3] > 0.9999)
+    return dst[0], ok, np.where(ok, dst[2], 0.0).astype(np.float32), lit
 
 
 def read_dem_onto_grid(

@@ -46,24 +46,42 @@ def lonlat_height(points_km):
     return lon, lat, (r - MOON_RADIUS_KM) * 1000.0
 
 
+def _dot(a, b):
+    """Row-wise dot product of ``(..., 3)`` arrays."""
+    return np.einsum("...i,...i->...", a, b)
+
+
 def _unit(v):
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return v / n
+        return v / np.sqrt(_dot(v, v))[..., None]
+
+
+def _central_difference(a, axis):
+    """``np.gradient`` along ``axis`` of a 2-D array (central inside, one-sided at the edges)."""
+    g = np.empty_like(a)
+    a, g = (a, g) if axis == 0 else (a.T, g.T)
+    g[1:-1] = (a[2:] - a[:-2]) * 0.5
+    g[0] = a[1] - a[0]
+    g[-1] = a[-1] - a[-2]
+    return g if axis == 0 else g.T
 
 
 def dem_normals(points_km):
     """Outward unit normals of a grid of body-fixed points ``(H, W, 3)`` (central differences).
 
-    Edge pixels use one-sided differences; pixels next to NaN heights are NaN.
+    The normal is (towards south) x (towards east) of the neighbouring points, flipped
+    to point away from the Moon's centre.  Edge pixels use one-sided differences;
+    pixels next to NaN heights are NaN.
     """
     p = np.asarray(points_km, dtype=np.float64)
-    d_col = np.gradient(p, axis=1)  # towards east (increasing column)
-    d_row = np.gradient(p, axis=0)  # towards south (increasing row)
-    n = _unit(np.cross(d_row, d_col))  # south x east = up
-    radial = _unit(p)
-    flip = np.sum(n * radial, axis=-1, keepdims=True) < 0
-    return np.where(flip, -n, n)
+    x, y, z = (np.ascontiguousarray(p[..., i]) for i in range(3))
+    rx, ry, rz = (_central_difference(c, 0) for c in (x, y, z))  # towards south (increasing row)
+    cx, cy, cz = (_central_difference(c, 1) for c in (x, y, z))  # towards east (increasing column)
+    nx, ny, nz = ry * cz - rz * cy, rz * cx - rx * cz, rx * cy - ry * cx
+    norm = np.sqrt(nx * nx + ny * ny + nz * nz)
+    norm = np.where(nx * x + ny * y + nz * z < 0, -norm, norm)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.stack([nx / norm, ny / norm, nz / norm], axis=-1)
 
 
 def illumination(points_km, normals, sun_km, spacecraft_km):
@@ -73,7 +91,4 @@ def illumination(points_km, normals, sun_km, spacecraft_km):
     """
     l = _unit(np.asarray(sun_km, dtype=np.float64) - points_km)
     v = _unit(np.asarray(spacecraft_km, dtype=np.float64) - points_km)
-    cos_i = np.sum(normals * l, axis=-1)
-    cos_e = np.sum(normals * v, axis=-1)
-    alpha = np.arccos(np.clip(np.sum(l * v, axis=-1), -1.0, 1.0))
-    return cos_i, cos_e, alpha
+    return _dot(normals, l), _dot(normals, v), np.arccos(np.clip(_dot(l, v), -1.0, 1.0))
