@@ -53,7 +53,7 @@ def write_cog_mosaic(sources: Sequence[Source], grid: Grid, path: str | Path) ->
     profile = dict(
         driver="GTiff", width=grid.width, height=grid.height, count=1, dtype="float32",
         transform=grid.transform, crs=_crs(sources), nodata=np.nan,
-        tiled=True, blockxsize=COG_BLOCK, blockysize=COG_BLOCK, compress="deflate",
+        tiled=True, blockxsize=COG_BLOCK, blockysize=COG_BLOCK, compress=None,  # scratch copy: speed over size
     )
     valid = 0
     w, s, e, n = grid.bounds
