@@ -205,6 +205,13 @@ def test_missing_albedo_is_an_input_error_naming_the_folder(tmp_path):
     assert result.exit_code == 2 and "error:" in result.output and str(tmp_path / "albedo") in result.output
 
 
+def test_all_nodata_albedo_is_an_input_error(tmp_path):
+    make_result(tmp_path, [(0, 0)], n=10, hole=(-1, -5, 5, 1))
+    with pytest.raises(InputError, match=f"{tmp_path / 'albedo'}: .*no valid pixel"):
+        export_kml(tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["albedo"]  # nothing half-written
+
+
 def test_tiles_with_different_pixel_sizes_are_refused(tmp_path):
     make_result(tmp_path, [(0, 0)], n=40)
     make_result(tmp_path, [(4, 0)], n=50)

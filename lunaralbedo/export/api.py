@@ -166,6 +166,8 @@ def export_kml(
     else:
         budget = max(10_000, SAMPLE_BUDGET // len(sources))  # values per tile for the percentiles
         samples = _compute([task(sample_values)(s, budget) for s in sources], **run)
+        if not any(len(v) for v in samples):
+            raise InputError(f"{albedo_dir}: the albedo tiles hold no valid pixel (all no-data); nothing to export")
         st = stretch_from_values(np.concatenate(samples), tuple(stretch))
 
     label = name or results_dir.name
