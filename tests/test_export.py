@@ -178,7 +178,7 @@ def test_distributed_client_gives_the_same_output(tmp_path):
     a = make_result(tmp_path / "a" / "run", SIX, n=40)
     b = make_result(tmp_path / "b" / "run", SIX, n=40)
     export_kml(a, tile_size=32, workers=1)
-    with distributed.Client(processes=False, n_workers=1, threads_per_worker=2, dashboard_address=None) as client:
+    with distributed.Client(processes=False, n_workers=1, threads_per_worker=2, dashboard_address=":0") as client:
         export_kml(b, tile_size=32, client=client)
     assert all_files(a / "kml") == all_files(b / "kml")
 
