@@ -189,6 +189,8 @@ def test_rerun_overwrites_cleanly(tmp_path):
     assert (root / "kml" / "2").is_dir() and (root / "error_mosaic.tif").exists()
     for p in (root / "error").iterdir():
         p.unlink()
+    (root / ".tmp-kml-killedrun" / "0").mkdir(parents=True)  # left by a killed export
+    (root / ".tmp-kml-killedrun" / "doc.kml").write_text("stale")
     summary = export_kml(root, levels=1, tile_size=32, workers=1)
     assert summary["levels"] == 1 and summary["error_mosaic"] is None
     assert sorted(p.name for p in (root / "kml").iterdir()) == ["0", "doc.kml", "stretch.json"]
@@ -243,3 +245,21 @@ def test_fewer_levels_than_needed_average_the_albedo(tmp_path):
         ref = m.read(1, out_shape=(42, 64), resampling=rasterio.enums.Resampling.average)
     assert rgba.shape == (4, 42, 64)
     assert np.abs(rgba[0].astype(int) - expected_dn(ref, stretch_of(root))).max() <= 2
+
+
+def test_mosaic_assembled_from_many_blocks_equals_the_exported_one(six, tmp_path):
+    from lunaralbedo.export.mosaic import assemble_cog, block_grids, write_mosaic_block
+    from lunaralbedo.export.sources import find_sources, native_grid
+
+    root, _ = six
+    sources = find_sources(root / "albedo")
+    grid = native_grid(sources)
+    blocks = block_grids(grid, 96)  # 7 x 5 blocks with partial last row and column
+    assert len(blocks) == 35 and sum(g.width * g.height for _, _, g in blocks) == 600 * 400
+    parts = [write_mosaic_block(sources, r0, c0, g, tmp_path / f"b{i}.tif") for i, (r0, c0, g) in enumerate(blocks)]
+    info = assemble_cog(parts, grid, sources[0].crs_wkt, tmp_path / "m.tif")
+    assert info["valid_pixels"] == 600 * 400 and cog_validate(str(tmp_path / "m.tif"))[0]
+    assert not list(tmp_path.glob("b*.tif"))  # scratch blocks removed
+    with rasterio.open(tmp_path / "m.tif") as a, rasterio.open(root / "albedo_mosaic.tif") as b:
+        np.testing.assert_array_equal(a.read(1), b.read(1))
+        assert a.transform.almost_equals(b.transform) and a.crs == b.crs

@@ -8,7 +8,7 @@ Task graph (plain functions, run on a local thread/process pool or on a
 2. one task per PNG tile per level: finest-level tiles read the albedo tiles they
    cover, each coarser tile waits only for its (up to 4) children and averages
    them, so a level's tiles run in parallel and the albedo is read once; one task
-   per albedo tile for ``albedo_sub4/``; one task per mosaic.
+   per albedo tile for ``albedo_sub4/``; one task per 2048-px block of each mosaic plus one that writes the COG.
 
 Folders are built in a ``.tmp-*`` sibling and swapped in at the end, so a re-run
 replaces the previous export cleanly and a failed run leaves the old one intact.
@@ -34,7 +34,7 @@ from rasterio.errors import NotGeoreferencedWarning
 from ..errors import InputError
 from ..io.atomic import TMP_PREFIX, atomic_write_text
 from .kml import ROOT_NAME, pyramid_children, render_leaf, render_parent
-from .mosaic import write_cog_mosaic, write_sub4
+from .mosaic import assemble_cog, block_grids, write_mosaic_block, write_sub4
 from .pyramid import Pyramid, plan_pyramid, present_nodes
 from .sources import Grid, Source, find_sources, intersects, native_grid, sample_values
 from .stretch import stretch_from_range, stretch_from_values
@@ -62,6 +62,20 @@ def staged_dir(final: Path) -> Iterator[Path]:
     os.replace(stage, final)
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
+
+
+STAGING_PREFIXES = ("kml-", "albedo_sub4-", "mosaic-", "old-")
+
+
+def remove_stale_staging(results_dir: Path) -> int:
+    """Delete ``.tmp-*`` folders a killed export left in ``results_dir``; return how many.
+
+    Two exports of the same RESULTS_DIR at the same time are not supported.
+    """
+    stale = [p for p in results_dir.glob(f"{TMP_PREFIX}*") if p.is_dir() and p.name[len(TMP_PREFIX):].startswith(STAGING_PREFIXES)]
+    for p in stale:
+        shutil.rmtree(p, ignore_errors=True)
+    return len(stale)
 
 
 def _readable(path: Path) -> None:
@@ -104,6 +118,16 @@ def _pyramid_tasks(kml_dir, pyr, present, children, sources, st, label, resampli
     # and each tile's arrays are freed once its parent has used them.
     (root,) = present[0]
     return [done[root.key]]
+
+
+def _mosaic_task(sources: Sequence[Source], grid: Grid, path: Path, scratch: str):
+    """One task per 2048-px block of the mosaic, then one that assembles the COG."""
+    task = dask.delayed(pure=False)
+    blocks = [
+        task(write_mosaic_block)(_covering(sources, g.bounds), r0, c0, g, Path(scratch) / f"{path.stem}-{i}.tif")
+        for i, (r0, c0, g) in enumerate(block_grids(grid))
+    ]
+    return task(assemble_cog)(blocks, grid, sources[0].crs_wkt, path)
 
 
 def _level_resampling(pyr: Pyramid, level: int, grid: Grid) -> Resampling:
@@ -154,6 +178,7 @@ def export_kml(
     _check_pixel_size(sources, albedo_dir)
     error_dir = results_dir / "error"
     errors = find_sources(error_dir, "error") if any(error_dir.glob("tile_*.tif")) else []
+    remove_stale_staging(results_dir)
     grid = native_grid(sources)
     pyr = plan_pyramid(grid.bounds, grid.shape, tile_size, levels)
     present = present_nodes(pyr, [s.bounds for s in sources])
@@ -171,12 +196,16 @@ def export_kml(
         st = stretch_from_values(np.concatenate(samples), tuple(stretch))
 
     label = name or results_dir.name
-    with staged_dir(results_dir / "kml") as kml_dir, staged_dir(results_dir / "albedo_sub4") as sub4_dir:
+    with (
+        staged_dir(results_dir / "kml") as kml_dir,
+        staged_dir(results_dir / "albedo_sub4") as sub4_dir,
+        tempfile.TemporaryDirectory(prefix=f"{TMP_PREFIX}mosaic-", dir=results_dir) as scratch,
+    ):
         pyramid = _pyramid_tasks(kml_dir, pyr, present, children, sources, st, label, _level_resampling(pyr, pyr.levels - 1, grid))
         sub4 = [task(write_sub4)(s, sub4_dir / s.path.name, sub4_rs) for s in sources]
-        mosaics = [task(write_cog_mosaic)(sources, grid, results_dir / "albedo_mosaic.tif")]
+        mosaics = [_mosaic_task(sources, grid, results_dir / "albedo_mosaic.tif", scratch)]
         if errors:
-            mosaics.append(task(write_cog_mosaic)(errors, native_grid(errors), results_dir / "error_mosaic.tif"))
+            mosaics.append(_mosaic_task(errors, native_grid(errors), results_dir / "error_mosaic.tif", scratch))
         mosaics = _compute(pyramid + sub4 + mosaics, **run)[len(pyramid) + len(sub4):]
         atomic_write_text(kml_dir / STRETCH_FILE, st.to_json())
     for mosaic in mosaics:

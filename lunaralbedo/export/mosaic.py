@@ -4,14 +4,16 @@
   on the native grid of the tiles (:func:`~.sources.native_grid`), continuous
   longitudes, nearest-neighbour copy of the tiles (solver tiles land exactly on
   it), internal 256-px tiles, deflate, average overviews down to one block
-  (none when the image fits in one 256-px block), written with rio-cogeo.
+  (none when the image fits in one 256-px block), written with rio-cogeo.  The
+  mosaic is read in 2048-px blocks (one task each, written to scratch files);
+  one last task copies them into one raster and writes the COG.
 * ``albedo_sub4/tile_*.tif``: each tile on the same bounds with ``w // 4`` by
   ``h // 4`` pixels (the legacy sizes, e.g. 95 -> 23), by default GDAL average
   resampling ignoring no-data pixels (when the size divides by 4 this is exactly
   the mean of the valid pixels of each 4x4 block); ``nearest`` gives the legacy
-  values (PhotometryTK took the pixel nearest to each coarse pixel centre).  Float32 tiles stay float32 (NaN = no
-  data); legacy uint8 tiles stay uint8 gray + alpha (255 where any pixel of the
-  block had data).
+  values (PhotometryTK took the pixel nearest to each coarse pixel centre).
+  Float32 tiles stay float32 (NaN = no data); legacy uint8 tiles stay uint8
+  gray + alpha (255 where any pixel of the block had data).
 """
 from __future__ import annotations
 
@@ -25,6 +27,7 @@ import rasterio
 from rasterio.crs import CRS
 from rasterio.enums import Resampling
 from rasterio.warp import reproject
+from rasterio.windows import Window
 from rio_cogeo.cogeo import cog_translate
 from rio_cogeo.profiles import cog_profiles
 
@@ -33,12 +36,7 @@ from ..io.rasters import write_geotiff
 from .sources import Grid, Source, read_masked, read_region
 
 COG_BLOCK = 256
-BLOCK_ROWS = 1024
-
-
-def _crs(sources: Sequence[Source]) -> CRS | None:
-    wkt = sources[0].crs_wkt
-    return CRS.from_wkt(wkt) if wkt else None
+MOSAIC_BLOCK = 2048  # pixels a side of one mosaic task
 
 
 def overview_count(height: int, width: int, block: int = COG_BLOCK) -> int:
@@ -46,27 +44,45 @@ def overview_count(height: int, width: int, block: int = COG_BLOCK) -> int:
     return max(0, math.ceil(math.log2(max(height, width) / block)))
 
 
-def write_cog_mosaic(sources: Sequence[Source], grid: Grid, path: str | Path) -> dict:
-    """Mosaic ``sources`` onto ``grid`` and write a COG at ``path`` (atomically)."""
+def block_grids(grid: Grid, size: int = MOSAIC_BLOCK) -> list[tuple[int, int, Grid]]:
+    """``(row_off, col_off, sub-grid)`` of the ``size``-pixel blocks of ``grid`` (one mosaic task each)."""
+    w, s, e, n = grid.bounds
+    dx, dy = (e - w) / grid.width, (n - s) / grid.height
+    out = []
+    for r0 in range(0, grid.height, size):
+        r1 = min(grid.height, r0 + size)
+        for c0 in range(0, grid.width, size):
+            c1 = min(grid.width, c0 + size)
+            bounds = (w + c0 * dx, s if r1 == grid.height else n - r1 * dy, e if c1 == grid.width else w + c1 * dx, n - r0 * dy)
+            out.append((r0, c0, Grid(bounds, r1 - r0, c1 - c0)))
+    return out
+
+
+def write_mosaic_block(sources: Sequence[Source], row_off: int, col_off: int, block: Grid, path: str | Path) -> dict:
+    """Task: one block of a mosaic (nearest-neighbour copy of the tiles) as a scratch GeoTIFF."""
+    vals = read_region(sources, block, Resampling.nearest)
+    profile = dict(driver="GTiff", width=block.width, height=block.height, count=1, dtype="float32",
+                   transform=block.transform, nodata=np.nan)
+    with rasterio.open(path, "w", **profile) as dst:
+        dst.write(vals, 1)
+    return {"path": str(path), "row_off": row_off, "col_off": col_off, "valid": int(np.isfinite(vals).sum())}
+
+
+def assemble_cog(blocks: Sequence[dict], grid: Grid, crs_wkt: str, path: str | Path) -> dict:
+    """Task: copy the blocks into one scratch raster and write it as a COG at ``path`` (atomically)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     profile = dict(
         driver="GTiff", width=grid.width, height=grid.height, count=1, dtype="float32",
-        transform=grid.transform, crs=_crs(sources), nodata=np.nan,
-        tiled=True, blockxsize=COG_BLOCK, blockysize=COG_BLOCK, compress=None,  # scratch copy: speed over size
+        transform=grid.transform, crs=CRS.from_wkt(crs_wkt) if crs_wkt else None, nodata=np.nan,
+        tiled=True, blockxsize=COG_BLOCK, blockysize=COG_BLOCK,  # uncompressed scratch copy: speed over size
     )
-    valid = 0
-    w, s, e, n = grid.bounds
-    dy = (n - s) / grid.height
     with tempfile.TemporaryDirectory(prefix=TMP_PREFIX, dir=path.parent) as tmpdir:
         raw = Path(tmpdir) / "raw.tif"
         with rasterio.open(raw, "w", **profile) as dst:
-            for r0 in range(0, grid.height, BLOCK_ROWS):
-                r1 = min(grid.height, r0 + BLOCK_ROWS)
-                south = s if r1 == grid.height else n - r1 * dy
-                block = read_region(sources, Grid((w, south, e, n - r0 * dy), r1 - r0, grid.width), Resampling.nearest)
-                valid += int(np.isfinite(block).sum())
-                dst.write(block, 1, window=rasterio.windows.Window(0, r0, grid.width, r1 - r0))
+            for b in blocks:
+                with rasterio.open(b["path"]) as src:
+                    dst.write(src.read(1), 1, window=Window(b["col_off"], b["row_off"], src.width, src.height))
+                Path(b["path"]).unlink()
         cog = cog_profiles.get("deflate")
         cog.update(blockxsize=COG_BLOCK, blockysize=COG_BLOCK, predictor=3)
         with atomic_path(path) as tmp:
@@ -75,7 +91,20 @@ def write_cog_mosaic(sources: Sequence[Source], grid: Grid, path: str | Path) ->
                           config={"GDAL_TIFF_OVR_BLOCKSIZE": str(COG_BLOCK), "GDAL_NUM_THREADS": "ALL_CPUS"})
     with rasterio.open(path) as ds:
         overviews = ds.overviews(1)
+    valid = sum(b["valid"] for b in blocks)
     return {"path": str(path), "width": grid.width, "height": grid.height, "valid_pixels": valid, "overviews": overviews}
+
+
+def write_cog_mosaic(sources: Sequence[Source], grid: Grid, path: str | Path) -> dict:
+    """Mosaic ``sources`` onto ``grid`` and write a COG at ``path``, serially (the API runs the blocks as tasks)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=TMP_PREFIX, dir=path.parent) as scratch:
+        blocks = [
+            write_mosaic_block(sources, r0, c0, g, Path(scratch) / f"block-{i}.tif")
+            for i, (r0, c0, g) in enumerate(block_grids(grid))
+        ]
+        return assemble_cog(blocks, grid, sources[0].crs_wkt, path)
 
 
 def sub4_shape(height: int, width: int) -> tuple[int, int]:
