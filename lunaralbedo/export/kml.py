@@ -116,7 +116,7 @@ def render_leaf(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Task for a tile of the finest level: resample the albedo onto it, write its PNG and KML.
 
-    ``nearest`` when the level has about the native resolution (values copied,
+    ``nearest`` when the level is at least as fine as the albedo (values copied,
     not blurred), ``average`` when ``--levels`` makes it coarser.  Returns
     ``(mean, count)`` for the parent: the values and how many finest-level pixels
     each one stands for (1 or 0).
