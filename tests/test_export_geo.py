@@ -186,3 +186,33 @@ def test_coarser_levels_are_count_weighted_means_of_the_finest_level():
                 vals, _ = results[(level, c, r)]
                 got[r * t:r * t + vals.shape[0], c * t:c * t + vals.shape[1]] = vals
         np.testing.assert_allclose(got, want, rtol=1e-5)
+
+
+@pytest.mark.parametrize(
+    "corners, n, size",
+    [
+        ([(0, 0), (4, 0), (0, -4)], 50, 4.0),  # L-shape with a missing tile
+        ([(176, 4), (-180, 4)], 40, 4.0),  # across ±180° (shifted tile)
+        ([(0, -86)], 95, 95 * 0.04224640792195306),  # overshooting the south pole
+    ],
+)
+def test_exact_copy_equals_gdal_nearest(tmp_path, corners, n, size):
+    from rasterio.enums import Resampling
+
+    from lunaralbedo.export.sources import Grid, find_sources, native_grid, pixel_offset, read_region
+
+    make_result(tmp_path, corners, n=n, size=size)
+    sources = find_sources(tmp_path / "albedo")
+    grid = native_grid(sources)
+    w, s, e, nn = grid.bounds
+    dx, dy = (e - w) / grid.width, (nn - s) / grid.height
+    grids = [grid] + [  # aligned sub-grids, some reaching past the data
+        Grid((w + c * dx, nn - (r + h) * dy, w + (c + wd) * dx, nn - r * dy), h, wd)
+        for r, c, h, wd in [(0, 0, 7, 9), (3, 5, 40, 33), (grid.height - 10, grid.width - 12, 10, 12), (10, 30, 30, 30)]
+    ]
+    for g in grids:
+        fast = read_region(sources, g, Resampling.nearest)
+        slow = read_region(sources, g, Resampling.nearest, exact_copy=False)
+        np.testing.assert_array_equal(fast, slow)
+    aligned = [pixel_offset(src, grid.transform) is not None for src in sources]
+    assert aligned == [size == 4.0] * len(sources)  # the legacy-sized tile goes through GDAL's warper
