@@ -181,8 +181,10 @@ def test_ingest_cubes_in_parallel_match_serial(tmp_path):
 @pytest.mark.parametrize(
     "kind, expect",
     [
-        ("slurm", ["#SBATCH -p normal", "#SBATCH -A lunar", "#SBATCH -t 04:00:00", "--nworkers 4", "--nthreads 1"]),
-        ("pbs", ["#PBS -q normal", "#PBS -l walltime=04:00:00", "ncpus=4", "--nworkers 4", "--nthreads 1"]),
+        ("slurm", ["#SBATCH -p normal", "#SBATCH -A lunar", "#SBATCH -t 04:00:00", "--nworkers 4", "--nthreads 1",
+                   "export MALLOC_MMAP_THRESHOLD_="]),
+        ("pbs", ["#PBS -q normal", "#PBS -l walltime=04:00:00", "ncpus=4", "--nworkers 4", "--nthreads 1",
+                 "export MALLOC_MMAP_THRESHOLD_="]),
     ],
 )
 def test_batch_cluster_job_scripts(kind, expect):

@@ -77,17 +77,31 @@ class DaskExecutor:
                 pass
 
 
+#: Environment of worker processes.  Dask's nanny sets MALLOC_TRIM_THRESHOLD_, which
+#: freezes glibc's mmap threshold at 128 KiB: every multi-megabyte NumPy temporary is
+#: then a fresh mmap with page faults (measured 1.5-2x slower tile tasks).  A 64 MiB
+#: threshold lets temporaries reuse heap memory, as in a plain Python process.
+WORKER_ENV = {"MALLOC_MMAP_THRESHOLD_": 64 * 2**20}
+
+
+def _worker_config():
+    import dask
+
+    return dask.config.set({f"distributed.nanny.pre-spawn-environ.{k}": v for k, v in WORKER_ENV.items()})
+
+
 def _local_cluster(workers: int, memory_limit: str | None):
     from distributed import Client, LocalCluster
 
-    cluster = LocalCluster(
-        n_workers=workers,
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=None,
-        memory_limit=memory_limit or "auto",
-        silence_logs=40,
-    )
+    with _worker_config():
+        cluster = LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            memory_limit=memory_limit or "auto",
+            silence_logs=40,
+        )
     return Client(cluster), cluster
 
 
@@ -108,6 +122,7 @@ def jobqueue_cluster(kind: str, opts: dict):
     kwargs.setdefault("memory", "4GB")
     kwargs.setdefault("processes", kwargs["cores"])
     kwargs.setdefault("scheduler_options", {"dashboard_address": None})
+    kwargs.setdefault("job_script_prologue", [f"export {k}={v}" for k, v in WORKER_ENV.items()])
     return cls(**kwargs)
 
 

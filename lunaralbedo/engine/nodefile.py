@@ -47,7 +47,10 @@ def nodefile_client(hosts: list[str], processes_per_node: int, timeout: float = 
     port = cluster.scheduler_address.rsplit(":", 1)[1]
     address = f"tcp://{socket.getfqdn()}:{port}"
     shell = shlex.split(os.environ.get(REMOTE_SHELL_ENV, "ssh -o BatchMode=yes"))
+    from .executor import WORKER_ENV
+
     worker = [
+        "env", *(f"{k}={v}" for k, v in WORKER_ENV.items()),
         sys.executable, "-m", "distributed.cli.dask_worker", address,
         "--nworkers", str(processes_per_node), "--nthreads", "1",
         "--no-dashboard", "--death-timeout", "60",
