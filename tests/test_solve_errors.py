@@ -129,3 +129,17 @@ def test_bad_input_does_not_destroy_a_previous_result(scene):
     res, _ = run(scene)
     assert res.exit_code == 2 and "cannot open raster" in res.output
     assert (out / "exposure.csv").read_text() == before and (out / "albedo").is_dir()
+
+
+def test_outputs_are_readable_by_others_under_the_usual_umask(scene):
+    import os
+    import stat
+
+    old = os.umask(0o022)
+    try:
+        res, out = run(scene)
+    finally:
+        os.umask(old)
+    assert res.exit_code == 0
+    for p in [out / "exposure.csv", out / "report.json", *sorted((out / "albedo").glob("*.tif"))]:
+        assert stat.S_IMODE(p.stat().st_mode) == 0o644, p

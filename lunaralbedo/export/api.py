@@ -32,7 +32,7 @@ from rasterio.enums import Resampling
 from rasterio.errors import NotGeoreferencedWarning
 
 from ..errors import InputError
-from ..io.atomic import TMP_PREFIX, atomic_write_text
+from ..io.atomic import TMP_PREFIX, atomic_write_text, make_readable
 from .kml import ROOT_NAME, pyramid_children, render_leaf, render_parent
 from .mosaic import assemble_cog, block_grids, write_mosaic_block, write_sub4
 from .pyramid import Pyramid, plan_pyramid, present_nodes
@@ -54,7 +54,7 @@ def staged_dir(final: Path) -> Iterator[Path]:
         shutil.rmtree(stage, ignore_errors=True)
         raise
     for path in [stage, *stage.rglob("*")]:
-        _readable(path)
+        make_readable(path)
     old = None
     if final.exists():
         old = final.parent / f"{TMP_PREFIX}old-{final.name}-{os.getpid()}"
@@ -76,13 +76,6 @@ def remove_stale_staging(results_dir: Path) -> int:
     for p in stale:
         shutil.rmtree(p, ignore_errors=True)
     return len(stale)
-
-
-def _readable(path: Path) -> None:
-    """Give ``path`` the usual permissions (temporary files are created owner-only)."""
-    umask = os.umask(0)
-    os.umask(umask)
-    path.chmod((0o777 if path.is_dir() else 0o666) & ~umask)
 
 
 def _compute(tasks: list, client=None, workers: int | None = None, scheduler: str = "threads") -> list:
@@ -209,7 +202,7 @@ def export_kml(
         mosaics = _compute(pyramid + sub4 + mosaics, **run)[len(pyramid) + len(sub4):]
         atomic_write_text(kml_dir / STRETCH_FILE, st.to_json())
     for mosaic in mosaics:
-        _readable(Path(mosaic["path"]))
+        make_readable(Path(mosaic["path"]))
     if not errors:
         with contextlib.suppress(FileNotFoundError):
             (results_dir / "error_mosaic.tif").unlink()

@@ -14,6 +14,14 @@ from typing import Iterator
 TMP_PREFIX = ".tmp-"
 
 
+def make_readable(path: str | Path) -> None:
+    """Give a file or folder the mode a plain ``open``/``mkdir`` would (``mkstemp``/``mkdtemp`` leave 0600/0700)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    path = Path(path)
+    path.chmod((0o777 if path.is_dir() else 0o666) & ~mask)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; rename it onto ``path`` on success."""
@@ -24,6 +32,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        make_readable(tmp_path)
         os.replace(tmp_path, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
