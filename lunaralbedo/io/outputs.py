@@ -79,9 +79,12 @@ def plot_cost(path: Path, q: Sequence[float]) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from matplotlib.ticker import MaxNLocator
+
     fig, ax = plt.subplots(figsize=(5, 3.5))
-    ax.semilogy(np.arange(len(q)), q, "o-")
-    ax.set_xlabel("iteration")
+    ax.semilogy(np.arange(1, len(q) + 1), q, "o-")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_xlabel("iteration (Q before its update)")
     ax.set_ylabel("cost Q (eq. 1)")
     ax.set_title("Convergence")
     ax.grid(True, which="both", alpha=0.3)
