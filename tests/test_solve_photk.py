@@ -43,6 +43,9 @@ def test_settings_1_lunar_lambert_normalised_cost(photk_tests, tmp_path):
     rep = json.loads((out / "report.json").read_text())
     assert rep["images_skipped"] == {"AS15-M-0073": "overlaps no tile of SIMULATION_BOX"}
     assert rep["cost_q"][1] < rep["cost_q"][0]
+    for tile in rep["tiles"]:  # per tile: images used, and those over it without a usable pixel
+        assert len(tile["images"]) > 30 and tile["valid_pixels"] > 8000
+        assert not set(tile["images"]) & set(tile["images_without_usable_pixels"])
     assert (out / "error" / "tile_4E8S.tif").exists()
 
 

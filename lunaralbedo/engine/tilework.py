@@ -201,6 +201,16 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
 
 
 # --------------------------------------------------------------------------- finalise
+def _tile_images(scene: Scene, t: int, used) -> dict:
+    """Images used over tile ``t`` and those that overlap it without a usable pixel (shadow, no DEM, ...)."""
+    used = set(int(k) for k in used)
+    return {
+        "tile": scene.tiles[t].name,
+        "images": [scene.images[k].key for k in sorted(used)],
+        "images_without_usable_pixels": [scene.images[k].key for k in scene.tile_images[t] if int(k) not in used],
+    }
+
+
 def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, state: SolveState, skip_done: bool = False) -> dict:
     """Write the albedo, error, DEM and weight-sum tiles of tile ``t``; return a small report.
 
@@ -218,7 +228,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
 
         with rasterio.open(out_dir / "albedo" / name) as ds:
             valid = int(np.count_nonzero(np.isfinite(ds.read(1))))
-        return {"tile": tile.name, "images": [scene.images[k].key for k in idx], "valid_pixels": valid, "reused": True}
+        return {**_tile_images(scene, t, idx), "valid_pixels": valid, "reused": True}
     if len(idx):
         alb, r, p, a, e, w, tr, _ = tile_model(scene, arrays, state)
     else:
@@ -231,8 +241,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
         write_geotiff(out_dir / "DEM" / name, np.asarray(arrays["dem"]), tile.transform, scene.crs, nodata=float("nan"))
     write_geotiff(out_dir / "weightsSum" / name, np.asarray(arrays["weights_sum"]), tile.transform, scene.crs)
     return {
-        "tile": tile.name,
-        "images": [scene.images[k].key for k in idx],
+        **_tile_images(scene, t, idx),
         "valid_pixels": int(np.count_nonzero(np.isfinite(alb))),
         "reused": False,
     }
