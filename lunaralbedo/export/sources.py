@@ -30,6 +30,7 @@ from rasterio.warp import reproject
 from rasterio.windows import Window, from_bounds
 
 from ..errors import InputError
+from ..io.rasters import intersects  # noqa: F401  (used here and by the other export modules)
 
 TILE_GLOB = "tile_*.tif"
 Bounds = tuple[float, float, float, float]  # (west, south, east, north), degrees
@@ -161,11 +162,6 @@ def native_grid(sources: Sequence[Source]) -> Grid:
     rx, ry = sources[0].res
     w, s, e, n = union_bounds(sources)
     return Grid((w, s, e, n), max(1, round((n - s) / ry)), max(1, round((e - w) / rx)))
-
-
-def intersects(a: Bounds, b: Bounds) -> bool:
-    """Do two rectangles overlap with positive area?"""
-    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 
 
 def read_masked(ds, window: Window | None = None, legacy: bool | None = None) -> np.ndarray:

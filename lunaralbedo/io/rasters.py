@@ -138,22 +138,26 @@ def list_rasters(folder: str | Path, what: str = "raster") -> list[Path]:
     return files
 
 
-def catalog_drgs(folder: str | Path) -> list[RasterInfo]:
-    """Headers of every DRG in ``folder``, keyed by the first 11 characters of the file name.
+def lookup_keys(paths: Sequence[Path]) -> list[str]:
+    """The lookup key of each DRG (first 11 characters of its name; seed 000 section 6).
 
     Two files with the same key raise :class:`DuplicateKeyError` naming both.
     """
-    infos: list[RasterInfo] = []
     seen: dict[str, Path] = {}
-    for p in list_rasters(folder, "DRG"):
+    for p in paths:
         key = p.name[:KEY_LENGTH]
         if key in seen:
             raise DuplicateKeyError(
                 f"{seen[key]} and {p} share the lookup key {key!r} (the first {KEY_LENGTH} characters of the name)"
             )
         seen[key] = p
-        infos.append(raster_info(p, key))
-    return infos
+    return list(seen)
+
+
+def catalog_drgs(folder: str | Path) -> list[RasterInfo]:
+    """Headers of every DRG in ``folder``, keyed by :func:`lookup_keys`."""
+    paths = list_rasters(folder, "DRG")
+    return [raster_info(p, key) for p, key in zip(paths, lookup_keys(paths))]
 
 
 def intersects(bounds: Sequence[float], box: Sequence[float]) -> bool:

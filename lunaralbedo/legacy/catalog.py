@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..constants import KEY_LENGTH
-from ..errors import DuplicateKeyError, InputError, SolverError
+from ..errors import InputError, SolverError
 from ..io.positions import lookup, read_positions
+from ..io.rasters import lookup_keys
 from ..settings import Settings
 from .legacy_io import format_list_line, list_tifs, read_drg, read_header, write_lines
 from .tilesolve import Image
@@ -49,13 +49,8 @@ def gather(settings: Settings, kind: int, cache_dir: Path) -> Inputs:
     drg_index = _index(drg_files)
     write_lines(cache_dir / "drg_index.txt", [format_list_line(str(p), h.geo.corners()) for p, h in drg_index])
     box = legacy_box(settings.simulation_box)
-    keys: dict[str, Path] = {}
     selected = []
-    for p, h in drg_index:
-        key = p.name[:KEY_LENGTH]
-        if key in keys:
-            raise DuplicateKeyError(f"{keys[key]} and {p} share the lookup key {key!r} (first {KEY_LENGTH} characters)")
-        keys[key] = p
+    for (p, h), key in zip(drg_index, lookup_keys([p for p, _ in drg_index])):
         if boxes_overlap(h.geo.corners(), box):
             selected.append((p, h, key))
     skipped = [p.name for p, h in drg_index if not boxes_overlap(h.geo.corners(), box)]
