@@ -87,15 +87,30 @@ class Settings:
 
     def to_legacy_text(self) -> str:
         """Render as a legacy settings file (absolute paths)."""
-        lines = []
-        for key in _SPEC:
-            v = getattr(self, key.lower())
-            if v is None:
-                v = ""
-            elif key == "SIMULATION_BOX":
-                v = ":".join(f"{x:g}" for x in v)
-            lines.append(f"{key:<26}{v}")
-        return "\n".join(lines) + "\n"
+        return legacy_text({key: getattr(self, key.lower()) for key in _SPEC})
+
+
+def legacy_text(values: dict[str, Any], comment: str = "") -> str:
+    """A legacy settings file with every key in the manual's order.
+
+    ``values`` maps legacy keys to values (paths as given, e.g. relative); missing
+    keys get their defaults, None an empty value.  ``comment`` lines are prefixed
+    with ``#``.
+    """
+    unknown = set(values) - set(_SPEC)
+    if unknown:
+        raise SettingsError(f"unknown settings keys: {', '.join(sorted(unknown))}")
+    lines = [f"# {c}" for c in comment.splitlines()]
+    for key, (_typ, default, _allowed) in _SPEC.items():
+        v = values.get(key, default)
+        if v is None:
+            v = ""
+        elif key == "SIMULATION_BOX":
+            v = ":".join(f"{float(x):.10g}" for x in v)
+        elif isinstance(v, float):
+            v = f"{v:.10g}"
+        lines.append(f"{key:<26}{v}".rstrip())
+    return "\n".join(lines) + "\n"
 
 
 def _parse_box(text: str, where: str) -> tuple[float, float, float, float]:

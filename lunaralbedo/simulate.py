@@ -28,6 +28,7 @@ from .io.positions import write_positions
 from .io.rasters import MOON_CRS, write_geotiff
 from .model import geometry
 from .model.reflectance import reflectance
+from .settings import legacy_text
 
 
 @dataclass
@@ -179,26 +180,29 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
     write_positions(out / "meta" / "sunpos.txt", sun_pos)
     write_positions(out / "meta" / "spacecraftpos.txt", sc_pos)
     box = (spec.lon0, spec.lon0 + width * res, spec.lat0, spec.lat0 + height * res)
-    settings = f"""# Synthetic scene rendered by lunaralbedo.simulate (seed {spec.seed})
-DRG_DIR                   DRG
-DEM_DIR                   {'DEM' if spec.reflectance_type else ''}
-SUN_POSITION_FILE         {'meta/sunpos.txt' if spec.reflectance_type else ''}
-SPACECRAFT_POSITION_FILE  {'meta/spacecraftpos.txt' if spec.reflectance_type else ''}
-NUM_PROCESSES             1
-TILE_SIZE                 {spec.tile_size}
-SIMULATION_BOX            {box[0]:.6f}:{box[1]:.6f}:{box[2]:.6f}:{box[3]:.6f}
-REFLECTANCE_TYPE          {spec.reflectance_type}
-SHADOW_THRESH             {spec.shadow_thresh}
-SHADOW_TYPE               1
-TR_CONST                  1.5
-PHASE_COEFF_C1            {spec.c1}
-PHASE_COEFF_C2            {spec.c2}
-MAX_NUM_ITER              {spec.max_num_iter}
-NO_DEM_DATA_VAL           -32767
-USE_WEIGHTS               1
-USE_NORMALIZED_COST_FUN   {spec.use_normalized_cost_fun}
-COMPUTE_ERRORS            1
-"""
+    geometry_files = spec.reflectance_type != 0
+    settings = legacy_text(
+        {
+            "DRG_DIR": "DRG",
+            "DEM_DIR": "DEM" if geometry_files else None,
+            "SUN_POSITION_FILE": "meta/sunpos.txt" if geometry_files else None,
+            "SPACECRAFT_POSITION_FILE": "meta/spacecraftpos.txt" if geometry_files else None,
+            "NUM_PROCESSES": 1,
+            "TILE_SIZE": spec.tile_size,
+            "SIMULATION_BOX": box,
+            "REFLECTANCE_TYPE": spec.reflectance_type,
+            "SHADOW_THRESH": spec.shadow_thresh,
+            "SHADOW_TYPE": 1,
+            "TR_CONST": 1.5,
+            "PHASE_COEFF_C1": spec.c1,
+            "PHASE_COEFF_C2": spec.c2,
+            "MAX_NUM_ITER": spec.max_num_iter,
+            "USE_WEIGHTS": 1,
+            "USE_NORMALIZED_COST_FUN": spec.use_normalized_cost_fun,
+            "COMPUTE_ERRORS": 1,
+        },
+        f"Synthetic scene rendered by lunaralbedo.simulate (seed {spec.seed})",
+    )
     atomic_write_text(out / "settings.txt", settings)
     truth = {"keys": keys, "exposure": exposures.tolist(), "gain": gain, "spec": asdict(spec)}
     atomic_write_text(out / "truth" / "truth.json", json.dumps(truth, indent=2))

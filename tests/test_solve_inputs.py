@@ -71,7 +71,8 @@ def test_every_shadow_type_solves(scene, tmp_path, shadow_type, thresh):
     s = tmp_path / "s.txt"
     text = (scene / "settings.txt").read_text()
     text = text.replace("SHADOW_TYPE               1", f"SHADOW_TYPE               {shadow_type}")
-    text = text.replace("SHADOW_THRESH             10.0", f"SHADOW_THRESH             {thresh}")
+    text = text.replace("SHADOW_THRESH             10", f"SHADOW_THRESH             {thresh}")
+    assert f"SHADOW_TYPE               {shadow_type}\n" in text and f"SHADOW_THRESH             {thresh}\n" in text
     s.write_text(text.replace("DRG_DIR                   DRG", f"DRG_DIR {scene / 'DRG'}")
                  .replace("DEM_DIR                   DEM", f"DEM_DIR {scene / 'DEM'}").replace("meta/", f"{scene}/meta/"))
     solve(s, out=tmp_path / "o", workers=1, plots=False)

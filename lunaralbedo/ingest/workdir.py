@@ -16,7 +16,7 @@ import numpy as np
 
 from ..io.atomic import atomic_write_text
 from ..io.rasters import MOON_CRS, write_geotiff
-from ..settings import load_settings
+from ..settings import legacy_text, load_settings
 from .grid import Grid
 
 NO_DEM = -32767.0
@@ -54,20 +54,19 @@ def write_dem(path: Path, heights: np.ndarray, grid: Grid) -> None:
 
 def settings_text(box, tile_size: float, legacy_8bit: bool) -> str:
     """Legacy settings for the ingested products (relative paths; Lunar-Lambertian)."""
-    shadow = ("1", "10") if legacy_8bit else ("0", "0")
-    rows = [
-        ("DRG_DIR", "DRG"), ("DEM_DIR", "DEM"),
-        ("SUN_POSITION_FILE", "meta/sunpos.txt"), ("SPACECRAFT_POSITION_FILE", "meta/spacecraftpos.txt"),
-        ("NUM_PROCESSES", "1"), ("TILE_SIZE", f"{tile_size:g}"),
-        ("SIMULATION_BOX", ":".join(f"{v:.6f}" for v in box)),
-        ("REFLECTANCE_TYPE", "2"), ("SHADOW_THRESH", shadow[1]), ("SHADOW_TYPE", shadow[0]),
-        ("TR_CONST", "1.5"), ("PHASE_COEFF_C1", "1.4"), ("PHASE_COEFF_C2", "0.5"), ("MAX_NUM_ITER", "10"),
-        ("NO_DEM_DATA_VAL", f"{NO_DEM:g}"), ("USE_WEIGHTS", "1"), ("USE_NORMALIZED_COST_FUN", "0"),
-        ("COMPUTE_ERRORS", "1"),
-    ]
-    head = "# Written by lunaralbedo ingest. SIMULATION_BOX = union of image footprints (lon_min:lon_max:lat_min:lat_max).\n"
-    note = "# DRGs are float32 in physical units: SHADOW_TYPE 0 (no DN threshold).\n" if not legacy_8bit else ""
-    return head + note + "".join(f"{k:<26}{v}\n" for k, v in rows)
+    shadow_type, shadow_thresh = (1, 10) if legacy_8bit else (0, 0)
+    values = {
+        "DRG_DIR": "DRG", "DEM_DIR": "DEM",
+        "SUN_POSITION_FILE": "meta/sunpos.txt", "SPACECRAFT_POSITION_FILE": "meta/spacecraftpos.txt",
+        "NUM_PROCESSES": 1, "TILE_SIZE": float(tile_size), "SIMULATION_BOX": tuple(box),
+        "REFLECTANCE_TYPE": 2, "SHADOW_THRESH": shadow_thresh, "SHADOW_TYPE": shadow_type,
+        "TR_CONST": 1.5, "PHASE_COEFF_C1": 1.4, "PHASE_COEFF_C2": 0.5, "MAX_NUM_ITER": 10,
+        "NO_DEM_DATA_VAL": NO_DEM, "USE_WEIGHTS": 1, "USE_NORMALIZED_COST_FUN": 0, "COMPUTE_ERRORS": 1,
+    }
+    comment = "Written by lunaralbedo ingest. SIMULATION_BOX = union of image footprints (lon_min:lon_max:lat_min:lat_max)."
+    if not legacy_8bit:
+        comment += "\nDRGs are float32 in physical units: SHADOW_TYPE 0 (no DN threshold)."
+    return legacy_text(values, comment)
 
 
 def write_settings(workdir: Path, box, tile_size: float, legacy_8bit: bool) -> Path:
