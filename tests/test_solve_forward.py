@@ -78,3 +78,20 @@ def test_mosaic_mode_removes_seams(tmp_path):
     naive_score = score(naive, d)
     assert solved["albedo_rel_rmse"] < ALBEDO_TOL
     assert naive_score["albedo_rel_rmse"] > 4 * solved["albedo_rel_rmse"], (naive_score, solved)
+
+
+def test_tolerance_stops_early_once_q_settles(scene, tmp_path):
+    from click.testing import CliRunner
+
+    from lunaralbedo.cli import main
+
+    res = CliRunner().invoke(main, ["solve", str(scene / "settings.txt"), "-o", str(tmp_path / "o"), "--workers", "1",
+                                    "--quiet", "--tolerance", "1e-4"])
+    assert res.exit_code == 0, res.output
+    import json
+
+    rep = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert rep["converged"] and rep["iterations"] < 10
+    q = rep["cost_q"]
+    assert abs(q[-1] - q[-2]) <= 1e-4 * q[-1]
+    assert score(tmp_path / "o", scene)["albedo_rel_rmse"] < ALBEDO_TOL

@@ -47,10 +47,12 @@ def _print_summary(result) -> None:
 @click.option("--resume", is_flag=True, help="Continue an interrupted run in OUTDIR (same settings and inputs).")
 @click.option("--skip-missing", is_flag=True, help="Leave out DRGs without a Sun/spacecraft position (listed in the report).")
 @click.option("--max-iter", type=int, default=None, help="Override MAX_NUM_ITER.")
+@click.option("--tolerance", type=float, default=1e-7, show_default=True,
+              help="Stop when the cost Q changes by less than this fraction between iterations.")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @reports_errors
 def command(settings, out, method, legacy, workers, scheduler, cluster, queue, cores, memory, walltime, jobs, account,
-            resume, skip_missing, max_iter, quiet):
+            resume, skip_missing, max_iter, tolerance, quiet):
     """Solve for the albedo of SETTINGS (legacy PhotometryTK settings file or TOML)."""
     from ..settings import load_settings
 
@@ -72,6 +74,6 @@ def command(settings, out, method, legacy, workers, scheduler, cluster, queue, c
 
     opts = dict(queue=queue, cores=cores, memory=memory, walltime=walltime, jobs=jobs, account=account)
     result = solve(s, out=out, method=method, workers=workers, scheduler=scheduler, cluster=cluster,
-                   cluster_options=opts, resume=resume, skip_missing=skip_missing, max_iter=max_iter,
+                   cluster_options=opts, resume=resume, skip_missing=skip_missing, max_iter=max_iter, tolerance=tolerance,
                    progress=not quiet and sys.stderr.isatty())
     _print_summary(result)
