@@ -232,5 +232,5 @@ def load_settings(path: str | Path) -> Settings:
 
 
 def replace(settings: Settings, **changes: Any) -> Settings:
-    """A copy of ``settings`` with some fields changed (validated like a file)."""
+    """A copy of ``settings`` with some fields changed (no validation: pass valid values)."""
     return dataclasses.replace(settings, **changes)

@@ -96,14 +96,7 @@ def _reduce_init(scene: Scene, metas: list[dict], method: str) -> np.ndarray:
 def _reduce_iteration(n_images: int, parts) -> updates.PassSums:
     total = updates.PassSums(n_images)
     for p in parts:  # fixed tile order: identical sums for any number of workers
-        total.q += p.q
-        np.add.at(total.exp_num, p.index, p.exp_num)
-        np.add.at(total.exp_den, p.index, p.exp_den)
-        total.jtj += p.jtj
-        total.jtr += p.jtr
-        total.alpha_min = min(total.alpha_min, p.alpha_min)
-        total.alpha_max = max(total.alpha_max, p.alpha_max)
-        total.n_obs += p.n_obs
+        total.add(p)
     return total
 
 

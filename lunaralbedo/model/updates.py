@@ -170,13 +170,17 @@ class PassSums:
         if self.exp_den is None:
             self.exp_den = np.zeros(self.n_images)
 
-    def add(self, other: "PassSums") -> None:
-        """Accumulate another tile's sums (call in a fixed tile order for reproducible results)."""
-        self.q += other.q
-        self.exp_num += other.exp_num
-        self.exp_den += other.exp_den
-        self.jtj += other.jtj
-        self.jtr += other.jtr
-        self.alpha_min = min(self.alpha_min, other.alpha_min)
-        self.alpha_max = max(self.alpha_max, other.alpha_max)
-        self.n_obs += other.n_obs
+    def add(self, part) -> None:
+        """Accumulate one tile's sums (``part.index`` maps its images to global ones).
+
+        Call in a fixed tile order: float64 addition is then reproducible, so results
+        are identical for any number of workers.
+        """
+        self.q += part.q
+        np.add.at(self.exp_num, part.index, part.exp_num)
+        np.add.at(self.exp_den, part.index, part.exp_den)
+        self.jtj += part.jtj
+        self.jtr += part.jtr
+        self.alpha_min = min(self.alpha_min, part.alpha_min)
+        self.alpha_max = max(self.alpha_max, part.alpha_max)
+        self.n_obs += part.n_obs
