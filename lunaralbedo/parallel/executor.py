@@ -1,18 +1,19 @@
-"""Where tile tasks run: in-process, on a local Dask cluster, an existing scheduler, or PBS/Slurm.
+"""Where tasks run: in-process, on local workers, an existing scheduler, PBS_NODEFILE nodes or PBS/Slurm jobs.
 
 Every executor offers ``map(fn, items, desc)`` that returns results **in the order
-of the items**, whatever order workers finish in; the solver reduces them in
-that order, so results are identical for any number of workers.
+of the items**, whatever order workers finish in (the solver reduces them in
+that order, so results are identical for any number of workers), and
+``compute(tasks)`` for a graph of ``dask.delayed`` tasks (the export's).
 """
 from __future__ import annotations
 
-import os
-from pathlib import Path
 from typing import Any, Callable, Iterable
 
 from tqdm.auto import tqdm
 
 from ..errors import LunarAlbedoError
+from . import clusters
+from .nodefile import nodefile_client, pbs_nodes
 
 
 class SerialExecutor:
@@ -28,15 +29,44 @@ class SerialExecutor:
         items = list(items)
         return [fn(x, **kwargs) for x in tqdm(items, desc=desc, disable=not self.progress, leave=False)]
 
+    def compute(self, tasks: list) -> list:
+        """Compute a list of ``dask.delayed`` objects, in order."""
+        import dask
+
+        return list(dask.compute(*tasks, scheduler="synchronous")) if tasks else []
+
     def close(self) -> None:
         pass
+
+
+class LocalPoolExecutor(SerialExecutor):
+    """Runs tasks on ``workers`` threads of this process (GIL-releasing work: GDAL reads and writes)."""
+
+    def __init__(self, workers: int, progress: bool = False):
+        super().__init__(progress)
+        self.workers = workers
+        self.description = f"thread pool ({workers} threads)"
+
+    def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), **kwargs: Any) -> list:
+        from concurrent.futures import ThreadPoolExecutor
+
+        items = list(items)
+        with ThreadPoolExecutor(self.workers) as pool:
+            it = pool.map(lambda x: fn(x, **kwargs), items)
+            return list(tqdm(it, total=len(items), desc=desc, disable=not self.progress, leave=False))
+
+    def compute(self, tasks: list) -> list:
+        import dask
+
+        return list(dask.compute(*tasks, scheduler="threads", num_workers=self.workers)) if tasks else []
 
 
 class DaskExecutor:
     """Runs tasks on a ``distributed.Client`` (local processes, a remote scheduler, or a job-queue cluster)."""
 
-    def __init__(self, client, description: str, progress: bool = False, owned=()):
+    def __init__(self, client, description: str, progress: bool = False, owned=(), own_client: bool = True):
         self.client = client
+        self._own_client = own_client
         self.description = description
         self.progress = progress
         self._owned = owned
@@ -62,6 +92,10 @@ class DaskExecutor:
                 bar.update(1)
         return self.client.gather(futures)
 
+    def compute(self, tasks: list) -> list:
+        """Compute a list of ``dask.delayed`` objects on the cluster, in order."""
+        return list(self.client.gather(self.client.compute(tasks))) if tasks else []
+
     def _scatter(self, value):
         """Send a large shared argument (the scene) to every worker once and keep the future alive."""
         if id(value) not in self._scattered:
@@ -70,80 +104,11 @@ class DaskExecutor:
 
     def close(self) -> None:
         self._scattered.clear()
-        for obj in (self.client, *self._owned):
+        for obj in ((self.client,) if self._own_client else ()) + tuple(self._owned):
             try:
                 obj.close()
             except Exception:  # noqa: BLE001 - closing is best effort
                 pass
-
-
-#: Environment of worker processes.  Dask's nanny sets MALLOC_TRIM_THRESHOLD_, which
-#: freezes glibc's mmap threshold at 128 KiB: every multi-megabyte NumPy temporary is
-#: then a fresh mmap with page faults (measured 1.5-2x slower tile tasks).  A 64 MiB
-#: threshold lets temporaries reuse heap memory, as in a plain Python process.
-WORKER_ENV = {"MALLOC_MMAP_THRESHOLD_": 64 * 2**20}
-
-
-def _worker_config():
-    import dask
-
-    return dask.config.set({f"distributed.nanny.pre-spawn-environ.{k}": v for k, v in WORKER_ENV.items()})
-
-
-def _local_cluster(workers: int, memory_limit: str | None):
-    from distributed import Client, LocalCluster
-
-    with _worker_config():
-        cluster = LocalCluster(
-            n_workers=workers,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=None,
-            memory_limit=memory_limit or "auto",
-            silence_logs=40,
-        )
-    return Client(cluster), cluster
-
-
-def jobqueue_cluster(kind: str, opts: dict):
-    """A dask-jobqueue PBS or Slurm cluster (no job submitted yet).
-
-    ``opts``: queue, cores, memory, walltime, account and any other keyword of
-    ``dask_jobqueue.PBSCluster``/``SLURMCluster``.  Each job runs ``cores``
-    single-threaded worker processes (tile tasks are single-threaded NumPy).
-    """
-    try:
-        import dask_jobqueue
-    except ImportError as exc:  # pragma: no cover - dask-jobqueue is a dependency
-        raise LunarAlbedoError(f"--cluster {kind} needs dask-jobqueue: {exc}") from None
-    cls = {"pbs": dask_jobqueue.PBSCluster, "slurm": dask_jobqueue.SLURMCluster}[kind]
-    kwargs = {k: v for k, v in opts.items() if v is not None and k != "jobs"}
-    kwargs.setdefault("cores", 1)
-    kwargs.setdefault("memory", "4GB")
-    kwargs.setdefault("processes", kwargs["cores"])
-    kwargs.setdefault("scheduler_options", {"dashboard_address": None})
-    kwargs.setdefault("job_script_prologue", [f"export {k}={v}" for k, v in WORKER_ENV.items()])
-    return cls(**kwargs)
-
-
-def _jobqueue_client(kind: str, opts: dict):
-    from distributed import Client
-
-    cluster = jobqueue_cluster(kind, opts)
-    cluster.scale(jobs=int(opts.get("jobs") or 1))
-    return Client(cluster), cluster
-
-
-def pbs_nodes(nodefile: str | os.PathLike | None = None) -> list[str]:
-    """Unique host names of ``$PBS_NODEFILE`` (one per line, as PBS writes it), in order."""
-    path = nodefile or os.environ.get("PBS_NODEFILE")
-    if not path:
-        return []
-    try:
-        lines = Path(path).read_text().split()
-    except OSError as exc:
-        raise LunarAlbedoError(f"{path}: cannot read PBS_NODEFILE: {exc}") from None
-    return list(dict.fromkeys(h.strip() for h in lines if h.strip()))
 
 
 def make_executor(
@@ -153,34 +118,38 @@ def make_executor(
     cluster_options: dict | None = None,
     progress: bool = False,
     memory_limit: str | None = None,
+    client=None,
+    local: str = "processes",
 ):
-    """Choose an executor.
+    """Choose an executor; the same rules for ``ingest``, ``solve`` and ``export-kml``.
 
+    * ``client``: a ``distributed.Client`` the caller owns (Python API; not closed here);
     * ``scheduler="tcp://host:port"``: connect to an existing ``dask.distributed`` scheduler;
     * ``cluster="pbs"|"slurm"``: start workers as batch jobs with dask-jobqueue
       (``cluster_options``: queue, cores, memory, walltime, jobs, account, ...);
     * ``$PBS_NODEFILE`` set (inside a PBS job, as the legacy program used it):
       ``workers`` processes on every node it lists (see :mod:`.nodefile`);
-    * otherwise ``workers`` local worker processes (1: in-process, no Dask).
+    * otherwise ``workers`` local workers (1: in-process, no Dask): processes of a
+      local Dask cluster, or with ``local="threads"`` a thread pool of this process
+      (for GDAL-bound tasks that release the GIL, such as the export's).
     """
+    if client is not None:
+        return DaskExecutor(client, "Dask client", progress, own_client=False)
     if scheduler:
-        from distributed import Client
-
-        try:
-            client = Client(scheduler, timeout="20s")
-        except OSError as exc:
-            raise LunarAlbedoError(f"cannot connect to Dask scheduler {scheduler}: {exc}") from None
-        return DaskExecutor(client, f"scheduler {scheduler}", progress)
+        client, owned = clusters.connect(scheduler)
+        return DaskExecutor(client, f"scheduler {scheduler}", progress, owned=owned)
     if cluster:
-        client, clus = _jobqueue_client(cluster, dict(cluster_options or {}))
-        return DaskExecutor(client, f"{cluster} cluster", progress, owned=(clus,))
+        client, owned = clusters.jobqueue_client(cluster, dict(cluster_options or {}))
+        return DaskExecutor(client, f"{cluster} cluster", progress, owned=owned)
     hosts = pbs_nodes()
     if hosts:
-        from .nodefile import nodefile_client
-
         client, owned = nodefile_client(hosts, max(1, workers))
         return DaskExecutor(client, f"PBS_NODEFILE ({len(hosts)} nodes x {max(1, workers)} processes)", progress, owned=owned)
     if workers <= 1:
         return SerialExecutor(progress)
-    client, clus = _local_cluster(workers, memory_limit)
-    return DaskExecutor(client, f"local cluster ({workers} processes)", progress, owned=(clus,))
+    if local == "processes":
+        client, owned = clusters.local_cluster(workers, memory_limit)
+        return DaskExecutor(client, f"local cluster ({workers} processes)", progress, owned=owned)
+    if local == "threads":
+        return LocalPoolExecutor(workers, progress)
+    raise ValueError(f"local workers must be 'processes' or 'threads', got {local!r}")
