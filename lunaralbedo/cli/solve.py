@@ -19,8 +19,8 @@ def _print_summary(result) -> None:
     q = rep["cost_q"]
     click.echo(f"  iterations {rep['iterations']}{' (converged)' if rep['converged'] else ''}"
                + (f", Q {q[0]:.6g} -> {q[-1]:.6g}" if q else ""))
-    c = rep["phase_coefficients"][-1]
-    click.echo(f"  phase coefficients c1={c[0]:.6f} c2={c[1]:.6f}")
+    fitted = " ".join(f"{k}={v:.6f}" for k, v in result.parameters.items())
+    click.echo(f"  photometric model {rep['photometric_model']}{': ' + fitted if fitted else ''}")
     e = result.exposure
     click.echo(f"  exposures: min {e.min():.4g}, median {sorted(e)[len(e) // 2]:.4g}, max {e.max():.4g}")
     click.echo(f"  tiles {len(result.tiles)}: {', '.join(result.tiles[:6])}{' ...' if len(result.tiles) > 6 else ''}")
