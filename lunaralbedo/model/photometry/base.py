@@ -47,12 +47,17 @@ class PhotometricModel:
     #: ``validate(values, where)`` raises SettingsError for invalid model settings.
     validate: Callable[[Mapping[str, Any], str], None] | None = None
     needs_geometry: bool = True  #: needs a DEM and Sun/spacecraft positions
+    #: ``curve(alpha, params)``: the parameter-dependent part of R against phase angle (radians),
+    #: which caps the damped step; default: R at the symmetric geometry i = e = alpha/2.
+    curve: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
 
     def initial(self, values: Mapping[str, Any]) -> np.ndarray:
         """Initial fitted parameters (float64) from settings values keyed by legacy key."""
         return np.array([float(values[k]) for k in self.initial_keys], dtype=np.float64)
 
     def phase_curve(self, alpha, params) -> np.ndarray:
-        """Reflectance against phase angle (radians) at the symmetric geometry :math:`i = e = \\alpha/2`."""
+        """Reflectance against phase angle (radians): ``curve``, or R at the symmetric geometry."""
+        if self.curve is not None:
+            return self.curve(alpha, params)
         half = np.cos(np.asarray(alpha, dtype=np.float64) / 2.0)
         return self.reflectance(half, half, alpha, params)

@@ -99,4 +99,5 @@ MODEL = PhotometricModel(
     derivatives_from=derivatives_from,
     settings={"PHASE_COEFF_C1": (float, 1.4, None), "PHASE_COEFF_C2": (float, 0.5, None)},
     initial_keys=("PHASE_COEFF_C1", "PHASE_COEFF_C2"),
+    curve=lambda alpha, params: phase_factor(alpha, params[0], params[1]),  # R / G: the phase factor
 )
