@@ -138,3 +138,19 @@ def test_lrowacphomap_correct_mode_uses_the_band_own_parameters(isis, tmp_path):
     got = _read(out).astype(np.float64)
     ok = np.isfinite(got)
     np.testing.assert_allclose(got[ok], want[ok], rtol=1e-6)
+
+
+USEDEM = dict(mean=58.159470616532, std=18.558190342074, total=195764.77809525)
+
+
+def test_lrowacphomap_usedem_with_our_pushframe_camera(isis, tmp_path):
+    """ISIS usedem=true: our WAC camera + the cube's ShapeModel (reduced GLD100) within 0.2 % / 1 % / count."""
+    out = tmp_path / "wac.tif"
+    res = correct(isis / WAC, out, "hapke-map", isis / "hapke_full_reformatted.pvl", band=1,
+                  param_map=isis / PARAM_MAP, isis_compat=True)[0]
+    assert "WAC_GLD100" in res.geometry  # the label's ShapeModel resolved beside the cube
+    assert res.count == round(USEDEM["total"] / USEDEM["mean"]) == 3366
+    assert res.mean == pytest.approx(USEDEM["mean"], rel=0.002)
+    assert res.std == pytest.approx(USEDEM["std"], rel=0.01)
+    # measured: 58.1594810 / 18.5581879 / 195764.8131 (1.8e-7 relative on the mean)
+    assert res.mean == pytest.approx(USEDEM["mean"], rel=1e-5)

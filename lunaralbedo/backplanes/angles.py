@@ -7,14 +7,15 @@ emission :math:`e = \arccos(\hat n\cdot\hat v)` (seed 001 eqs. 4-5).  As ISIS do
 plain "Incidence/Emission Angle" use the normal of the reference sphere (radial) and the
 "Local" ones the normal of the DEM surface.
 
-DEM normals follow ISIS ``DemShape``: the four surface points one DEM pixel east, west,
-north and south of the intersection, normal = (east - west) x (north - south), outward.
+Local normals follow ISIS ``Camera::GetLocalNormal``: the DEM surface points seen half a
+pixel above, below, left and right of the pixel, normal = (top - bottom) x (right - left),
+pointing outward.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from ..model.geometry import body_fixed, lonlat_height
+from ..model.geometry import lonlat_height
 
 #: Band descriptions of the backplanes, exactly as ISIS phocube writes them.
 BAND_NAMES = ("Phase Angle", "Emission Angle", "Incidence Angle", "Local Emission Angle",
@@ -38,18 +39,10 @@ def angles(points_km, normals, sun_km, spacecraft_km):
     return _angle(l, v), _angle(normals, v), _angle(normals, l)
 
 
-def dem_local_normals(points_km, height_m, step_deg: float):
-    """ISIS ``DemShape`` local normals at ``points_km`` from ``height_m(lon, lat)`` sampled ``step_deg`` away."""
-    lon, lat, _ = lonlat_height(points_km)
-    d = float(step_deg)
-
-    def at(dlon, dlat):
-        lo, la = lon + dlon, lat + dlat
-        return body_fixed(lo, la, height_m(lo, la))
-
-    east, west, north, south = at(d, 0.0), at(-d, 0.0), at(0.0, d), at(0.0, -d)
-    n = _unit(np.cross(east - west, north - south))
-    outward = np.einsum("...i,...i->...", n, points_km) >= 0
+def neighbour_normals(top, bottom, left, right, center):
+    """Outward unit normals (top - bottom) x (right - left) of surface points (ISIS ``DemShape``), ``(..., 3)`` km."""
+    n = _unit(np.cross(top - bottom, right - left))
+    outward = np.einsum("...i,...i->...", n, center) >= 0
     return np.where(outward[..., None], n, -n)
 
 

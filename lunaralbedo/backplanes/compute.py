@@ -13,20 +13,18 @@ import numpy as np
 
 from ..camera.intersect import ray_dem, ray_sphere
 from ..constants import MOON_RADIUS_KM
-from .angles import BAND_NAMES, angles, dem_local_normals, planetocentric
+from .angles import BAND_NAMES, angles, neighbour_normals, planetocentric
 
 
 @dataclass
 class Shape:
     """The surface rays stop on: the 1737.4 km sphere (``height_m`` None) or a DEM.
 
-    ``height_m(lon_deg, lat_deg)`` gives metres above the sphere; ``step_deg`` is the
-    DEM's pixel size (degrees) used for local normals; ``name`` says what it is.
+    ``height_m(lon_deg, lat_deg)`` gives metres above the sphere; ``name`` says what it is.
     """
 
     name: str = "sphere"
     height_m: Callable | None = None
-    step_deg: float = 0.0
 
     @property
     def is_sphere(self) -> bool:
@@ -41,22 +39,30 @@ def _sun_at(ephemeris, et):
     return sun[inv].reshape(np.shape(et) + (3,))
 
 
+def _ground(camera, shape: Shape, sample, line):
+    """Surface points (km) seen at cube pixels: ray and sphere, or ray and DEM (NaN off the body)."""
+    origins, dirs = camera.rays(sample, line)
+    if shape.is_sphere:
+        return ray_sphere(origins, dirs, MOON_RADIUS_KM)
+    return ray_dem(origins, dirs, shape.height_m)
+
+
 def pixel_geometry(camera, ephemeris, shape: Shape, sample, line) -> dict[str, np.ndarray]:
     """Backplanes (float64, degrees; keys = :data:`BAND_NAMES`) at cube pixels ``(sample, line)`` (1-based)."""
     sample = np.asarray(sample, dtype=np.float64)
     line = np.asarray(line, dtype=np.float64)
-    origins, dirs = camera.rays(sample, line)
-    if shape.is_sphere:
-        pts = ray_sphere(origins, dirs, MOON_RADIUS_KM)
-    else:
-        pts = ray_dem(origins, dirs, shape.height_m)
+    origins, _ = camera.rays(sample, line)
+    pts = _ground(camera, shape, sample, line)
     sun = _sun_at(ephemeris, camera.pixel_et(sample, line))
     radial = pts / np.linalg.norm(pts, axis=-1, keepdims=True)
     phase, emission, incidence = angles(pts, radial, sun, origins)
     if shape.is_sphere:
         local_e, local_i = emission, incidence
     else:
-        normals = dem_local_normals(pts, shape.height_m, shape.step_deg)
+        half = 0.5 - 1e-9  # ISIS: nexttoward(line -+ 0.5, line), i.e. just inside the pixel
+        top, bottom = _ground(camera, shape, sample, line - half), _ground(camera, shape, sample, line + half)
+        left, right = _ground(camera, shape, sample - half, line), _ground(camera, shape, sample + half, line)
+        normals = neighbour_normals(top, bottom, left, right, pts)
         _, local_e, local_i = angles(pts, normals, sun, origins)
     lat, lon = planetocentric(pts)
     values = (phase, emission, incidence, local_e, local_i, lat, lon)

@@ -36,8 +36,7 @@ def dem_shape(paths) -> Shape:
         h = mosaic.height(lon, lat)
         return np.where(np.isfinite(h), h, np.nan)
 
-    step = float(min(mosaic.sources[0].native_res_deg()))
-    return Shape(name=", ".join(str(s.path) for s in mosaic.sources), height_m=height, step_deg=step)
+    return Shape(name=", ".join(str(s.path) for s in mosaic.sources), height_m=height)
 
 
 def resolve_shape(label: IsisLabel, dem=None, ellipsoid: bool = False, isisdata=None) -> Shape:
