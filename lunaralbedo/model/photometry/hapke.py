@@ -101,3 +101,48 @@ def hapke_lroc(i_deg, e_deg, g_deg, w, b, c, bc0, hc, bs0, hs, theta_deg, phi):
         mie = h_function(mu0e / k, w, r0) * h_function(mue / k, w, r0) - 1.0
         r = k * (w / 4.0) * (mu0e / (mu0e + mue)) * (pg * (1.0 + bs0 * bsg) + mie) * (1.0 + bc0 * bcg) * s
     return np.where(i_deg >= 90.0, 0.0, r)
+
+
+def _hapke_photomet(phase_deg, incidence_deg, emission_deg, wh, b0, hh, theta_deg, pg):
+    r"""ISIS ``Hapke`` (photomet) with phase function values ``pg``:
+
+    :math:`r = \frac{w}{4}\frac{\mu_{0e}}{\mu_{0e}+\mu_e}[(1+B(g))p(g) - 1 + H(\mu_{0e})H(\mu_e)]\,S`,
+    :math:`B = B_0/(1+\tan(g/2)/h)` (0 when :math:`h = 0`), :math:`H(u) = (1+2u)/(1+2u\sqrt{1-w})`
+    (Hapke 1981), roughness as in :func:`hapke_lroc`; 0 at incidence :math:`\ge 90^\circ`.
+    """
+    g, i, e = (np.asarray(a, dtype=np.float64) for a in (phase_deg, incidence_deg, emission_deg))
+    wh, b0, hh, theta_deg = (np.asarray(a, dtype=np.float64) for a in (wh, b0, hh, theta_deg))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        gamma = np.sqrt(1.0 - wh)
+        tang2 = np.tan(np.radians(g) / 2.0)
+        bg = np.where(hh == 0.0, 0.0, b0 / (1.0 + tang2 / np.where(hh == 0.0, 1.0, hh)))
+        rough = theta_deg > 0.0
+        mu0e, mue, s = _roughness(np.radians(i), np.radians(e), np.radians(g),
+                                  np.radians(np.where(rough, theta_deg, 1.0)))
+        mu0e = np.where(rough, mu0e, np.cos(np.radians(i)))
+        mue = np.where(rough, mue, np.cos(np.radians(e)))
+        s = np.where(rough, s, 1.0)
+
+        def h(u):
+            return (1.0 + 2.0 * u) / (1.0 + 2.0 * u * gamma)
+
+        r = wh / 4.0 * mu0e / (mu0e + mue) * ((1.0 + bg) * pg - 1.0 + h(mu0e) * h(mue)) * s
+    return np.where(i >= 90.0, 0.0, r)
+
+
+def hapke_hen(phase_deg, incidence_deg, emission_deg, wh=0.5, b0=0.0, hh=0.0, theta=0.0, hg1=0.0, hg2=0.0):
+    r"""ISIS ``HapkeHen``: two-term Henyey-Greenstein
+    :math:`p = (1-c_2)\frac{1-b^2}{(1+b^2+2b\cos g)^{3/2}} + c_2\frac{1-b^2}{(1+b^2-2b\cos g)^{3/2}}`
+    (``Hg1`` = b, ``Hg2`` = c2); defaults are ISIS's.  Note ISIS's argument order: phase, incidence, emission.
+    """
+    cosg = np.cos(np.radians(np.asarray(phase_deg, dtype=np.float64)))
+    b2 = hg1 * hg1
+    pg = (1.0 - hg2) * (1.0 - b2) / (1.0 + b2 + 2.0 * hg1 * cosg) ** 1.5 + hg2 * (1.0 - b2) / (1.0 + b2 - 2.0 * hg1 * cosg) ** 1.5
+    return _hapke_photomet(phase_deg, incidence_deg, emission_deg, wh, b0, hh, theta, pg)
+
+
+def hapke_leg(phase_deg, incidence_deg, emission_deg, wh=0.5, b0=0.0, hh=0.0, theta=0.0, bh=0.0, ch=0.0):
+    r"""ISIS ``HapkeLeg``: Legendre phase function :math:`p = 1 + b_h\cos g + c_h(1.5\cos^2 g - 0.5)`."""
+    cosg = np.cos(np.radians(np.asarray(phase_deg, dtype=np.float64)))
+    pg = 1.0 + bh * cosg + ch * (1.5 * cosg * cosg - 0.5)
+    return _hapke_photomet(phase_deg, incidence_deg, emission_deg, wh, b0, hh, theta, pg)
