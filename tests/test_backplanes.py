@@ -4,7 +4,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import rasterio
-import spiceypy
 from click.testing import CliRunner
 
 from lunaralbedo.backplanes.angles import BAND_NAMES
@@ -18,12 +17,7 @@ from lunaralbedo.isis.pixels import read_band
 
 WAC = "M1181493219CE.vis.odd.reduced.cub"
 
-
-@pytest.fixture(autouse=True)
-def clean_pool():
-    spiceypy.kclear()
-    yield
-    spiceypy.kclear()
+pytestmark = pytest.mark.usefixtures("clean_spice_pool")
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import rasterio
-import spiceypy
 from click.testing import CliRunner
 
 from lunaralbedo.cli.photometry import command as photometry_cmd
@@ -44,12 +43,7 @@ Object = PhotometricModel
 EndObject
 """
 
-
-@pytest.fixture(autouse=True)
-def clean_pool():
-    spiceypy.kclear()
-    yield
-    spiceypy.kclear()
+pytestmark = pytest.mark.usefixtures("clean_spice_pool")
 
 
 @pytest.fixture(scope="module")
@@ -154,3 +148,23 @@ def test_lrowacphomap_usedem_with_our_pushframe_camera(isis, tmp_path):
     assert res.std == pytest.approx(USEDEM["std"], rel=0.01)
     # measured: 58.1594810 / 18.5581879 / 195764.8131 (1.8e-7 relative on the mean)
     assert res.mean == pytest.approx(USEDEM["mean"], rel=1e-5)
+
+
+def test_our_backplane_feeds_photometry_and_bad_input_is_refused(isis, tmp_path):
+    """`backplanes` output used as --backplane gives the camera path's result; bad input: exit 2, nothing written."""
+    from lunaralbedo.cli.backplanes import command as backplanes_cmd
+
+    bp = tmp_path / "bp.tif"
+    assert CliRunner().invoke(backplanes_cmd, [str(isis / NAC), "--ellipsoid", "-o", str(bp)]).exit_code == 0
+    params = isis / "NAC_PHO_LROC_Empirical.0003.pvl"
+    correct(isis / NAC, tmp_path / "a.tif", "lroc-empirical", params, ellipsoid=True)
+    correct(isis / NAC, tmp_path / "b.tif", "lroc-empirical", params, backplane=bp)
+    np.testing.assert_allclose(_read(tmp_path / "b.tif"), _read(tmp_path / "a.tif"), rtol=1e-5)
+    out = tmp_path / "x.tif"
+    r = CliRunner().invoke(photometry_cmd, [str(isis / WAC), "--band", "1", "--model", "hapke-map", "--params",
+                                           str(isis / "hapke_full_reformatted.pvl"), "-o", str(out)])
+    assert r.exit_code == 2 and "needs --param-map" in r.output and not out.exists()
+    r = CliRunner().invoke(photometry_cmd, [str(isis / WAC), "--band", "1", "--model", "lroc-empirical", "--params",
+                                           str(params), "--ellipsoid", "-o", str(out)])
+    assert r.exit_code == 2 and "no PhotometricModel Algorithm group for band 1 (centre 415.0 nm)" in r.output
+    assert not out.exists()

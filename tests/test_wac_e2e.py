@@ -6,18 +6,12 @@ import json
 import numpy as np
 import pytest
 import rasterio
-import spiceypy
 from click.testing import CliRunner
 
 from lunaralbedo.cli import main
 from lunaralbedo.isis.pixels import read_band
 
-
-@pytest.fixture(autouse=True)
-def clean_pool():
-    spiceypy.kclear()
-    yield
-    spiceypy.kclear()
+pytestmark = pytest.mark.usefixtures("clean_spice_pool")
 
 
 def test_wac_ingest_solve_export(realdata, tmp_path):

@@ -8,7 +8,7 @@ output is float32, NaN where ISIS writes Null.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +16,6 @@ import rasterio
 from rasterio.errors import NotGeoreferencedWarning
 from rasterio.transform import Affine
 
-from ..backplanes.angles import BAND_NAMES
 from ..backplanes.run import camera_geometry
 from ..errors import InputError, IsisError
 from ..io.rasters import write_geotiff
@@ -43,7 +42,6 @@ class Result:
     maximum: float
     total: float
     geometry: str = ""
-    notes: list = field(default_factory=list)
 
 
 def _band_centers(label) -> list[float]:
@@ -55,10 +53,11 @@ def _band_centers(label) -> list[float]:
     return [float(getattr(v, "value", v)) for v in (c if isinstance(c, (list, tuple)) else [c])]
 
 
-def read_backplane(path: str | Path) -> dict[str, np.ndarray]:
-    """Angles and ground point from a backplane: an ISIS phocube cube or our GeoTIFF, matched by band name.
+def read_backplane(path: str | Path, ground: bool = True) -> dict[str, np.ndarray]:
+    """Angles (and, if ``ground``, latitude/longitude) from a backplane, matched by band name.
 
-    Emission/incidence prefer the "Local" bands (what ISIS's ``lrowacphomap`` and ``lronacpho`` read).
+    The backplane is an ISIS phocube cube or our ``backplanes`` GeoTIFF; emission/incidence
+    prefer the "Local" bands (what ISIS's ``lrowacphomap`` and ``lronacpho`` read).
     """
     path = Path(path)
     with warnings.catch_warnings():
@@ -77,9 +76,9 @@ def read_backplane(path: str | Path) -> dict[str, np.ndarray]:
         with rasterio.open(path) as ds:
             bands = {n: ds.read(k + 1).astype(np.float64) for k, n in enumerate(names) if n}
     pick = {}
-    for want, options in (("phase", ["Phase Angle"]), ("emission", ["Local Emission Angle", "Emission Angle"]),
-                          ("incidence", ["Local Incidence Angle", "Incidence Angle"]),
-                          ("lat", ["Latitude"]), ("lon", ["Longitude"])):
+    wanted = [("phase", ["Phase Angle"]), ("emission", ["Local Emission Angle", "Emission Angle"]),
+              ("incidence", ["Local Incidence Angle", "Incidence Angle"])]
+    for want, options in wanted + ([("lat", ["Latitude"]), ("lon", ["Longitude"])] if ground else []):
         hit = next((o for o in options if o in bands), None)
         if hit is None:
             raise InputError(f"{path}: backplane has no {' or '.join(repr(o) for o in options)} band (bands: {names})")
@@ -114,7 +113,7 @@ def correct(cube, out, model: str, params, band: int | None = None, param_map=No
     for k, b in enumerate(selected):
         image = read_band(label, b)
         if backplane is not None:
-            geo, how = read_backplane(backplane), f"backplane {backplane}"
+            geo, how = read_backplane(backplane, ground=model == "hapke-map"), f"backplane {backplane}"
             apply_limits = not isis_compat  # ISIS skips the angle limits with a backplane
         else:
             g, shape = camera_geometry(label, b, dem=dem, ellipsoid=ellipsoid, kernels=kernels, isisdata=isisdata)
