@@ -7,7 +7,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 DEMO   := demo_out
 
-.PHONY: demo test bench install clean sample-data
+.PHONY: demo test bench bench-photometry install clean sample-data
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -27,6 +27,9 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py
+
+bench-photometry: $(STAMP)
+	$(BIN)/python benchmarks/photometry_throughput.py
 
 sample-data: $(STAMP)
 	$(BIN)/python tools/make_sample_data.py --out sample_data

@@ -33,3 +33,13 @@ def photk_tests() -> Path:
 def realdata() -> Path:
     """Real ISIS3 cubes, labels and kernels (``../shared/realdata``)."""
     return _need("realdata")
+
+
+@pytest.fixture
+def clean_spice_pool():
+    """An empty SPICE kernel pool before and after the test (use with ``pytest.mark.usefixtures``)."""
+    import spiceypy
+
+    spiceypy.kclear()
+    yield
+    spiceypy.kclear()
