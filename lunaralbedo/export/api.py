@@ -33,11 +33,12 @@ from rasterio.errors import NotGeoreferencedWarning
 
 from ..errors import InputError
 from ..io.atomic import TMP_PREFIX, atomic_write_text, make_readable
-from .kml import ROOT_NAME, pyramid_children, render_leaf, render_parent
+from .kml import ROOT_NAME, KmlTileWriter
 from .mosaic import assemble_cog, block_grids, write_mosaic_block, write_sub4
-from .pyramid import Pyramid, plan_pyramid, present_nodes
-from .sources import Grid, Source, find_sources, intersects, native_grid, sample_values
+from .pyramid import plan_pyramid, present_nodes
+from .sources import Grid, Source, find_sources, native_grid, sample_values
 from .stretch import stretch_from_range, stretch_from_values
+from .tiling import covering, level_resampling, pyramid_children, pyramid_tasks
 
 STRETCH_FILE = "stretch.json"
 SAMPLE_BUDGET = 20_000_000  # at most about this many albedo values enter the percentiles
@@ -92,41 +93,14 @@ def _compute(tasks: list, client=None, workers: int | None = None, scheduler: st
         return list(dask.compute(*tasks, scheduler=scheduler, num_workers=workers or os.cpu_count() or 1))
 
 
-def _covering(sources: Sequence[Source], bounds) -> list[Source]:
-    return [s for s in sources if intersects(s.bounds, bounds)]
-
-
-def _pyramid_tasks(kml_dir, pyr, present, children, sources, st, label, resampling) -> list:
-    """One task per written tile: finest level from the albedo, each coarser tile from its children."""
-    task = dask.delayed(pure=False)
-    done: dict = {}
-    for level in range(pyr.levels - 1, -1, -1):
-        for node in present[level]:
-            if level == pyr.levels - 1:
-                done[node.key] = task(render_leaf)(kml_dir, node, _covering(sources, node.bounds), st, label, resampling)
-            else:
-                kids = children[node.key]
-                done[node.key] = task(render_parent)(kml_dir, node, kids, [done[k.key] for k in kids], st, label)
-    # Every written tile is below the root, so computing the root computes all of them,
-    # and each tile's arrays are freed once its parent has used them.
-    (root,) = present[0]
-    return [done[root.key]]
-
-
 def _mosaic_task(sources: Sequence[Source], grid: Grid, path: Path, scratch: str):
     """One task per 2048-px block of the mosaic, then one that assembles the COG."""
     task = dask.delayed(pure=False)
     blocks = [
-        task(write_mosaic_block)(_covering(sources, g.bounds), r0, c0, g, Path(scratch) / f"{path.stem}-{i}.tif")
+        task(write_mosaic_block)(covering(sources, g.bounds), r0, c0, g, Path(scratch) / f"{path.stem}-{i}.tif")
         for i, (r0, c0, g) in enumerate(block_grids(grid))
     ]
     return task(assemble_cog)(blocks, grid, sources[0].crs_wkt, path)
-
-
-def _level_resampling(pyr: Pyramid, level: int, grid: Grid) -> Resampling:
-    """``nearest`` for a level at least as fine as the native grid, ``average`` for a coarser one."""
-    height, width = pyr.level_shape(level)
-    return Resampling.nearest if width >= grid.width and height >= grid.height else Resampling.average
 
 
 def _check_pixel_size(sources: Sequence[Source], folder: Path) -> None:
@@ -194,7 +168,8 @@ def export_kml(
         staged_dir(results_dir / "albedo_sub4") as sub4_dir,
         tempfile.TemporaryDirectory(prefix=f"{TMP_PREFIX}mosaic-", dir=results_dir) as scratch,
     ):
-        pyramid = _pyramid_tasks(kml_dir, pyr, present, children, sources, st, label, _level_resampling(pyr, pyr.levels - 1, grid))
+        resampling = level_resampling(pyr, pyr.levels - 1, grid)
+        pyramid = pyramid_tasks(kml_dir, pyr, present, children, sources, KmlTileWriter(st, label), resampling)
         sub4 = [task(write_sub4)(s, sub4_dir / s.path.name, sub4_rs) for s in sources]
         mosaics = [_mosaic_task(sources, grid, results_dir / "albedo_mosaic.tif", scratch)]
         if errors:
