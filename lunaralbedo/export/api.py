@@ -65,7 +65,7 @@ def staged_dir(final: Path) -> Iterator[Path]:
         shutil.rmtree(old, ignore_errors=True)
 
 
-STAGING_PREFIXES = ("kml-", "albedo_sub4-", "mosaic-", "old-")
+STAGING_PREFIXES = ("kml-", "albedo_sub4-", "mosaic-", "old-", "web-")
 
 
 def remove_stale_staging(results_dir: Path) -> int:
@@ -79,7 +79,7 @@ def remove_stale_staging(results_dir: Path) -> int:
     return len(stale)
 
 
-def _compute(tasks: list, client=None, workers: int | None = None, scheduler: str = "threads") -> list:
+def compute_tasks(tasks: list, client=None, workers: int | None = None, scheduler: str = "threads") -> list:
     if not tasks:
         return []
     with warnings.catch_warnings():
@@ -103,7 +103,7 @@ def _mosaic_task(sources: Sequence[Source], grid: Grid, path: Path, scratch: str
     return task(assemble_cog)(blocks, grid, sources[0].crs_wkt, path)
 
 
-def _check_pixel_size(sources: Sequence[Source], folder: Path) -> None:
+def check_pixel_size(sources: Sequence[Source], folder: Path) -> None:
     rx, ry = sources[0].res
     for s in sources[1:]:
         if abs(s.res[0] - rx) > 1e-6 * rx or abs(s.res[1] - ry) > 1e-6 * ry:
@@ -111,6 +111,20 @@ def _check_pixel_size(sources: Sequence[Source], folder: Path) -> None:
                 f"{folder}: tiles must share one pixel size; {sources[0].path.name} has {rx:g} x {ry:g} "
                 f"degrees but {s.path.name} has {s.res[0]:g} x {s.res[1]:g}"
             )
+
+
+def shared_stretch(sources: Sequence[Source], folder: Path, percentiles=(2.0, 98.0), value_range=None, what: str = "albedo", **run):
+    """The one 8-bit stretch of all tiles: ``value_range`` when given, else the percentiles of the valid values.
+
+    At most about :data:`SAMPLE_BUDGET` values enter the percentiles (one sampling task per tile).
+    """
+    if value_range is not None:
+        return stretch_from_range(*value_range)
+    budget = max(10_000, SAMPLE_BUDGET // len(sources))  # values per tile for the percentiles
+    samples = compute_tasks([dask.delayed(sample_values, pure=False)(s, budget) for s in sources], **run)
+    if not any(len(v) for v in samples):
+        raise InputError(f"{folder}: the {what} tiles hold no valid pixel (all no-data); nothing to export")
+    return stretch_from_values(np.concatenate(samples), tuple(percentiles))
 
 
 def export_kml(
@@ -142,7 +156,7 @@ def export_kml(
     results_dir = Path(results_dir).expanduser().resolve()
     albedo_dir = results_dir / "albedo"
     sources = find_sources(albedo_dir, "albedo")
-    _check_pixel_size(sources, albedo_dir)
+    check_pixel_size(sources, albedo_dir)
     error_dir = results_dir / "error"
     errors = find_sources(error_dir, "error") if any(error_dir.glob("tile_*.tif")) else []
     remove_stale_staging(results_dir)
@@ -153,14 +167,7 @@ def export_kml(
     run = dict(client=client, workers=workers, scheduler=scheduler)
     task = dask.delayed(pure=False)
 
-    if value_range is not None:
-        st = stretch_from_range(*value_range)
-    else:
-        budget = max(10_000, SAMPLE_BUDGET // len(sources))  # values per tile for the percentiles
-        samples = _compute([task(sample_values)(s, budget) for s in sources], **run)
-        if not any(len(v) for v in samples):
-            raise InputError(f"{albedo_dir}: the albedo tiles hold no valid pixel (all no-data); nothing to export")
-        st = stretch_from_values(np.concatenate(samples), tuple(stretch))
+    st = shared_stretch(sources, albedo_dir, stretch, value_range, **run)
 
     label = name or results_dir.name
     with (
@@ -174,7 +181,7 @@ def export_kml(
         mosaics = [_mosaic_task(sources, grid, results_dir / "albedo_mosaic.tif", scratch)]
         if errors:
             mosaics.append(_mosaic_task(errors, native_grid(errors), results_dir / "error_mosaic.tif", scratch))
-        mosaics = _compute(pyramid + sub4 + mosaics, **run)[len(pyramid) + len(sub4):]
+        mosaics = compute_tasks(pyramid + sub4 + mosaics, **run)[len(pyramid) + len(sub4):]
         atomic_write_text(kml_dir / STRETCH_FILE, st.to_json())
     for mosaic in mosaics:
         make_readable(Path(mosaic["path"]))
