@@ -36,7 +36,7 @@
 
   // A small line plot of ys against xs (numbers), axes annotated with the extreme values.
   function plot(xs, ys, xlabel, ylabel) {
-    const w = 360, h = 170, l = 58, r = 8, t = 8, b = 30;
+    const w = 360, h = 170, l = 70, r = 8, t = 8, b = 30;
     const ok = xs.map((x, i) => [x, ys[i]]).filter(p => Number.isFinite(p[0]) && Number.isFinite(p[1]));
     const s = svg('svg', { class: 'plot', viewBox: `0 0 ${w} ${h}`, role: 'img', 'aria-label': ylabel + ' vs ' + xlabel });
     if (!ok.length) return s;
