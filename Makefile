@@ -1,13 +1,13 @@
 # lunaralbedo: two commands do everything on a fresh machine.
-#   make demo   - create .venv, install, run ingest -> solve -> export-kml on sample_data/
-#   make test   - install the test extras and run the test suite
+#   make demo   - create .venv, install, run ingest -> solve -> export-kml -> export-web on sample_data/
+#   make test   - install the test extras (and Chromium when possible) and run the test suite
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 DEMO   := demo_out
 
-.PHONY: demo test bench bench-photometry install clean sample-data
+.PHONY: demo test browser bench bench-photometry install clean sample-data
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -22,8 +22,16 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/python tools/run_demo.py --out $(DEMO)
 
-test: $(STAMP)
+test: $(STAMP) browser
 	$(BIN)/python -m pytest -q
+
+# Headless Chromium + chromedriver for the web map's browser tests, from the system package
+# manager when they are missing and we may (root + apt-get); otherwise those tests skip with the reason.
+browser:
+	@command -v chromium >/dev/null 2>&1 && command -v chromedriver >/dev/null 2>&1 || \
+	{ [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
+	  { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver; } >/dev/null 2>&1; } || \
+	echo "note: chromium/chromedriver not installed (needs root and apt-get); the browser tests will skip"
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py

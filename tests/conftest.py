@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -43,3 +45,14 @@ def clean_spice_pool():
     spiceypy.kclear()
     yield
     spiceypy.kclear()
+
+
+@pytest.fixture(scope="session")
+def demo_results(tmp_path_factory) -> Path:
+    """`make demo` (ingest -> solve -> export-kml -> export-web of sample_data) in a temporary folder."""
+    out = tmp_path_factory.mktemp("webdemo") / "demo"
+    res = subprocess.run([sys.executable, str(REPO / "tools" / "run_demo.py"), "--out", str(out)], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr[-2000:]
+    page = out / "albedo" / "web" / "index.html"
+    assert page.as_uri() in res.stdout  # the demo ends by printing the page to open
+    return out / "albedo"

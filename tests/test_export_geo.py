@@ -12,7 +12,7 @@ import rasterio
 from rio_cogeo.cogeo import cog_validate
 
 from lunaralbedo.export import export_kml
-from lunaralbedo.export.kml import merge_children
+from lunaralbedo.export.tiling import merge_children
 from lunaralbedo.export.pyramid import plan_pyramid
 from lunaralbedo.export.sources import longitude_shifts
 from test_export_common import albedo_fn, kml_vs_albedo, make_result, pixel_centres, sample_tiles

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""`make demo`: ingest -> solve -> export-kml on sample_data/, then compare with the truth.
+"""`make demo`: ingest -> solve -> export-kml -> export-web on sample_data/, then compare with the truth.
 
 Runs the real commands (as a user would type them) and prints where the results are.
 """
@@ -47,6 +47,7 @@ def main() -> int:
     run("ingest", *cubes, "--dem", rel(sample / "dem"), "-o", rel(work))
     run("solve", rel(work / "settings.txt"), "-o", rel(results))
     run("export-kml", rel(results))
+    run("export-web", rel(results))
 
     from lunaralbedo.simulate import score
 
@@ -65,8 +66,11 @@ def main() -> int:
         ("run report", results / "report.json"),
         ("Google Earth (Moon) KML", results / "kml" / "doc.kml"),
         ("Cloud-Optimized GeoTIFF", results / "albedo_mosaic.tif"),
+        ("web map + run report", results / "web" / "index.html"),
     ]:
         print(f"  {what:<27} {rel(path)}")
+    page = results / "web" / "index.html"
+    print(f"\nOpen the web map and run report:\n  {page.as_uri()}\n  (or serve it: lunaralbedo view {rel(results)})")
     return 0
 
 

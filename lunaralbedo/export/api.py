@@ -34,11 +34,12 @@ from rasterio.errors import NotGeoreferencedWarning
 from ..errors import InputError
 from ..io.atomic import TMP_PREFIX, atomic_write_text, make_readable
 from ..parallel import local_workers, make_executor
-from .kml import ROOT_NAME, pyramid_children, render_leaf, render_parent
+from .kml import ROOT_NAME, KmlTileWriter
 from .mosaic import assemble_cog, block_grids, write_mosaic_block, write_sub4
-from .pyramid import Pyramid, plan_pyramid, present_nodes
-from .sources import Grid, Source, find_sources, intersects, native_grid, sample_values
+from .pyramid import plan_pyramid, present_nodes
+from .sources import Grid, Source, find_sources, native_grid, sample_values
 from .stretch import stretch_from_range, stretch_from_values
+from .tiling import covering, level_resampling, pyramid_children, pyramid_tasks
 
 STRETCH_FILE = "stretch.json"
 SAMPLE_BUDGET = 20_000_000  # at most about this many albedo values enter the percentiles
@@ -65,7 +66,7 @@ def staged_dir(final: Path) -> Iterator[Path]:
         shutil.rmtree(old, ignore_errors=True)
 
 
-STAGING_PREFIXES = ("kml-", "albedo_sub4-", "mosaic-", "old-")
+STAGING_PREFIXES = ("kml-", "albedo_sub4-", "mosaic-", "old-", "web-")
 
 
 def remove_stale_staging(results_dir: Path) -> int:
@@ -79,7 +80,10 @@ def remove_stale_staging(results_dir: Path) -> int:
     return len(stale)
 
 
-def _compute(tasks: list, executor) -> list:
+def compute_tasks(tasks: list, executor) -> list:
+    """Compute dask.delayed ``tasks`` on ``executor`` (:func:`lunaralbedo.parallel.make_executor`)."""
+    if not tasks:
+        return []
     with warnings.catch_warnings():
         # rasterio silences this warning for its in-memory arrays with catch_warnings,
         # which is not thread-safe: with threads it leaks out.
@@ -87,44 +91,17 @@ def _compute(tasks: list, executor) -> list:
         return executor.compute(tasks)
 
 
-def _covering(sources: Sequence[Source], bounds) -> list[Source]:
-    return [s for s in sources if intersects(s.bounds, bounds)]
-
-
-def _pyramid_tasks(kml_dir, pyr, present, children, sources, st, label, resampling) -> list:
-    """One task per written tile: finest level from the albedo, each coarser tile from its children."""
-    task = dask.delayed(pure=False)
-    done: dict = {}
-    for level in range(pyr.levels - 1, -1, -1):
-        for node in present[level]:
-            if level == pyr.levels - 1:
-                done[node.key] = task(render_leaf)(kml_dir, node, _covering(sources, node.bounds), st, label, resampling)
-            else:
-                kids = children[node.key]
-                done[node.key] = task(render_parent)(kml_dir, node, kids, [done[k.key] for k in kids], st, label)
-    # Every written tile is below the root, so computing the root computes all of them,
-    # and each tile's arrays are freed once its parent has used them.
-    (root,) = present[0]
-    return [done[root.key]]
-
-
 def _mosaic_task(sources: Sequence[Source], grid: Grid, path: Path, scratch: str):
     """One task per 2048-px block of the mosaic, then one that assembles the COG."""
     task = dask.delayed(pure=False)
     blocks = [
-        task(write_mosaic_block)(_covering(sources, g.bounds), r0, c0, g, Path(scratch) / f"{path.stem}-{i}.tif")
+        task(write_mosaic_block)(covering(sources, g.bounds), r0, c0, g, Path(scratch) / f"{path.stem}-{i}.tif")
         for i, (r0, c0, g) in enumerate(block_grids(grid))
     ]
     return task(assemble_cog)(blocks, grid, sources[0].crs_wkt, path)
 
 
-def _level_resampling(pyr: Pyramid, level: int, grid: Grid) -> Resampling:
-    """``nearest`` for a level at least as fine as the native grid, ``average`` for a coarser one."""
-    height, width = pyr.level_shape(level)
-    return Resampling.nearest if width >= grid.width and height >= grid.height else Resampling.average
-
-
-def _check_pixel_size(sources: Sequence[Source], folder: Path) -> None:
+def check_pixel_size(sources: Sequence[Source], folder: Path) -> None:
     rx, ry = sources[0].res
     for s in sources[1:]:
         if abs(s.res[0] - rx) > 1e-6 * rx or abs(s.res[1] - ry) > 1e-6 * ry:
@@ -132,6 +109,21 @@ def _check_pixel_size(sources: Sequence[Source], folder: Path) -> None:
                 f"{folder}: tiles must share one pixel size; {sources[0].path.name} has {rx:g} x {ry:g} "
                 f"degrees but {s.path.name} has {s.res[0]:g} x {s.res[1]:g}"
             )
+
+
+def shared_stretch(sources: Sequence[Source], folder: Path, executor, percentiles=(2.0, 98.0), value_range=None,
+                   what: str = "albedo"):
+    """The one 8-bit stretch of all tiles: ``value_range`` when given, else the percentiles of the valid values.
+
+    At most about :data:`SAMPLE_BUDGET` values enter the percentiles (one sampling task per tile).
+    """
+    if value_range is not None:
+        return stretch_from_range(*value_range)
+    budget = max(10_000, SAMPLE_BUDGET // len(sources))  # values per tile for the percentiles
+    samples = compute_tasks([dask.delayed(sample_values, pure=False)(s, budget) for s in sources], executor)
+    if not any(len(v) for v in samples):
+        raise InputError(f"{folder}: the {what} tiles hold no valid pixel (all no-data); nothing to export")
+    return stretch_from_values(np.concatenate(samples), tuple(percentiles))
 
 
 def export_kml(
@@ -166,7 +158,7 @@ def export_kml(
     results_dir = Path(results_dir).expanduser().resolve()
     albedo_dir = results_dir / "albedo"
     sources = find_sources(albedo_dir, "albedo")
-    _check_pixel_size(sources, albedo_dir)
+    check_pixel_size(sources, albedo_dir)
     error_dir = results_dir / "error"
     errors = find_sources(error_dir, "error") if any(error_dir.glob("tile_*.tif")) else []
     remove_stale_staging(results_dir)
@@ -176,14 +168,7 @@ def export_kml(
     children = pyramid_children(pyr, present)
     task = dask.delayed(pure=False)
     with contextlib.closing(make_executor(local_workers(workers), scheduler, client=client, local=pool)) as executor:
-        if value_range is not None:
-            st = stretch_from_range(*value_range)
-        else:
-            budget = max(10_000, SAMPLE_BUDGET // len(sources))  # values per tile for the percentiles
-            samples = _compute([task(sample_values)(s, budget) for s in sources], executor)
-            if not any(len(v) for v in samples):
-                raise InputError(f"{albedo_dir}: the albedo tiles hold no valid pixel (all no-data); nothing to export")
-            st = stretch_from_values(np.concatenate(samples), tuple(stretch))
+        st = shared_stretch(sources, albedo_dir, executor, stretch, value_range)
 
         label = name or results_dir.name
         with (
@@ -191,12 +176,13 @@ def export_kml(
             staged_dir(results_dir / "albedo_sub4") as sub4_dir,
             tempfile.TemporaryDirectory(prefix=f"{TMP_PREFIX}mosaic-", dir=results_dir) as scratch,
         ):
-            pyramid = _pyramid_tasks(kml_dir, pyr, present, children, sources, st, label, _level_resampling(pyr, pyr.levels - 1, grid))
+            resampling = level_resampling(pyr, pyr.levels - 1, grid)
+            pyramid = pyramid_tasks(kml_dir, pyr, present, children, sources, KmlTileWriter(st, label), resampling)
             sub4 = [task(write_sub4)(s, sub4_dir / s.path.name, sub4_rs) for s in sources]
             mosaics = [_mosaic_task(sources, grid, results_dir / "albedo_mosaic.tif", scratch)]
             if errors:
                 mosaics.append(_mosaic_task(errors, native_grid(errors), results_dir / "error_mosaic.tif", scratch))
-            mosaics = _compute(pyramid + sub4 + mosaics, executor)[len(pyramid) + len(sub4):]
+            mosaics = compute_tasks(pyramid + sub4 + mosaics, executor)[len(pyramid) + len(sub4):]
             atomic_write_text(kml_dir / STRETCH_FILE, st.to_json())
     for mosaic in mosaics:
         make_readable(Path(mosaic["path"]))

@@ -1,4 +1,4 @@
-"""KML superoverlay documents (simplekml) and the per-tile render task.
+"""KML superoverlay documents (simplekml) and the KML tile writer (rendering: :mod:`.tiling`).
 
 Files below ``RESULTS_DIR/kml/``::
 
@@ -15,19 +15,18 @@ from __future__ import annotations
 
 import math
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-import rasterio
 import simplekml
-from rasterio.enums import Resampling
 
 from ..constants import MOON_RADIUS_M
-from ..io.atomic import atomic_path, atomic_write_text
-from .pyramid import Node, Pyramid
-from .sources import Source, read_region
+from ..io.atomic import atomic_write_text
+from .pyramid import Node
 from .stretch import Stretch, to_rgba
+from .tiling import write_png
 
 ROOT_NAME = "doc.kml"
 MIN_LOD_PIXELS = 128
@@ -80,95 +79,13 @@ def node_kml(node: Node, children: Sequence[Node], name: str = "albedo") -> str:
         return kml.kml()
 
 
-def write_png(path: Path, rgba: np.ndarray, transform) -> None:
-    """Write a (4, h, w) uint8 array as an RGBA PNG, atomically.
+@dataclass(frozen=True)
+class KmlTileWriter:
+    """The tile writer of the KML pyramid: the RGBA PNG of the stretched values and the tile's KML."""
 
-    The georeferencing (given so that GDAL does not warn) would go to a
-    ``.aux.xml`` sidecar, which is removed: the KML places the image.
-    """
-    with atomic_path(path) as tmp:
-        profile = dict(driver="PNG", width=rgba.shape[2], height=rgba.shape[1], count=4, dtype="uint8", transform=transform)
-        with rasterio.open(tmp, "w", **profile) as dst:
-            dst.write(rgba)
-            dst.colorinterp = [
-                rasterio.enums.ColorInterp.red,
-                rasterio.enums.ColorInterp.green,
-                rasterio.enums.ColorInterp.blue,
-                rasterio.enums.ColorInterp.alpha,
-            ]
-        aux = tmp.with_name(tmp.name + ".aux.xml")
-        if aux.exists():
-            aux.unlink()
+    stretch: Stretch
+    name: str = "albedo"
 
-
-def _write_node(out_dir: Path, node: Node, children: Sequence[Node], values: np.ndarray, stretch: Stretch, name: str) -> None:
-    write_png(out_dir / png_relpath(*node.key), to_rgba(values, stretch), node.grid.transform)
-    atomic_write_text(out_dir / kml_relpath(*node.key), node_kml(node, children, name))
-
-
-def render_leaf(
-    out_dir: str | Path,
-    node: Node,
-    sources: Sequence[Source],
-    stretch: Stretch,
-    name: str = "albedo",
-    resampling: Resampling = Resampling.nearest,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Task for a tile of the finest level: resample the albedo onto it, write its PNG and KML.
-
-    ``nearest`` when the level is at least as fine as the albedo (values copied,
-    not blurred), ``average`` when ``--levels`` makes it coarser.  Returns
-    ``(mean, count)`` for the parent: the values and how many finest-level pixels
-    each one stands for (1 or 0).
-    """
-    values = read_region(sources, node.grid, resampling)
-    _write_node(Path(out_dir), node, [], values, stretch, name)
-    return values, np.isfinite(values).astype(np.float32)
-
-
-def render_parent(
-    out_dir: str | Path,
-    node: Node,
-    children: Sequence[Node],
-    child_results: Sequence[tuple[np.ndarray, np.ndarray]],
-    stretch: Stretch,
-    name: str = "albedo",
-) -> tuple[np.ndarray, np.ndarray]:
-    """Task for a tile of a coarser level: 2x2 means of its children's pixels, PNG and KML.
-
-    Each pixel is the mean of the valid finest-level pixels below it (counts carry
-    the weights), so every level is the block mean of the finest one.
-    """
-    values, counts = merge_children(node, children, child_results)
-    _write_node(Path(out_dir), node, children, values, stretch, name)
-    return values, counts
-
-
-def merge_children(
-    node: Node, children: Sequence[Node], child_results: Sequence[tuple[np.ndarray, np.ndarray]]
-) -> tuple[np.ndarray, np.ndarray]:
-    """(mean, count) of ``node`` from its children's (pure; missing children hold no data)."""
-    total = np.zeros((2 * node.height, 2 * node.width), dtype=np.float64)
-    count = np.zeros_like(total)
-    r0, c0 = 2 * node.row, 2 * node.col
-    for child, (vals, cnt) in zip(children, child_results):
-        rs = 0 if child.row == r0 else total.shape[0] - child.height  # the first child is a full tile
-        cs = 0 if child.col == c0 else total.shape[1] - child.width
-        ok = cnt > 0
-        total[rs:rs + child.height, cs:cs + child.width] = np.where(ok, vals, 0.0) * cnt
-        count[rs:rs + child.height, cs:cs + child.width] = cnt
-    total = total.reshape(node.height, 2, node.width, 2).sum(axis=(1, 3))
-    count = count.reshape(node.height, 2, node.width, 2).sum(axis=(1, 3))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(count > 0, total / count, np.nan)
-    return mean.astype(np.float32), count.astype(np.float32)
-
-
-def pyramid_children(pyr: Pyramid, present: dict[int, list[Node]]) -> dict[tuple[int, int, int], list[Node]]:
-    """For every written tile, its written children."""
-    keys = {n.key for nodes in present.values() for n in nodes}
-    return {
-        n.key: [pyr.node(*c) for c in pyr.children(n) if c in keys]
-        for nodes in present.values()
-        for n in nodes
-    }
+    def __call__(self, out_dir: Path, node: Node, children: Sequence[Node], values: np.ndarray) -> None:
+        write_png(out_dir / png_relpath(*node.key), to_rgba(values, self.stretch), node.grid.transform)
+        atomic_write_text(out_dir / kml_relpath(*node.key), node_kml(node, children, self.name))
