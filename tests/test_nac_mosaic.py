@@ -85,3 +85,21 @@ def test_mosaic_cube_is_one_observation_for_the_camera_model_and_ingest(pair, tm
         assert np.allclose(s2, s, atol=1e-3) and np.allclose(l2, l, atol=1e-3)
     rep = ingest([d / "m.cub"], [d / "dem" / "dem.tif"], tmp_path / "w")
     assert rep.done and rep.results[0].kind == "line scanner" and rep.results[0].valid_pixels > 1000
+
+
+def test_ingest_mosaics_the_pair_and_aligns_the_dem(pair, tmp_path):
+    d, p = pair
+    rng = np.random.default_rng(3)
+    lon, lat = rng.uniform(5.6, 6.4, 3000), rng.uniform(-6.4, -5.6, 3000)
+    # reference points on the true surface; the DEM given to ingest is the truth, so the transform is ~identity
+    radius = 1737.4 + p.scene.height(lon, lat) / 1000.0
+    np.savetxt(tmp_path / "ref.csv", np.stack([lon, lat, radius], 1), delimiter=",", header="lon,lat,radius",
+               comments="", fmt="%.9f")
+    res = CliRunner().invoke(main, ["ingest", str(p.le), str(p.re), "--dem", str(d / "dem" / "dem.tif"), "-o",
+                                    str(tmp_path / "w"), "--nac-mosaic", "--dem-align", str(tmp_path / "ref.csv")])
+    assert res.exit_code == 0, res.output
+    assert "SIMNAC_LE.cub + SIMNAC_RE.cub ->" in res.output and "aligned to" in res.output
+    drgs = sorted(p.name for p in (tmp_path / "w" / "DRG").glob("*.tif"))
+    assert drgs == ["SIMNAC_____.tif"], drgs  # one observation, not two CCDs
+    rep = json.loads((tmp_path / "w" / "nac" / "dem-report.json").read_text())
+    assert rep["translation_at_dem_centre"]["horizontal"] < 5.0 and abs(rep["translation_at_dem_centre"]["down"]) < 1.0
