@@ -19,7 +19,7 @@ def _value(v) -> str:
     if isinstance(v, (list, tuple, np.ndarray)):
         items = [_value(x) for x in v]
         # SPICE reads at most 132 characters per kernel line: long arrays continue on the next lines
-        sep = "\n        " if sum(len(x) + 1 for x in items) > 80 else " "
+        sep = "\n        " if sum(len(x) + 1 for x in items) > 96 else " "
         return "( " + sep.join(items) + " )"
     return repr(float(v)) if isinstance(v, (float, np.floating)) else str(v)
 
