@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from ..errors import IsisError, SpiceError
 from ..isis.labels import IsisLabel, value_of
+from .ideal import is_ideal, spec_from_label
 from .model import CameraModel, DetectorMap
 from .optics import ApolloMetricDistortion, FocalPlane, LroNacDistortion, NoDistortion, RadialOdk
 from .timing import camera_kind, frame_et, is_line_scanner, line_timing, naif_value
@@ -80,8 +81,10 @@ def build_camera(label: IsisLabel, ephemeris, code: int, band: int = 1) -> Camer
     if kind == "radar":
         raise IsisError(f"{label.path}: {kind} geometry is not supported for orthoprojection (positions are)")
     _b, lines, samples = label.shape
-    focal = focal_plane(label, code)
-    det = detector_map(label)
+    if is_ideal(label.instrument):  # noproj/nacmosaic output: focal plane from the label, LE frame and timing
+        focal, det = spec_from_label(label.instrument).focal_plane(), DetectorMap()
+    else:
+        focal, det = focal_plane(label, code), detector_map(label)
     if is_line_scanner(label):
         return CameraModel(focal, det, (lines, samples), ephemeris, timing=line_timing(label, code))
     return CameraModel(focal, det, (lines, samples), ephemeris, frame_et=frame_et(label))

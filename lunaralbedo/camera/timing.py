@@ -7,7 +7,8 @@
   ``LineSamplingInterval`` (ms -> s); ``et0`` is ``SpacecraftClockStartCount``
   through the SCLK kernel when one is loaded, else ``StartTime`` - except for LRO NAC, which ISIS times from the
   ``SpacecraftClockPrerollCount`` plus ``ADDITIONAL_PREROLL`` lines, with the IK's
-  ``MULTIPLI_LINE_ERROR``/``ADDITIVE_LINE_ERROR``/``CONSTANT_TIME_OFFSET``.
+  ``MULTIPLI_LINE_ERROR``/``ADDITIVE_LINE_ERROR``/``CONSTANT_TIME_OFFSET``; an ISIS ideal camera
+  from its ``EphemerisTime``.
 * The centre pixel is ``((samples+1)/2, (lines+1)/2)`` of the cube, mapped through
   ``AlphaCube`` when the cube is a crop.
 """
@@ -99,6 +100,8 @@ def line_timing(label: IsisLabel, code: int | None) -> LineTiming:
     if ik is not None and preroll is not None and naif_value(label, f"INS{code}_ADDITIONAL_PREROLL") is not None:
         rate = rate * (1.0 + ik("MULTIPLI_LINE_ERROR")) + ik("ADDITIVE_LINE_ERROR")
         et0 = _sclk_et(label, str(value_of(preroll)), code) + ik("CONSTANT_TIME_OFFSET") + ik("ADDITIONAL_PREROLL") * rate
+    elif "EphemerisTime" in inst:  # ISIS ideal camera (noproj, nacmosaic): ET of the first line's start
+        et0 = float(value_of(inst["EphemerisTime"]))
     elif code is not None and "SpacecraftClockStartCount" in inst and _has_sclk(int(code / 1000)):
         et0 = _sclk_et(label, _count_text(inst["SpacecraftClockStartCount"]), code)
     else:

@@ -27,9 +27,13 @@ from ._common import parallel_options, reports_errors
 @click.option("--legacy-8bit", is_flag=True, default=False, help="Write 8-bit DRGs (stretch + alpha) as the legacy tools did.")
 @click.option("--tile-size", type=float, default=4.0, show_default=True, help="TILE_SIZE (degrees) for settings.txt.")
 @parallel_options("1; cubes are processed in parallel")
+@click.option("--dem-align", type=click.Path(path_type=Path), default=None,
+              help="Align each DEM to these reference points (CSV lon,lat,radius km) or DEM first (see `align`).")
+@click.option("--nac-mosaic", is_flag=True, default=False,
+              help="Mosaic LE/RE cubes of one observation (NACL/NACR, same StartTime) into one ideal camera first.")
 @reports_errors
 def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem_values, legacy_8bit, tile_size,
-            workers, scheduler):
+            workers, scheduler, dem_align, nac_mosaic):
     """Orthoproject CUBES onto the DEM and write WORKDIR/{DRG,DEM,meta,settings.txt}.
 
     DRGs are named <KEY>.tif, KEY = the cube name up to its first '.', cut or padded
@@ -41,6 +45,16 @@ def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem
 
     if mpp is not None and match_dem:
         raise InputError("give either --mpp or --match-dem, not both")
+    if dem_align is not None or nac_mosaic:
+        from ..nac.api import prepare_ingest
+        from ..spice.kernels import expand_kernel_args
+
+        cubes, dems, notes = prepare_ingest(cubes, dems, workdir, dem_align, nac_mosaic, expand_kernel_args(kernels),
+                                            isisdata, dem_values)
+        if dem_align is not None:
+            dem_values = "height"  # the aligned DEMs hold heights
+        for n in notes:
+            click.echo(n)
     report = ingest(list(cubes), list(dems), workdir, kernels, isisdata, mpp, source, dem_values,
                     legacy_8bit, tile_size, workers=workers or 1, scheduler=scheduler, progress=sys.stderr.isatty())
     for p in report.dem_radius_converted:

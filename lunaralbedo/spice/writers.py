@@ -17,7 +17,10 @@ def _value(v) -> str:
     if isinstance(v, str):
         return "'" + v + "'" if not v.startswith("@") else v
     if isinstance(v, (list, tuple, np.ndarray)):
-        return "( " + " ".join(_value(x) for x in v) + " )"
+        items = [_value(x) for x in v]
+        # SPICE reads at most 132 characters per kernel line: long arrays continue on the next lines
+        sep = "\n        " if sum(len(x) + 1 for x in items) > 96 else " "
+        return "( " + sep.join(items) + " )"
     return repr(float(v)) if isinstance(v, (float, np.floating)) else str(v)
 
 

@@ -1,0 +1,103 @@
+"""The ideal line-scan camera of seed 004 (ISIS ``noproj``) and the LE/RE mosaic (``handmos``), pure math.
+
+Ideal camera (ISIS ``IdealCamera``, LE as the match): the LE's frame, timing and
+focal length, no distortion, one row of ``samples`` detectors of the LE's pixel
+pitch whose centre sits at focal-plane offset ``(x0, y0)`` mm from the LE's
+boresight (ISIS's ``TransX0``/``TransY0``; seed 004's NAC values are
+``TransY = 16.8833`` mm, ``TransX = 0.6475`` mm, ``DetectorSamples = 10000``,
+7 um pixels).  The offset is half-way between the LE and RE boresights in the LE
+focal plane (seed 004: "the angle between the two cameras ... divide by two"),
+computed here from the two camera models rather than typed in.
+
+``noproj``: every ideal pixel's ray meets the sphere of radius ``R + h`` (``h`` the
+mean DEM height; ISIS intersects the ellipsoid) and the ground point is projected
+into the input CCD; the mapping is computed every ``step`` pixels and
+interpolated bilinearly (it is smooth), and the CCD image is sampled with cubic
+splines.  A measured LE/RE offset ``(so, lo)`` (convention of
+:mod:`lunaralbedo.nac.jitreg`) is applied to RE by sampling it at ideal pixel
+``(x - so, y - lo)``: sub-pixel, in the same single resampling.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..camera.intersect import ray_sphere
+from ..camera.model import CameraModel, DetectorMap
+from ..camera.ideal import IdealSpec
+from ..constants import MOON_RADIUS_KM
+
+
+def ideal_camera(spec: IdealSpec, ephemeris, timing, lines: int) -> CameraModel:
+    """A line-scan :class:`CameraModel` of ``spec`` on the match camera's ephemeris and line timing."""
+    return CameraModel(spec.focal_plane(), DetectorMap(), (lines, spec.samples), ephemeris, timing=timing)
+
+
+def _focal_xy(v):
+    return v[..., 0] / v[..., 2], v[..., 1] / v[..., 2]
+
+
+def ideal_spec(le: CameraModel, re: CameraModel, margin: int = 2) -> IdealSpec:
+    """The ideal camera half-way between LE and RE boresights, wide enough for both CCDs (see module docstring)."""
+    f, fp = le.focal.focal_length, le.focal
+    rel = le.rotations[len(le.rotations) // 2].T @ re.rotations[len(re.rotations) // 2]  # RE frame -> LE frame
+
+    def in_le(cam, ds):
+        look = cam.focal.look(ds, np.full(np.shape(ds), -cam.focal.origin_line))
+        v = look if cam is le else look @ rel.T
+        x, y = _focal_xy(v)
+        return f * x, f * y
+
+    xl, yl = in_le(le, np.array([0.0]))
+    xr, yr = in_le(re, np.array([0.0]))
+    x0, y0 = float((xl[0] + xr[0]) / 2), float((yl[0] + yr[0]) / 2)
+    sx, sy = fp.transx[1], fp.transy[1]
+    pitch = float(np.hypot(sx, sy))
+    ends = []
+    for cam in (le, re):
+        alpha = cam.detector.alpha(np.array([0.5, cam.samples + 0.5]), 1.0)[0]
+        x, y = in_le(cam, cam.detector.detector_sample(alpha) - cam.focal.origin_sample)
+        ends += list(((x - x0) * sx + (y - y0) * sy) / pitch ** 2)
+    half = int(np.ceil(max(abs(e) for e in ends))) + margin
+    return IdealSpec(f, pitch, 2 * half, x0, y0, (sx, sy), (fp.transx[2], fp.transy[2]))
+
+
+def sample_map(ideal: CameraModel, cam: CameraModel, shape, height_m: float, offset=(0.0, 0.0), step: int = 8):
+    """0-based ``(col, row)`` in ``cam``'s image of every ideal pixel, shifted by ``offset`` (see module docstring)."""
+    from scipy.ndimage import map_coordinates
+
+    lines, samples = shape
+    rs = np.unique(np.r_[np.arange(0, lines, step), lines - 1])
+    cs = np.unique(np.r_[np.arange(0, samples, step), samples - 1])
+    ll, ss = np.meshgrid(rs, cs, indexing="ij")
+    o, d = ideal.rays(ss + 1.0 - offset[0], ll + 1.0 - offset[1])
+    pts = ray_sphere(o, d, MOON_RADIUS_KM + height_m / 1000.0)
+    s, l = cam.ground_to_image(np.where(np.isfinite(pts), pts, 0.0))
+    s, l = s - 1.0, l - 1.0
+    # node index of every output pixel, then bilinear interpolation of the node values
+    ri = np.interp(np.arange(lines), rs, np.arange(rs.size))
+    ci = np.interp(np.arange(samples), cs, np.arange(cs.size))
+    grid = np.meshgrid(ri, ci, indexing="ij")
+    return tuple(map_coordinates(a, grid, order=1, mode="nearest", cval=np.nan) for a in (s, l))
+
+
+def resample(image: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """``image`` at fractional 0-based ``(col, row)`` by cubic splines; NaN outside the image."""
+    from scipy.ndimage import map_coordinates
+
+    img = np.asarray(image, dtype=np.float64)
+    ok = np.isfinite(img)
+    filled = np.where(ok, img, np.nanmean(img) if ok.any() else 0.0)
+    out = map_coordinates(filled, [np.nan_to_num(row, nan=-1e6), np.nan_to_num(col, nan=-1e6)], order=3, mode="nearest")
+    h, w = img.shape
+    inside = (col >= -0.5) & (col <= w - 0.5) & (row >= -0.5) & (row <= h - 0.5)
+    return np.where(inside, out, np.nan).astype(np.float32)
+
+
+def blend(le: np.ndarray, re: np.ndarray, columns: tuple[int, int]) -> np.ndarray:
+    """One image: LE left of the overlap ``columns``, RE right of it, a linear ramp across it (no seam)."""
+    x = np.arange(le.shape[1], dtype=np.float64)
+    a, b = columns
+    w = np.clip((x - a) / max(1.0, b - 1 - a), 0.0, 1.0)[None, :]
+    both = np.isfinite(le) & np.isfinite(re)
+    out = np.where(np.isfinite(le), le, re)
+    return np.where(both, (1 - w) * le + w * re, out).astype(np.float32)
