@@ -182,7 +182,9 @@ def test_report_panel_shows_report_json(served, browser, demo_results):
         return _cells(browser, f"#{section}")
 
     assert [float(q) for _, q in cells("cost")] == report["cost_q"]
-    assert [[float(c1), float(c2)] for _, c1, c2 in cells("phase")] == report["phase_coefficients"]
+    names = list(report["parameters"])
+    assert names == ["c1", "c2"]  # the demo is Lunar-Lambert
+    assert [[float(v) for v in row[1:]] for row in cells("parameters")] == [list(p) for p in zip(*report["parameters"].values())]
     expo = [line.split(",") for line in (demo_results / "exposure.csv").read_text().split()[1:]]
     assert [(k, float(t), float(t0)) for k, t, t0, _ in cells("exposures")] == [(k, float(t), float(t0)) for k, t, t0 in expo]
     timings = {k: float(v) for k, v in cells("timings")}

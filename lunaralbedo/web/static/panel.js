@@ -80,7 +80,8 @@
 
   function render(root, report, exposures, meta) {
     const q = report.cost_q || [];
-    const phase = report.phase_coefficients || [];
+    const params = report.parameters || {};
+    const names = Object.keys(params);
     const parts = [];
     parts.push(section('summary', 'Run', keyValues({
       method: report.method, executor: report.executor, iterations: report.iterations, converged: report.converged,
@@ -97,8 +98,10 @@
       parts.push(section('cost', 'Q per iteration', [plot(q.map((_, i) => i + 1), q, 'iteration', 'Q'),
         table(['iteration', 'Q'], q.map((v, i) => [i + 1, v]))], true));
     }
-    if (phase.length) {
-      parts.push(section('phase', 'Phase coefficients', table(['iteration', 'c1', 'c2'], phase.map((c, i) => [i, c[0], c[1]])), false));
+    if (names.length) {
+      // the photometric model's fitted parameters per iteration (iteration 0 is the initial value)
+      const rows = params[names[0]].map((_, i) => [i, ...names.map(n => params[n][i])]);
+      parts.push(section('parameters', `Model parameters (${report.photometric_model})`, table(['iteration', ...names], rows), false));
     }
     for (const [key, title] of [['response', 'Camera response'], ['residuals', 'Residuals']]) {
       const s = extra(key, title, report[key]);
