@@ -63,7 +63,7 @@ def test_outputs_are_float32_with_nan_nodata_and_documented_files(scene, tmp_pat
     rep = json.loads((out / "report.json").read_text())
     assert len(rep["cost_q"]) == res.iterations and rep["cost_q"][-1] <= rep["cost_q"][0]
     assert rep["settings"]["reflectance_type"] in (1, 2) and "timings_s" in rep
-    assert not (out / ".cache").exists()
+    assert not (out / "checkpoint").exists()
 
 
 def test_mosaic_mode_removes_seams(tmp_path):

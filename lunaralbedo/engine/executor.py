@@ -12,7 +12,7 @@ from typing import Any, Callable, Iterable
 
 from tqdm.auto import tqdm
 
-from ..errors import LunarAlbedoError
+from ..errors import ClusterError, LunarAlbedoError, typed_error
 
 
 class SerialExecutor:
@@ -53,14 +53,19 @@ class DaskExecutor:
             return []
         args = {k: (self._scatter(v) if k in shared else v) for k, v in kwargs.items()}
         futures = [self.client.submit(fn, x, pure=False, **args) for x in items]
-        with tqdm(total=len(futures), desc=desc, disable=not self.progress, leave=False) as bar:
-            for fut in as_completed(futures):
-                if fut.status == "error":
-                    for f in futures:
-                        f.cancel()
-                    fut.result()  # re-raises the task's exception here
-                bar.update(1)
-        return self.client.gather(futures)
+        try:
+            with tqdm(total=len(futures), desc=desc, disable=not self.progress, leave=False) as bar:
+                for fut in as_completed(futures):
+                    if fut.status == "error":
+                        raise _first_error(fut)
+                    bar.update(1)
+            return self.client.gather(futures)
+        except BaseException as exc:
+            self.client.cancel(futures)  # the first real error is raised; the remaining tasks stop
+            typed = _typed(exc)
+            if typed is exc:
+                raise
+            raise typed from exc
 
     def _scatter(self, value):
         """Send a large shared argument (the scene) to every worker once and keep the future alive."""
@@ -75,6 +80,19 @@ class DaskExecutor:
                 obj.close()
             except Exception:  # noqa: BLE001 - closing is best effort
                 pass
+
+
+def _first_error(failed):
+    """The exception of the task that failed (asked for before anything is cancelled)."""
+    try:
+        return failed.exception()
+    except BaseException as exc:  # noqa: BLE001 - the scheduler lost the task itself
+        return exc
+
+
+def _typed(exc: BaseException) -> BaseException:
+    """``exc`` as a typed error when it stands for one (raster failure, lost worker, full disk)."""
+    return typed_error(exc) or exc
 
 
 #: Environment of worker processes.  Dask's nanny sets MALLOC_TRIM_THRESHOLD_, which
@@ -146,6 +164,16 @@ def pbs_nodes(nodefile: str | os.PathLike | None = None) -> list[str]:
     return list(dict.fromkeys(h.strip() for h in lines if h.strip()))
 
 
+def _starting(what: str, start: Callable, *args):
+    """``start(*args)``; a failure to start a cluster is a :class:`ClusterError` (exit status 3)."""
+    try:
+        return start(*args)
+    except LunarAlbedoError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - Dask raises many kinds (TimeoutError, OSError, RuntimeError)
+        raise ClusterError(f"cannot start the {what}: {type(exc).__name__}: {exc}") from exc
+
+
 def make_executor(
     workers: int = 1,
     scheduler: str | None = None,
@@ -169,10 +197,10 @@ def make_executor(
         try:
             client = Client(scheduler, timeout="20s")
         except OSError as exc:
-            raise LunarAlbedoError(f"cannot connect to Dask scheduler {scheduler}: {exc}") from None
+            raise ClusterError(f"cannot connect to Dask scheduler {scheduler}: {exc}") from None
         return DaskExecutor(client, f"scheduler {scheduler}", progress)
     if cluster:
-        client, clus = _jobqueue_client(cluster, dict(cluster_options or {}))
+        client, clus = _starting(f"{cluster} cluster", _jobqueue_client, cluster, dict(cluster_options or {}))
         return DaskExecutor(client, f"{cluster} cluster", progress, owned=(clus,))
     hosts = pbs_nodes()
     if hosts:
@@ -182,5 +210,5 @@ def make_executor(
         return DaskExecutor(client, f"PBS_NODEFILE ({len(hosts)} nodes x {max(1, workers)} processes)", progress, owned=owned)
     if workers <= 1:
         return SerialExecutor(progress)
-    client, clus = _local_cluster(workers, memory_limit)
+    client, clus = _starting(f"local cluster of {workers} processes", _local_cluster, workers, memory_limit)
     return DaskExecutor(client, f"local cluster ({workers} processes)", progress, owned=(clus,))

@@ -32,6 +32,7 @@ from rio_cogeo.cogeo import cog_translate
 from rio_cogeo.profiles import cog_profiles
 
 from ..io.atomic import TMP_PREFIX, atomic_path
+from ..io.guard import raster_errors
 from ..io.rasters import write_geotiff
 from .sources import Grid, Source, read_masked, read_region
 
@@ -121,7 +122,7 @@ def write_sub4(src: Source, path: str | Path, resampling: Resampling = Resamplin
     h4, w4 = sub4_shape(src.height, src.width)
     wb, sb, eb, nb = src.file_bounds
     dst_transform = Grid((wb, sb, eb, nb), h4, w4).transform
-    with rasterio.open(src.path) as ds:
+    with raster_errors(src.path), rasterio.open(src.path) as ds:
         vals = read_masked(ds, None, src.legacy)
         crs = ds.crs
         out = np.full((h4, w4), np.nan, dtype=np.float32)
