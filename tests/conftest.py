@@ -33,3 +33,17 @@ def photk_tests() -> Path:
 def realdata() -> Path:
     """Real ISIS3 cubes, labels and kernels (``../shared/realdata``)."""
     return _need("realdata")
+
+
+@pytest.fixture(scope="session")
+def dask_cluster():
+    """One local Dask cluster of 2 single-threaded worker processes, shared by the tests that
+    run the engine on real workers (``--scheduler`` its address); closed at the end."""
+    distributed = pytest.importorskip("distributed")
+    from lunaralbedo.engine.executor import _worker_config
+
+    with _worker_config():
+        cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                           dashboard_address=None, silence_logs=40)
+    yield cluster
+    cluster.close()

@@ -52,7 +52,7 @@ class DaskExecutor:
         if not items:
             return []
         args = {k: (self._scatter(v) if k in shared else v) for k, v in kwargs.items()}
-        futures = [self.client.submit(fn, x, pure=False, **args) for x in items]
+        futures = [self.client.submit(run_task, fn, x, pure=False, **args) for x in items]
         try:
             with tqdm(total=len(futures), desc=desc, disable=not self.progress, leave=False) as bar:
                 for fut in as_completed(futures):
@@ -80,6 +80,21 @@ class DaskExecutor:
                 obj.close()
             except Exception:  # noqa: BLE001 - closing is best effort
                 pass
+
+
+def run_task(fn: Callable, item, **kwargs):
+    """Run one task on a worker; a failure comes back as its typed error, without its chain.
+
+    Dask pickles a task's exception with its ``__context__`` chain, and GDAL's exception
+    classes do not survive that: the client would get a bare ``Exception(repr)``.
+    """
+    try:
+        return fn(item, **kwargs)
+    except Exception as exc:  # noqa: BLE001 - re-raised below
+        error = typed_error(exc) or exc
+    if isinstance(error, LunarAlbedoError):
+        error.__cause__ = error.__context__ = None
+    raise error
 
 
 def _first_error(failed):

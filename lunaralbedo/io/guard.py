@@ -29,13 +29,17 @@ def raster_errors(path: str | Path, action: str = "read") -> Iterator[None]:
     except LunarAlbedoError:
         raise
     except (RasterioError, CPLE_BaseError, OSError) as exc:
-        typed = typed_error(exc)
-        if isinstance(typed, DiskFullError):
-            raise DiskFullError(f"{path}: no space left on the device") from None
-        detail = str(exc).replace(str(path), "").strip(" :,") or type(exc).__name__
-        if action == "write":
-            raise OutputError(f"{path}: cannot write raster: {detail}") from None
-        raise InputError(f"{path}: cannot read raster pixels (truncated or corrupt file?): {detail}") from None
+        raise _raster_error(exc, Path(path), action) from None
+
+
+def _raster_error(exc: BaseException, path: Path, action: str) -> LunarAlbedoError:
+    if isinstance(typed_error(exc), DiskFullError):
+        return DiskFullError(f"{path}: no space left on the device")
+    texts = [str(e) for e in (exc, exc.__cause__, exc.__context__) if e is not None and "previous exception" not in str(e)]
+    detail = "; ".join(dict.fromkeys(t.replace(str(path), "").strip(" :,") for t in texts if t)) or type(exc).__name__
+    if action == "write":
+        return OutputError(f"{path}: cannot write raster: {detail}")
+    return InputError(f"{path}: cannot read raster pixels (truncated or corrupt file?): {detail}")
 
 
 def check_output_dir(path: str | Path, what: str = "output folder") -> Path:
