@@ -77,7 +77,8 @@ class Interrupted(LunarAlbedoError):
 
 
 _DISK_FULL_ERRNOS = {28, 122}  # ENOSPC, EDQUOT
-_DISK_FULL_TEXT = ("no space left", "free disk space", "disk quota")
+#: GDAL's and NumPy's words for a full disk (NumPy's short write, "N requested and M written", has no errno)
+_DISK_FULL_TEXT = ("no space left", "free disk space", "disk quota", "requested and")
 _WORKER_LOST = {"KilledWorker", "CommClosedError", "StreamClosedError"}
 _FUTURE_CANCELLED = {"CancelledError", "FutureCancelledError"}
 

@@ -68,9 +68,14 @@ class DaskExecutor:
             raise typed from exc
 
     def _scatter(self, value):
-        """Send a large shared argument (the scene) to every worker once and keep the future alive."""
+        """Send a large shared argument (the scene) to the workers once and keep the future alive.
+
+        It is a task's result rather than scattered data, so the scheduler can recompute it
+        when the worker holding it dies (scattered data would be lost with the worker, and
+        every task needing it cancelled).
+        """
         if id(value) not in self._scattered:
-            self._scattered[id(value)] = (value, self.client.scatter(value, broadcast=True, hash=False))
+            self._scattered[id(value)] = (value, self.client.submit(_identity, value, pure=False))
         return self._scattered[id(value)][1]
 
     def close(self) -> None:
@@ -80,6 +85,10 @@ class DaskExecutor:
                 obj.close()
             except Exception:  # noqa: BLE001 - closing is best effort
                 pass
+
+
+def _identity(value):
+    return value
 
 
 def run_task(fn: Callable, item, **kwargs):

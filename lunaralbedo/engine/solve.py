@@ -179,7 +179,7 @@ def solve(
         return _run(scene, out, method, max_iter, tolerance, executor, resume, timings, plots)
     except (Exception, KeyboardInterrupt) as exc:
         typed = typed_error(exc)
-        resumable = (out / STATE_FILE).exists() and not (typed is not None and typed.exit_code == 2)
+        resumable = (out / CHECKPOINT_DIR).exists() and not (typed is not None and typed.exit_code == 2)
         if created and not resume and not resumable:
             shutil.rmtree(out, ignore_errors=True)  # bad input (or nothing to resume): leave nothing behind
         raise
