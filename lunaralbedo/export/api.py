@@ -36,7 +36,8 @@ from ..io.atomic import TMP_PREFIX, atomic_write_text, make_readable
 from .kml import ROOT_NAME, pyramid_children, render_leaf, render_parent
 from .mosaic import assemble_cog, block_grids, write_mosaic_block, write_sub4
 from .pyramid import Pyramid, plan_pyramid, present_nodes
-from .sources import Grid, Source, find_sources, intersects, native_grid, sample_values
+from .extent import clip, crop_grid, scan_tile, simulation_box, union
+from .sources import Grid, Source, find_sources, intersects, native_grid
 from .stretch import stretch_from_range, stretch_from_values
 
 STRETCH_FILE = "stretch.json"
@@ -139,6 +140,33 @@ def _check_pixel_size(sources: Sequence[Source], folder: Path) -> None:
             )
 
 
+def _data_grid(results_dir: Path, sources: Sequence[Source], scans) -> tuple[Grid, list[Source], tuple]:
+    """The native grid cropped to the data extent (see :mod:`.extent`), the tiles holding data, the extent.
+
+    Legacy (uint8 + alpha) results keep PhotometryTK's whole-tile bounds.
+    """
+    grid = native_grid(sources)
+    if any(s.legacy for s in sources):
+        return grid, list(sources), grid.bounds
+    extent = union([b for _, b in scans if b is not None])
+    box = simulation_box(results_dir, extent[0])
+    if box is not None:
+        extent = clip(extent, box) or extent
+    grid = crop_grid(grid, extent)
+    kept = [s for s, (_, b) in zip(sources, scans) if b is not None and clip(s.bounds, grid.bounds) is not None]
+    return grid, kept, grid.bounds
+
+
+def _file_grid(src: Source, bounds) -> Grid | None:
+    """The part of ``src`` inside ``bounds`` (continuous longitudes) on its own pixels, in the file's longitudes."""
+    part = clip(src.bounds, bounds)
+    if part is None or part == src.bounds:
+        return None
+    w, s, e, n = src.file_bounds
+    whole = Grid((w, max(s, -90.0), e, min(n, 90.0)), src.height, src.width)
+    return crop_grid(whole, (part[0] - src.shift, part[1], part[2] - src.shift, part[3]))
+
+
 def export_kml(
     results_dir: str | Path,
     levels: int | None = None,
@@ -172,21 +200,21 @@ def export_kml(
     error_dir = results_dir / "error"
     errors = find_sources(error_dir, "error") if any(error_dir.glob("tile_*.tif")) else []
     remove_stale_staging(results_dir)
-    grid = native_grid(sources)
-    pyr = plan_pyramid(grid.bounds, grid.shape, tile_size, levels)
-    present = present_nodes(pyr, [s.bounds for s in sources])
-    children = pyramid_children(pyr, present)
     run = dict(client=client, workers=workers, scheduler=scheduler)
     task = dask.delayed(pure=False)
 
+    budget = 0 if value_range is not None else max(10_000, SAMPLE_BUDGET // len(sources))  # values per tile
+    scans = _compute([task(scan_tile)(s, budget) for s in sources], **run)
+    if all(b is None for _, b in scans):
+        raise InputError(f"{albedo_dir}: the albedo tiles hold no valid pixel (all no-data); nothing to export")
     if value_range is not None:
         st = stretch_from_range(*value_range)
     else:
-        budget = max(10_000, SAMPLE_BUDGET // len(sources))  # values per tile for the percentiles
-        samples = _compute([task(sample_values)(s, budget) for s in sources], **run)
-        if not any(len(v) for v in samples):
-            raise InputError(f"{albedo_dir}: the albedo tiles hold no valid pixel (all no-data); nothing to export")
-        st = stretch_from_values(np.concatenate(samples), tuple(stretch))
+        st = stretch_from_values(np.concatenate([v for v, _ in scans]), tuple(stretch))
+    grid, sources, extent = _data_grid(results_dir, sources, scans)
+    pyr = plan_pyramid(grid.bounds, grid.shape, tile_size, levels)
+    present = present_nodes(pyr, [clip(s.bounds, grid.bounds) for s in sources])
+    children = pyramid_children(pyr, present)
 
     label = name or results_dir.name
     with (
@@ -195,10 +223,10 @@ def export_kml(
         tempfile.TemporaryDirectory(prefix=f"{TMP_PREFIX}mosaic-", dir=results_dir) as scratch,
     ):
         pyramid = _pyramid_tasks(kml_dir, pyr, present, children, sources, st, label, _level_resampling(pyr, pyr.levels - 1, grid))
-        sub4 = [task(write_sub4)(s, sub4_dir / s.path.name, sub4_rs) for s in sources]
+        sub4 = [task(write_sub4)(s, sub4_dir / s.path.name, sub4_rs, _file_grid(s, grid.bounds)) for s in sources]
         mosaics = [_mosaic_task(sources, grid, results_dir / "albedo_mosaic.tif", scratch)]
         if errors:
-            mosaics.append(_mosaic_task(errors, native_grid(errors), results_dir / "error_mosaic.tif", scratch))
+            mosaics.append(_mosaic_task(errors, crop_grid(native_grid(errors), extent), results_dir / "error_mosaic.tif", scratch))
         mosaics = _compute(pyramid + sub4 + mosaics, **run)[len(pyramid) + len(sub4):]
         atomic_write_text(kml_dir / STRETCH_FILE, st.to_json())
     for mosaic in mosaics:
