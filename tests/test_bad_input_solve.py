@@ -26,9 +26,7 @@ def base_scene(tmp_path_factory):
 
 @pytest.fixture
 def scene(base_scene, tmp_path):
-    d = tmp_path / "scene"
-    shutil.copytree(base_scene, d)
-    return d
+    return Path(shutil.copytree(base_scene, tmp_path / "scene"))  # each case edits its own copy
 
 
 @pytest.fixture(params=["1 worker", "2 workers"])
