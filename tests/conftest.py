@@ -56,3 +56,17 @@ def demo_results(tmp_path_factory) -> Path:
     page = out / "albedo" / "web" / "index.html"
     assert page.as_uri() in res.stdout  # the demo ends by printing the page to open
     return out / "albedo"
+
+
+@pytest.fixture(scope="session")
+def dask_cluster():
+    """One local Dask cluster of 2 single-threaded worker processes, shared by the tests that
+    run the engine on real workers (``--scheduler`` its address); closed at the end."""
+    distributed = pytest.importorskip("distributed")
+    from lunaralbedo.parallel.workers import worker_config
+
+    with worker_config():
+        cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                           dashboard_address=None, silence_logs=40)
+    yield cluster
+    cluster.close()

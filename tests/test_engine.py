@@ -68,7 +68,7 @@ def _kill_when(proc: subprocess.Popen, ready, timeout: float = 60.0) -> None:
 
 def _state(out: Path) -> dict:
     try:
-        return json.loads((out / ".state.json").read_text())
+        return json.loads((out / "checkpoint" / "state.json").read_text())
     except (FileNotFoundError, json.JSONDecodeError):
         return {}
 
@@ -77,9 +77,9 @@ def _state(out: Path) -> dict:
 def test_resume_after_kill_9_gives_identical_results(scene, reference, tmp_path, stage):
     out = tmp_path / "out"
     markers = {
-        "prepare": lambda: len(list((out / ".cache").glob("tile_*"))) >= 3,
+        "prepare": lambda: len(list((out / "checkpoint" / "cache").glob("tile_*"))) >= 3,
         "iterate": lambda: _state(out).get("iteration", 0) >= 2,
-        "finalise": lambda: len(list((out / "weightsSum").glob("tile_*.tif"))) >= 2,
+        "finalise": lambda: len(list((out / "checkpoint" / "tiles" / "weightsSum").glob("tile_*.tif"))) >= 2,
     }
     proc = _start(scene, out)
     _kill_when(proc, markers[stage])

@@ -71,7 +71,7 @@ def test_outputs_are_float32_with_nan_nodata_and_documented_files(scene, tmp_pat
     assert len(rep["cost_q"]) == res.iterations and rep["cost_q"][-1] <= rep["cost_q"][0]
     assert rep["settings"]["reflectance"] == rep["photometric_model"] in ("lambert", "lunar-lambert") and "timings_s" in rep
     assert list(rep["parameters"]) == list(names) and all(len(v) == res.iterations + 1 for v in rep["parameters"].values())
-    assert not (out / ".cache").exists()
+    assert not (out / "checkpoint").exists()
 
 
 def test_mosaic_mode_removes_seams(tmp_path):

@@ -1,25 +1,60 @@
-"""Helpers shared by the CLI commands: error reporting and the options every command shares."""
+"""Helpers shared by the CLI commands: error reporting, exit codes and the options every command shares.
+
+Exit codes (see docs/errors.md): 0 success, 2 bad input (incl. an output path that
+cannot be created), 3 infrastructure (worker lost, cluster cannot start, disk full),
+130 interrupted (Ctrl-C), 1 an unexpected internal error (a bug: please report it).
+Without the global ``--debug`` no traceback is printed, only ``error: <message>``.
+"""
 from __future__ import annotations
 
 import functools
 import sys
+import traceback
 from typing import Callable
 
 import click
 
-from ..errors import LunarAlbedoError
+from ..errors import Interrupted, LunarAlbedoError, typed_error
+
+INTERNAL_ERROR = 1
+
+
+def debug_enabled() -> bool:
+    """True when the global ``--debug`` option was given."""
+    ctx = click.get_current_context(silent=True)
+    return bool(ctx and (ctx.find_root().obj or {}).get("debug"))
+
+
+def _hint(exc: LunarAlbedoError) -> str:
+    if exc.exit_code == 3 or isinstance(exc, Interrupted):
+        return " (the checkpoint is kept: rerun the same command with --resume where the command has it)"
+    return ""
 
 
 def reports_errors(func: Callable) -> Callable:
-    """Turn a :class:`LunarAlbedoError` into ``error: <message>`` on stderr and exit status 2."""
+    """Turn any failure into one line ``error: <message>`` on stderr and its exit status.
+
+    Typed errors keep their ``exit_code``; library errors are mapped by
+    :func:`lunaralbedo.errors.typed_error`; anything else is an internal error
+    (exit 1).  With ``--debug`` the traceback is printed as well.
+    """
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
         try:
             return func(*args, **kwargs)
-        except LunarAlbedoError as exc:
-            click.echo(f"error: {exc}", err=True)
-            sys.exit(exc.exit_code)
+        except (click.exceptions.Exit, click.ClickException, click.Abort):
+            raise
+        except (Exception, KeyboardInterrupt) as exc:  # noqa: BLE001 - the one place that reports failures
+            typed = typed_error(exc)
+            if debug_enabled():
+                traceback.print_exception(exc, file=sys.stderr)
+            if typed is None:
+                click.echo(f"error: internal error ({type(exc).__name__}: {exc}); rerun with --debug for the "
+                           "traceback and please report it", err=True)
+                sys.exit(INTERNAL_ERROR)
+            click.echo(f"error: {typed}{_hint(typed)}", err=True)
+            sys.exit(typed.exit_code)
 
     return wrapper
 

@@ -16,6 +16,7 @@ import rasterio
 from rasterio.windows import Window
 
 from ..errors import InputError, SolverError
+from ..io.guard import raster_errors
 from ..io.positions import read_positions
 from ..io.rasters import RasterInfo, catalog_drgs, geographic_crs, intersects, list_rasters, raster_info
 from ..model.weights import WeightProfile, merge_profiles, profile_from_mask
@@ -69,7 +70,7 @@ def weight_profile(info: RasterInfo) -> WeightProfile:
     if not info.has_alpha and info.nodata is None:
         return WeightProfile.full(info.height, info.width)
     parts = []
-    with rasterio.open(info.path) as ds:
+    with raster_errors(info.path), rasterio.open(info.path) as ds:
         for r0 in range(0, info.height, _STRIP_ROWS):
             win = Window(0, r0, info.width, min(_STRIP_ROWS, info.height - r0))
             valid = np.ones((int(win.height), info.width), bool)

@@ -3,13 +3,18 @@
 Passes (each a map of tile tasks, see :mod:`.tilework`):
 
 1. *prepare*: read inputs once per tile, cache the observation stack in
-   ``OUTDIR/.cache``; reduce the initialisation sums (seed exposure, overlap log-ratios);
+   ``OUTDIR/checkpoint/cache``; reduce the initialisation sums (seed exposure, overlap log-ratios);
 2. *iterate* (up to MAX_NUM_ITER times): albedo (eq. 3/6), cost Q (eq. 1), sums for
    the exposure (eq. 4) and phase (eq. 5) updates; reduce in tile order; update;
-3. *finalise*: write albedo/error/DEM/weightsSum tiles with the final unknowns.
+3. *finalise*: write albedo/error/DEM/weightsSum tiles with the final unknowns into
+   ``OUTDIR/checkpoint/tiles``; they move into ``OUTDIR`` once all are written.
 
-After every reduction the global state is checkpointed (``OUTDIR/.state.json``,
-atomic), so ``resume=True`` continues a killed run and produces the same bytes.
+After every reduction the global state is checkpointed (``OUTDIR/checkpoint/state.json``,
+atomic), so ``resume=True`` continues a killed run and produces the same bytes.  Until a
+run succeeds, ``OUTDIR`` holds only its marker and ``checkpoint/`` (deleted at the end):
+never a partial set of result tiles.  A run stopped by bad input removes an OUTDIR it
+created; one stopped by the infrastructure (worker lost, disk full) or Ctrl-C keeps the
+checkpoint for ``--resume`` (docs/errors.md).
 """
 from __future__ import annotations
 
@@ -20,9 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import LunarAlbedoError, ResumeError, SettingsError, SolverError
+from ..errors import ResumeError, SettingsError, SolverError, typed_error
 from ..io import outputs
 from ..io.atomic import remove_stale_temporaries
+from ..io.guard import check_output_dir
 from ..model import exposure_init, updates
 from ..settings import Settings, load_settings
 from ..parallel import local_workers, make_executor
@@ -30,10 +36,14 @@ from .scene import Scene, build_scene
 from .tilework import SolveState, finalize_tile, iterate_tile, prepare_tile
 
 METHODS = ("overlap", "seed")
-STATE_FILE = ".state.json"
+CHECKPOINT_DIR = "checkpoint"  # everything --resume needs; removed when the run succeeds
+STATE_FILE = f"{CHECKPOINT_DIR}/state.json"
+CACHE_DIR = f"{CHECKPOINT_DIR}/cache"
+TILES_DIR = f"{CHECKPOINT_DIR}/tiles"  # finalised tiles, moved into OUTDIR at the end
 MARKER = ".lunaralbedo"  # written first into every OUTDIR: marks it as ours
-CACHE_DIR = ".cache"
-_OUTPUT_DIRS = ("albedo", "error", "DEM", "weightsSum", "weight")
+_TILE_DIRS = ("albedo", "error", "DEM", "weightsSum")
+_OUTPUT_DIRS = (*_TILE_DIRS, "weight")
+_RESULT_FILES = ("report.json", "exposure.csv", "phase.csv", "exposure.png", "cost.png")
 
 
 @dataclass
@@ -61,10 +71,9 @@ def _check_out_dir(out: Path, settings: Settings, resume: bool) -> bool:
     for d in (settings.drg_dir, settings.dem_dir):
         if d is not None and (out == d.resolve() or d.resolve() in out.parents):
             raise SettingsError(f"{out}: output folder must not be inside the input folder {d}")
+    check_output_dir(out)
     if not out.exists():
         return True
-    if not out.is_dir():
-        raise SolverError(f"{out}: exists and is not a folder")
     if any(out.iterdir()) and not (out / MARKER).exists():
         raise SolverError(f"{out}: folder exists, is not empty and is not a lunaralbedo output; choose another -o")
     return False
@@ -72,10 +81,19 @@ def _check_out_dir(out: Path, settings: Settings, resume: bool) -> bool:
 
 def _clear_previous_run(out: Path) -> None:
     """Remove an earlier run's outputs and checkpoint (called once the inputs are known to be good)."""
-    for name in (*_OUTPUT_DIRS, CACHE_DIR):
+    for name in (*_OUTPUT_DIRS, CHECKPOINT_DIR, ".cache"):
         shutil.rmtree(out / name, ignore_errors=True)
-    for name in (STATE_FILE, "report.json"):
+    for name in (*_RESULT_FILES, ".state.json"):
         (out / name).unlink(missing_ok=True)
+
+
+def _move_tiles_into_place(out: Path) -> None:
+    """Move the finalised tile folders from the checkpoint into OUTDIR (one rename each)."""
+    for name in _TILE_DIRS:
+        staged = out / TILES_DIR / name
+        if staged.is_dir():
+            shutil.rmtree(out / name, ignore_errors=True)
+            staged.replace(out / name)
 
 
 def _reduce_init(scene: Scene, metas: list[dict], method: str) -> np.ndarray:
@@ -156,9 +174,11 @@ def solve(
         (out / MARKER).write_text("lunaralbedo solve output folder\n")
         remove_stale_temporaries(out)
         return _run(scene, out, method, max_iter, tolerance, executor, resume, timings, plots)
-    except LunarAlbedoError:
-        if created and not resume:
-            shutil.rmtree(out, ignore_errors=True)
+    except (Exception, KeyboardInterrupt) as exc:
+        typed = typed_error(exc)
+        resumable = (out / CHECKPOINT_DIR).exists() and not (typed is not None and typed.exit_code == 2)
+        if created and not resume and not resumable:
+            shutil.rmtree(out, ignore_errors=True)  # bad input (or nothing to resume): leave nothing behind
         raise
     finally:
         executor.close()
@@ -219,7 +239,8 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots) ->
         ck["finalising"] = True  # from here on the state is fixed; finished tiles can be kept
         outputs.write_json(out / STATE_FILE, ck)
     tile_reports = executor.map(
-        finalize_tile, tiles, "write tiles", shared=("scene",), scene=scene, cache_root=cache, out_dir=out, state=state, skip_done=skip_done
+        finalize_tile, tiles, "write tiles", shared=("scene",), scene=scene, cache_root=cache, out_dir=out / TILES_DIR,
+        state=state, skip_done=skip_done,
     )
     resume_info["tiles_written_before"] = sum(bool(r.pop("reused")) for r in tile_reports)
     timings["finalise"] = time.perf_counter() - t3
@@ -253,8 +274,9 @@ def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timi
         "resumed": resume_info if any(resume_info.values()) else None,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
     }
-    outputs.write_json(out / "report.json", report)
-    shutil.rmtree(out / CACHE_DIR, ignore_errors=True)
+    _move_tiles_into_place(out)
+    outputs.write_json(out / "report.json", report)  # last: its presence means the run finished
+    shutil.rmtree(out / CHECKPOINT_DIR, ignore_errors=True)
     return SolveResult(
         out_dir=out,
         keys=keys,

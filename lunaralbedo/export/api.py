@@ -36,8 +36,9 @@ from ..io.atomic import TMP_PREFIX, atomic_write_text, make_readable
 from ..parallel import local_workers, make_executor
 from .kml import ROOT_NAME, KmlTileWriter
 from .mosaic import assemble_cog, block_grids, write_mosaic_block, write_sub4
+from .extent import clip, crop_grid, scan_tile, simulation_box, union
 from .pyramid import plan_pyramid, present_nodes
-from .sources import Grid, Source, find_sources, native_grid, sample_values
+from .sources import Grid, Source, find_sources, native_grid
 from .stretch import stretch_from_range, stretch_from_values
 from .tiling import covering, level_resampling, pyramid_children, pyramid_tasks
 
@@ -111,19 +112,48 @@ def check_pixel_size(sources: Sequence[Source], folder: Path) -> None:
             )
 
 
-def shared_stretch(sources: Sequence[Source], folder: Path, executor, percentiles=(2.0, 98.0), value_range=None,
-                   what: str = "albedo"):
-    """The one 8-bit stretch of all tiles: ``value_range`` when given, else the percentiles of the valid values.
+def scan_sources(sources: Sequence[Source], folder: Path, executor, percentiles=(2.0, 98.0), value_range=None,
+                 what: str = "albedo"):
+    """One task per tile: its valid-data bounds and a sample of its values -> ``(stretch, scans)``.
 
-    At most about :data:`SAMPLE_BUDGET` values enter the percentiles (one sampling task per tile).
+    The stretch is the one 8-bit stretch of all tiles: ``value_range`` when given, else the
+    percentiles of the valid values (at most about :data:`SAMPLE_BUDGET` of them).
+    ``scans`` are :func:`.extent.scan_tile`'s ``(values, bounds)`` per tile, in order.
     """
-    if value_range is not None:
-        return stretch_from_range(*value_range)
-    budget = max(10_000, SAMPLE_BUDGET // len(sources))  # values per tile for the percentiles
-    samples = compute_tasks([dask.delayed(sample_values, pure=False)(s, budget) for s in sources], executor)
-    if not any(len(v) for v in samples):
+    budget = 0 if value_range is not None else max(10_000, SAMPLE_BUDGET // len(sources))  # values per tile
+    scans = compute_tasks([dask.delayed(scan_tile, pure=False)(s, budget) for s in sources], executor)
+    if all(b is None for _, b in scans):
         raise InputError(f"{folder}: the {what} tiles hold no valid pixel (all no-data); nothing to export")
-    return stretch_from_values(np.concatenate(samples), tuple(percentiles))
+    if value_range is not None:
+        return stretch_from_range(*value_range), scans
+    return stretch_from_values(np.concatenate([v for v, _ in scans]), tuple(percentiles)), scans
+
+
+def data_grid(results_dir: Path, sources: Sequence[Source], scans) -> tuple[Grid, list[Source], tuple]:
+    """The native grid cropped to the data extent (see :mod:`.extent`), the tiles holding data, the extent.
+
+    Legacy (uint8 + alpha) results keep PhotometryTK's whole-tile bounds.
+    """
+    grid = native_grid(sources)
+    if any(s.legacy for s in sources):
+        return grid, list(sources), grid.bounds
+    extent = union([b for _, b in scans if b is not None])
+    box = simulation_box(results_dir, extent[0])
+    if box is not None:
+        extent = clip(extent, box) or extent
+    grid = crop_grid(grid, extent)
+    kept = [s for s, (_, b) in zip(sources, scans) if b is not None and clip(s.bounds, grid.bounds) is not None]
+    return grid, kept, grid.bounds
+
+
+def _file_grid(src: Source, bounds) -> Grid | None:
+    """The part of ``src`` inside ``bounds`` (continuous longitudes) on its own pixels, in the file's longitudes."""
+    part = clip(src.bounds, bounds)
+    if part is None or part == src.bounds:
+        return None
+    w, s, e, n = src.file_bounds
+    whole = Grid((w, max(s, -90.0), e, min(n, 90.0)), src.height, src.width)
+    return crop_grid(whole, (part[0] - src.shift, part[1], part[2] - src.shift, part[3]))
 
 
 def export_kml(
@@ -162,13 +192,13 @@ def export_kml(
     error_dir = results_dir / "error"
     errors = find_sources(error_dir, "error") if any(error_dir.glob("tile_*.tif")) else []
     remove_stale_staging(results_dir)
-    grid = native_grid(sources)
-    pyr = plan_pyramid(grid.bounds, grid.shape, tile_size, levels)
-    present = present_nodes(pyr, [s.bounds for s in sources])
-    children = pyramid_children(pyr, present)
     task = dask.delayed(pure=False)
     with contextlib.closing(make_executor(local_workers(workers), scheduler, client=client, local=pool)) as executor:
-        st = shared_stretch(sources, albedo_dir, executor, stretch, value_range)
+        st, scans = scan_sources(sources, albedo_dir, executor, stretch, value_range)
+        grid, sources, extent = data_grid(results_dir, sources, scans)
+        pyr = plan_pyramid(grid.bounds, grid.shape, tile_size, levels)
+        present = present_nodes(pyr, [clip(s.bounds, grid.bounds) for s in sources])
+        children = pyramid_children(pyr, present)
 
         label = name or results_dir.name
         with (
@@ -178,10 +208,10 @@ def export_kml(
         ):
             resampling = level_resampling(pyr, pyr.levels - 1, grid)
             pyramid = pyramid_tasks(kml_dir, pyr, present, children, sources, KmlTileWriter(st, label), resampling)
-            sub4 = [task(write_sub4)(s, sub4_dir / s.path.name, sub4_rs) for s in sources]
+            sub4 = [task(write_sub4)(s, sub4_dir / s.path.name, sub4_rs, _file_grid(s, grid.bounds)) for s in sources]
             mosaics = [_mosaic_task(sources, grid, results_dir / "albedo_mosaic.tif", scratch)]
             if errors:
-                mosaics.append(_mosaic_task(errors, native_grid(errors), results_dir / "error_mosaic.tif", scratch))
+                mosaics.append(_mosaic_task(errors, crop_grid(native_grid(errors), extent), results_dir / "error_mosaic.tif", scratch))
             mosaics = compute_tasks(pyramid + sub4 + mosaics, executor)[len(pyramid) + len(sub4):]
             atomic_write_text(kml_dir / STRETCH_FILE, st.to_json())
     for mosaic in mosaics:

@@ -32,6 +32,7 @@ from rio_cogeo.cogeo import cog_translate
 from rio_cogeo.profiles import cog_profiles
 
 from ..io.atomic import TMP_PREFIX, atomic_path
+from ..io.guard import raster_errors
 from ..io.rasters import write_geotiff
 from .sources import Grid, Source, read_masked, read_region
 
@@ -112,16 +113,17 @@ def sub4_shape(height: int, width: int) -> tuple[int, int]:
     return max(1, height // 4), max(1, width // 4)
 
 
-def write_sub4(src: Source, path: str | Path, resampling: Resampling = Resampling.average) -> dict:
+def write_sub4(src: Source, path: str | Path, resampling: Resampling = Resampling.average, part: Grid | None = None) -> dict:
     """One tile at 1/4 resolution on the same bounds (see the module notes).
 
     ``Resampling.nearest`` reproduces PhotometryTK's ``albedo_sub4`` exactly (it
-    took the pixel nearest to each coarse pixel centre).
+    took the pixel nearest to each coarse pixel centre).  ``part`` (a sub-grid of the
+    tile's own pixels, file longitudes) crops the tile to the data extent first.
     """
-    h4, w4 = sub4_shape(src.height, src.width)
-    wb, sb, eb, nb = src.file_bounds
+    h4, w4 = sub4_shape(*(part.shape if part is not None else (src.height, src.width)))
+    wb, sb, eb, nb = part.bounds if part is not None else src.file_bounds
     dst_transform = Grid((wb, sb, eb, nb), h4, w4).transform
-    with rasterio.open(src.path) as ds:
+    with raster_errors(src.path), rasterio.open(src.path) as ds:
         vals = read_masked(ds, None, src.legacy)
         crs = ds.crs
         out = np.full((h4, w4), np.nan, dtype=np.float32)

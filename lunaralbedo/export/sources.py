@@ -30,6 +30,7 @@ from rasterio.warp import reproject
 from rasterio.windows import Window, from_bounds
 
 from ..errors import InputError
+from ..io.guard import raster_errors
 from ..io.rasters import intersects  # noqa: F401  (used here and by the other export modules)
 
 TILE_GLOB = "tile_*.tif"
@@ -216,7 +217,7 @@ def read_region(
         if c1 <= c0 or r1 <= r0:
             continue
         offset = pixel_offset(src, gt) if exact_copy and resampling == Resampling.nearest else None
-        with rasterio.open(src.path) as ds:
+        with raster_errors(src.path), rasterio.open(src.path) as ds:
             if offset is not None:
                 ox, oy = offset
                 c0, c1 = max(c0, -ox), min(c1, ds.width - ox)
@@ -249,11 +250,3 @@ def read_region(
         hole = np.isnan(view)
         view[hole] = part[hole]
     return out
-
-
-def sample_values(src: Source, max_values: int = 250_000) -> np.ndarray:
-    """The valid values of one tile (read decimated when the tile holds more than ``max_values`` pixels)."""
-    step = max(1, math.ceil(math.sqrt(src.width * src.height / max_values)))
-    with rasterio.open(src.path) as ds:
-        vals = read_masked(ds, None, src.legacy)[::step, ::step]
-    return vals[np.isfinite(vals)]

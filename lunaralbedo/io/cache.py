@@ -28,8 +28,10 @@ def save_stack(folder: str | Path, arrays: dict[str, np.ndarray], meta: dict) ->
         if folder.exists():
             shutil.rmtree(folder)
         os.replace(tmp, folder)
-    except BaseException:
+    except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, OSError) and exc.filename is None:  # np.save's write errors name no file
+            raise OSError(exc.errno, exc.strerror or str(exc), str(folder)) from exc
         raise
 
 

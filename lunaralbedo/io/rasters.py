@@ -23,6 +23,7 @@ from rasterio.windows import Window, from_bounds
 from ..constants import KEY_LENGTH
 from ..errors import DuplicateKeyError, InputError
 from .atomic import atomic_path
+from .guard import raster_errors
 
 #: GDAL's block cache is per process and by default grows to 5 % of RAM; a solve reads
 #: every image once per tile, so a small cache keeps memory bounded by the tile.
@@ -182,7 +183,7 @@ def read_onto_grid(
     """
     src_nodata = info.nodata if info.nodata is not None else nodata
     out = np.full(dst_shape, np.nan, dtype=np.float32)
-    with rasterio.open(info.path) as ds:
+    with raster_errors(info.path), rasterio.open(info.path) as ds:
         win = _source_window(ds, dst_transform, dst_shape, dst_crs)
         win = Window(win.col_off - 2, win.row_off - 2, win.width + 4, win.height + 4).round_offsets().round_lengths()
         win = win.intersection(Window(0, 0, ds.width, ds.height)) if _overlaps(win, ds) else None
@@ -259,7 +260,7 @@ def write_geotiff(
         profile.update(zstd_level=1, predictor=3 if np.dtype(dtype).kind == "f" else 2)
     if arr.shape[1] >= 16 and arr.shape[2] >= 16:
         profile.update(tiled=arr.shape[1] > 256 or arr.shape[2] > 256)
-    with atomic_path(path) as tmp:
+    with raster_errors(path, "write"), atomic_path(path) as tmp:
         with rasterio.open(tmp, "w", **profile) as dst:
             dst.write(arr.astype(dtype, copy=False))
             for k, text in enumerate(descriptions or ()):
@@ -288,7 +289,7 @@ def read_drg_onto_grid(
     from ..model.weights import window_weights
 
     h, w = dst_shape
-    with rasterio.open(info.path) as ds:
+    with raster_errors(info.path), rasterio.open(info.path) as ds:
         win = _source_window(ds, dst_transform, dst_shape, dst_crs)
         win = Window(win.col_off - 2, win.row_off - 2, win.width + 4, win.height + 4).round_offsets().round_lengths()
         if not _overlaps(win, ds):

@@ -4,7 +4,7 @@ Each function returns ``(client, [objects to close with it])``.
 """
 from __future__ import annotations
 
-from ..errors import LunarAlbedoError
+from ..errors import ClusterError, LunarAlbedoError
 from .workers import WORKER_ENV, worker_config
 
 
@@ -15,7 +15,7 @@ def connect(address: str):
     try:
         return Client(address, timeout="20s"), []
     except OSError as exc:
-        raise LunarAlbedoError(f"cannot connect to Dask scheduler {address}: {exc}") from None
+        raise ClusterError(f"cannot connect to Dask scheduler {address}: {exc}") from None
 
 
 def local_cluster(workers: int, memory_limit: str | None):

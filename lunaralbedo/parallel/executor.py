@@ -11,7 +11,7 @@ from typing import Any, Callable, Iterable
 
 from tqdm.auto import tqdm
 
-from ..errors import LunarAlbedoError
+from ..errors import ClusterError, LunarAlbedoError, typed_error
 from . import clusters
 from .nodefile import nodefile_client, pbs_nodes
 
@@ -82,24 +82,34 @@ class DaskExecutor:
         if not items:
             return []
         args = {k: (self._scatter(v) if k in shared else v) for k, v in kwargs.items()}
-        futures = [self.client.submit(fn, x, pure=False, **args) for x in items]
-        with tqdm(total=len(futures), desc=desc, disable=not self.progress, leave=False) as bar:
-            for fut in as_completed(futures):
-                if fut.status == "error":
-                    for f in futures:
-                        f.cancel()
-                    fut.result()  # re-raises the task's exception here
-                bar.update(1)
-        return self.client.gather(futures)
+        futures = [self.client.submit(run_task, fn, x, pure=False, **args) for x in items]
+        try:
+            with tqdm(total=len(futures), desc=desc, disable=not self.progress, leave=False) as bar:
+                for fut in as_completed(futures):
+                    if fut.status == "error":
+                        raise _first_error(fut)
+                    bar.update(1)
+            return self.client.gather(futures)
+        except BaseException as exc:
+            self.client.cancel(futures)  # the first real error is raised; the remaining tasks stop
+            typed = _typed(exc)
+            if typed is exc:
+                raise
+            raise typed from exc
 
     def compute(self, tasks: list) -> list:
         """Compute a list of ``dask.delayed`` objects on the cluster, in order."""
         return list(self.client.gather(self.client.compute(tasks))) if tasks else []
 
     def _scatter(self, value):
-        """Send a large shared argument (the scene) to every worker once and keep the future alive."""
+        """Send a large shared argument (the scene) to the workers once and keep the future alive.
+
+        It is a task's result rather than scattered data, so the scheduler can recompute it
+        when the worker holding it dies (scattered data would be lost with the worker, and
+        every task needing it cancelled).
+        """
         if id(value) not in self._scattered:
-            self._scattered[id(value)] = (value, self.client.scatter(value, broadcast=True, hash=False))
+            self._scattered[id(value)] = (value, self.client.submit(_identity, value, pure=False))
         return self._scattered[id(value)][1]
 
     def close(self) -> None:
@@ -109,6 +119,48 @@ class DaskExecutor:
                 obj.close()
             except Exception:  # noqa: BLE001 - closing is best effort
                 pass
+
+
+def _identity(value):
+    return value
+
+
+def run_task(fn: Callable, item, **kwargs):
+    """Run one task on a worker; a failure comes back as its typed error, without its chain.
+
+    Dask pickles a task's exception with its ``__context__`` chain, and GDAL's exception
+    classes do not survive that: the client would get a bare ``Exception(repr)``.
+    """
+    try:
+        return fn(item, **kwargs)
+    except Exception as exc:  # noqa: BLE001 - re-raised below
+        error = typed_error(exc) or exc
+    if isinstance(error, LunarAlbedoError):
+        error.__cause__ = error.__context__ = None
+    raise error
+
+
+def _first_error(failed):
+    """The exception of the task that failed (asked for before anything is cancelled)."""
+    try:
+        return failed.exception()
+    except BaseException as exc:  # noqa: BLE001 - the scheduler lost the task itself
+        return exc
+
+
+def _typed(exc: BaseException) -> BaseException:
+    """``exc`` as a typed error when it stands for one (raster failure, lost worker, full disk)."""
+    return typed_error(exc) or exc
+
+
+def _starting(what: str, start: Callable, *args):
+    """``start(*args)``; a failure to start a cluster is a :class:`ClusterError` (exit status 3)."""
+    try:
+        return start(*args)
+    except LunarAlbedoError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - Dask raises many kinds (TimeoutError, OSError, RuntimeError)
+        raise ClusterError(f"cannot start the {what}: {type(exc).__name__}: {exc}") from exc
 
 
 def make_executor(
@@ -136,10 +188,10 @@ def make_executor(
     if client is not None:
         return DaskExecutor(client, "Dask client", progress, own_client=False)
     if scheduler:
-        client, owned = clusters.connect(scheduler)
+        client, owned = _starting(f"connection to Dask scheduler {scheduler}", clusters.connect, scheduler)
         return DaskExecutor(client, f"scheduler {scheduler}", progress, owned=owned)
     if cluster:
-        client, owned = clusters.jobqueue_client(cluster, dict(cluster_options or {}))
+        client, owned = _starting(f"{cluster} cluster", clusters.jobqueue_client, cluster, dict(cluster_options or {}))
         return DaskExecutor(client, f"{cluster} cluster", progress, owned=owned)
     hosts = pbs_nodes()
     if hosts:
@@ -148,7 +200,7 @@ def make_executor(
     if workers <= 1:
         return SerialExecutor(progress)
     if local == "processes":
-        client, owned = clusters.local_cluster(workers, memory_limit)
+        client, owned = _starting(f"local cluster of {workers} processes", clusters.local_cluster, workers, memory_limit)
         return DaskExecutor(client, f"local cluster ({workers} processes)", progress, owned=owned)
     if local == "threads":
         return LocalPoolExecutor(workers, progress)

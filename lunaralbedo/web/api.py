@@ -25,9 +25,10 @@ import dask
 
 from .. import __version__
 from ..constants import MOON_RADIUS_M
-from ..export.api import check_pixel_size, compute_tasks, remove_stale_staging, shared_stretch, staged_dir
+from ..export.api import check_pixel_size, compute_tasks, data_grid, remove_stale_staging, scan_sources, staged_dir
+from ..export.extent import clip
 from ..export.pyramid import plan_pyramid, present_nodes
-from ..export.sources import find_sources, native_grid
+from ..export.sources import find_sources
 from ..export.tiling import level_resampling, pyramid_children, pyramid_tasks
 from ..io.atomic import atomic_write_text
 from ..parallel import local_workers, make_executor
@@ -90,17 +91,18 @@ def export_web(
     exposures = read_exposures(results_dir / "exposure.csv")
     remove_stale_staging(out.parent)
 
-    grid = native_grid(albedo)
-    pyr = plan_pyramid(grid.bounds, grid.shape, tile_size, levels)
-    present = present_nodes(pyr, [s.bounds for s in albedo])
-    children = pyramid_children(pyr, present)
     executor = make_executor(local_workers(workers), scheduler, client=client, local=pool)
     with contextlib.closing(executor):
+        # the same extent (the data, not whole solver tiles), pyramid and stretch as export-kml
+        st, scans = scan_sources(albedo, results_dir / "albedo", executor, stretch, value_range)
+        grid, albedo, _ = data_grid(results_dir, albedo, scans)
+        pyr = plan_pyramid(grid.bounds, grid.shape, tile_size, levels)
+        present = present_nodes(pyr, [clip(s.bounds, grid.bounds) for s in albedo])
+        children = pyramid_children(pyr, present)
         resampling = level_resampling(pyr, pyr.levels - 1, grid)
-        st = shared_stretch(albedo, results_dir / "albedo", executor, stretch, value_range)
         layers = [("albedo", "Albedo", albedo, GrayTiles(st), st)]
         if errors:
-            st_err = shared_stretch(errors, results_dir / "error", executor, (2.0, 98.0), None, "error")
+            st_err, _ = scan_sources(errors, results_dir / "error", executor, (2.0, 98.0), None, "error")
             layers.append(("error", "Error (eq. 7)", errors, ColorTiles(st_err, colormap_lut(ERROR_COLORMAP)), st_err))
         if dem:
             layers.append(("hillshade", "DEM hillshade", dem, HillshadeTiles(), None))

@@ -1,0 +1,133 @@
+"""Bad-input matrix of ``solve``, with 1 worker (in-process) and 2 (Dask workers of a local cluster).
+
+Every case: exit 2, one line ``error: ...`` naming the culprit (not a cancellation or a
+worker log), no traceback, no OUTDIR left behind; inputs unchanged.
+"""
+from __future__ import annotations
+
+import hashlib
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+
+from bad_input_common import assert_clean_failure, cli, truncate
+from lunaralbedo.simulate import SceneSpec, render_scene
+
+
+@pytest.fixture(scope="module")
+def base_scene(tmp_path_factory):
+    d = tmp_path_factory.mktemp("bad_solve")
+    render_scene(d, SceneSpec(n_images=3, image_px=60, tile_size=0.25, max_num_iter=2, seed=5))
+    return d
+
+
+@pytest.fixture
+def scene(base_scene, tmp_path):
+    return Path(shutil.copytree(base_scene, tmp_path / "scene"))  # each case edits its own copy
+
+
+@pytest.fixture(params=["1 worker", "2 workers"])
+def engine(request) -> list[str]:
+    if request.param == "1 worker":
+        return ["--workers", "1"]
+    return ["--scheduler", request.getfixturevalue("dask_cluster").scheduler_address]
+
+
+def solve(scene: Path, engine, out: Path | None = None, settings: Path | None = None):
+    out = out or scene.parent / "out"
+    return cli("solve", settings or scene / "settings.txt", "-o", out, "--quiet", *engine), out
+
+
+def digest(folder: Path) -> str:
+    h = hashlib.sha256()
+    for p in sorted(folder.rglob("*")):
+        if p.is_file():
+            h.update(p.name.encode() + p.read_bytes())
+    return h.hexdigest()
+
+
+def test_drg_pixels_cut_short(scene, engine):
+    bad = scene / "DRG" / "SIM-IMG-001_drg.tif"
+    truncate(bad, 0.6)
+    before = digest(scene)
+    res, out = solve(scene, engine)
+    msg = assert_clean_failure(res, 2, bad, absent=out)
+    assert "cancel" not in msg.lower()
+    assert digest(scene) == before, "inputs must never be modified"
+
+
+def test_dem_cut_short(scene, engine):
+    bad = next((scene / "DEM").glob("*.tif"))
+    truncate(bad, 0.5)
+    res, out = solve(scene, engine)
+    assert_clean_failure(res, 2, bad, absent=out)
+
+
+def test_output_below_a_regular_file(scene, engine):
+    blocker = scene.parent / "afile"
+    blocker.write_text("x")
+    res, _ = solve(scene, engine, out=blocker / "out")
+    assert_clean_failure(res, 2, blocker)
+    assert blocker.read_text() == "x"
+
+
+def test_zero_byte_position_file(scene, engine):
+    sun = scene / "meta" / "sunpos.txt"
+    sun.write_bytes(b"")
+    res, out = solve(scene, engine)
+    assert_clean_failure(res, 2, sun, absent=out)
+
+
+@pytest.mark.parametrize("line, words", [
+    ("TILE_SIZE four", ("TILE_SIZE", "four")),
+    ("MAX_NUM_ITER 2.5", ("MAX_NUM_ITER", "2.5")),
+    ("SIMULATION_BOX 10:11:-5", ("SIMULATION_BOX",)),
+    ("NO_SUCH_KEY 1", ("NO_SUCH_KEY",)),
+])
+def test_settings_with_wrong_types(scene, line, words):
+    s = scene / "settings.txt"
+    key = line.split()[0]
+    s.write_text("".join(l for l in s.read_text().splitlines(keepends=True) if not l.startswith(key + " ")) + line + "\n")
+    res, out = solve(scene, ["--workers", "1"])
+    assert_clean_failure(res, 2, s, *words, absent=out)
+
+
+def test_header_only_drg(scene):
+    bad = scene / "DRG" / "SIM-IMG-002_drg.tif"
+    truncate(bad, 200)
+    res, out = solve(scene, ["--workers", "1"])
+    assert_clean_failure(res, 2, bad, absent=out)
+
+
+def test_malformed_position_file(scene):
+    sc = scene / "meta" / "spacecraftpos.txt"
+    sc.write_text("this is not a position file\n")
+    res, out = solve(scene, ["--workers", "1"])
+    assert_clean_failure(res, 2, sc, absent=out)
+
+
+def test_nan_and_inf_pixels_are_left_out(scene):
+    """NaN/Inf DRG pixels are no data: the run succeeds and no output holds an Inf."""
+    p = scene / "DRG" / "SIM-IMG-001_drg.tif"
+    with rasterio.open(p) as ds:  # rewritten as float32 (the sample DRGs are integers)
+        v, profile = ds.read().astype(np.float32), ds.profile
+    v[0, 10:20, :] = np.nan
+    v[0, 30:40, :] = np.inf
+    profile.update(dtype="float32", nodata=None)
+    with rasterio.open(p, "w", **profile) as ds:
+        ds.write(v)
+    res, out = solve(scene, ["--workers", "1"])
+    assert res.exit_code == 0, res.stderr
+    alb = [rasterio.open(t).read(1) for t in sorted((out / "albedo").glob("*.tif"))]
+    assert all(not np.isinf(a).any() for a in alb)
+    assert sum(np.isfinite(a).sum() for a in alb) > 1000
+
+
+def test_debug_prints_the_traceback(scene):
+    truncate(scene / "DRG" / "SIM-IMG-001_drg.tif", 0.6)
+    res = cli("--debug", "solve", scene / "settings.txt", "-o", scene.parent / "out", "--quiet", "--workers", "1")
+    assert res.exit_code == 2
+    assert "Traceback" in res.stderr and res.stderr.strip().splitlines()[-1].startswith("error: ")
