@@ -100,12 +100,12 @@ def export_web(
         present = present_nodes(pyr, [clip(s.bounds, grid.bounds) for s in albedo])
         children = pyramid_children(pyr, present)
         resampling = level_resampling(pyr, pyr.levels - 1, grid)
-        layers = [("albedo", "Albedo", albedo, GrayTiles(st), st)]
+        layers = [("albedo", "Albedo", albedo, GrayTiles(st, pyr.tile_size), st)]
         if errors:
             st_err, _ = scan_sources(errors, results_dir / "error", executor, (2.0, 98.0), None, "error")
-            layers.append(("error", "Error (eq. 7)", errors, ColorTiles(st_err, colormap_lut(ERROR_COLORMAP)), st_err))
+            layers.append(("error", "Error (eq. 7)", errors, ColorTiles(st_err, colormap_lut(ERROR_COLORMAP), pyr.tile_size), st_err))
         if dem:
-            layers.append(("hillshade", "DEM hillshade", dem, HillshadeTiles(), None))
+            layers.append(("hillshade", "DEM hillshade", dem, HillshadeTiles(pyr.tile_size), None))
         drg_dir = Path(report.get("settings", {}).get("drg_dir", ""))
         centre_lon = (grid.bounds[0] + grid.bounds[2]) / 2
 

@@ -78,14 +78,30 @@ def colored_rgba(values: np.ndarray, stretch: Stretch, lut: np.ndarray) -> np.nd
     return np.concatenate([np.moveaxis(rgb, -1, 0), alpha[None]])
 
 
+def write_tile(out_dir: Path, node: Node, rgba: np.ndarray, tile_size: int) -> None:
+    """Write one map tile as a full ``tile_size`` square PNG.
+
+    Leaflet draws every tile into a ``tile_size`` square, so the short tiles at the east and
+    south edges of the pyramid (the KML's are cut to the data) are padded with transparent
+    pixels on their right and bottom, which keeps the top-left corner where it is.
+    """
+    _, h, w = rgba.shape
+    if (h, w) != (tile_size, tile_size):
+        full = np.zeros((4, tile_size, tile_size), dtype=np.uint8)
+        full[:, :h, :w] = rgba
+        rgba = full
+    write_png(out_dir / tile_relpath(*node.key), rgba, node.grid.transform)
+
+
 @dataclass(frozen=True)
 class GrayTiles:
     """Tile writer: the gray PNG of the stretched values (the KML's look)."""
 
     stretch: Stretch
+    tile_size: int
 
     def __call__(self, out_dir: Path, node: Node, children: Sequence[Node], values: np.ndarray) -> None:
-        write_png(out_dir / tile_relpath(*node.key), to_rgba(values, self.stretch), node.grid.transform)
+        write_tile(out_dir, node, to_rgba(values, self.stretch), self.tile_size)
 
 
 @dataclass(frozen=True)
@@ -94,16 +110,19 @@ class ColorTiles:
 
     stretch: Stretch
     lut: np.ndarray
+    tile_size: int
 
     def __call__(self, out_dir: Path, node: Node, children: Sequence[Node], values: np.ndarray) -> None:
-        write_png(out_dir / tile_relpath(*node.key), colored_rgba(values, self.stretch, self.lut), node.grid.transform)
+        write_tile(out_dir, node, colored_rgba(values, self.stretch, self.lut), self.tile_size)
 
 
 @dataclass(frozen=True)
 class HillshadeTiles:
     """Tile writer: the hillshade of DEM heights (metres), gray 0..255."""
 
+    tile_size: int
+
     def __call__(self, out_dir: Path, node: Node, children: Sequence[Node], values: np.ndarray) -> None:
         dx, dy = pixel_size_m(node.bounds, values.shape)
         shade = hillshade(values, dx, dy)
-        write_png(out_dir / tile_relpath(*node.key), to_rgba(shade, Stretch(0.0, 1.0, "range")), node.grid.transform)
+        write_tile(out_dir, node, to_rgba(shade, Stretch(0.0, 1.0, "range")), self.tile_size)
