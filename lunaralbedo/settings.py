@@ -41,6 +41,7 @@ _SPEC: dict[str, tuple[type, Any, tuple | None]] = {
     "USE_WEIGHTS": (int, 1, (0, 1)),
     "USE_NORMALIZED_COST_FUN": (int, 0, (0, 1)),
     "COMPUTE_ERRORS": (int, 1, (0, 1)),
+    "CAST_SHADOWS": (int, None, (0, 1)),  # None: on whenever a DEM is used (REFLECTANCE_TYPE >= 1)
 }
 
 
@@ -70,12 +71,20 @@ class Settings:
     use_weights: int = 1
     use_normalized_cost_fun: int = 0
     compute_errors: int = 1
+    cast_shadows: int | None = None
     source: Path | None = field(default=None, compare=False)
 
     @property
     def needs_geometry(self) -> bool:
         """True when a DEM and Sun/spacecraft positions are required."""
         return self.reflectance_type != 0
+
+    @property
+    def uses_cast_shadows(self) -> bool:
+        """Cast shadows from the DEM: CAST_SHADOWS when given, else on whenever a DEM is used."""
+        if not self.needs_geometry:
+            return False
+        return bool(self.cast_shadows) if self.cast_shadows is not None else True
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly echo (paths as strings)."""

@@ -27,6 +27,7 @@ from .io.atomic import atomic_write_text
 from .io.positions import write_positions
 from .io.rasters import MOON_CRS, write_geotiff
 from .model import geometry
+from .model.cast_shadows import cast_shadow_mask, shadow_reach_km
 from .model.reflectance import reflectance
 from .settings import legacy_text
 
@@ -54,6 +55,11 @@ class SceneSpec:
     use_normalized_cost_fun: int = 0
     shadow_thresh: float = 10.0
     seed: int = 7
+    gain: float = 120.0  # DN per unit of A T R
+    fresh_craters: float = 0.0  # fresh bowl craters per square degree (simulate.fresh_craters)
+    sun_azimuths: tuple[float, ...] = (90.0,)  # degrees clockwise from north, cycled over the images
+    cast_shadows: bool = False  # render cast shadows (and attached ones) lit by scattered light only
+    scatter: float = 0.25  # shadows receive this fraction of the flat ground's signal
 
     @property
     def step_px(self) -> int:
@@ -155,11 +161,14 @@ def _write_field(path: Path, fn, transform: Affine, shape: tuple[int, int], noda
 
 
 def _sun_and_spacecraft(spec: SceneSpec, k: int, lon_c: float, lat_c: float, rng) -> tuple[np.ndarray, np.ndarray]:
-    """Sun 1 AU away at the given incidence from the east-west plane; spacecraft above the centre."""
+    """Sun 1 AU away at the given incidence (+-3 degrees) and azimuth; spacecraft above the centre."""
     inc = np.radians(spec.sun_incidence_deg + rng.uniform(-3, 3))
+    az = np.radians(spec.sun_azimuths[k % len(spec.sun_azimuths)])
     up = geometry.body_fixed(lon_c, lat_c, 0.0) / MOON_RADIUS_KM
-    east = np.array([-np.sin(np.radians(lon_c)), np.cos(np.radians(lon_c)), 0.0])
-    sun_dir = np.cos(inc) * up + np.sin(inc) * east
+    lo, la = np.radians(lon_c), np.radians(lat_c)
+    east = np.array([-np.sin(lo), np.cos(lo), 0.0])
+    north = np.array([-np.sin(la) * np.cos(lo), -np.sin(la) * np.sin(lo), np.cos(la)])
+    sun_dir = np.cos(inc) * up + np.sin(inc) * (np.sin(az) * east + np.cos(az) * north)
     sun = sun_dir * 1.496e8
     off = rng.uniform(-0.08, 0.08, 2)  # a little off-nadir, degrees of arc
     sc = geometry.body_fixed(lon_c + off[0], lat_c + off[1], spec.altitude_km * 1000.0)
@@ -173,12 +182,15 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
     rng = np.random.default_rng(spec.seed)
     res = spec.res_deg
     width, height = spec.width_px, spec.image_px
-    # Global truth grid, with a margin of 8 px for the DEM; evaluated window by window.
+    # Global truth grid, with a margin for the DEM (8 px, or the longest cast shadow); evaluated window by window.
     m = 8
+    if spec.cast_shadows:
+        reach = shadow_reach_km(2.0 * spec.dem_relief_m, np.radians(87.0 - spec.sun_incidence_deg))
+        m = max(m, int(np.ceil(reach / (np.radians(res) * MOON_RADIUS_KM))) + 2)
     gt = Affine(res, 0, spec.lon0 - m * res, 0, -res, spec.lat0 + height * res + m * res)
     extent = (spec.lon0, spec.lon0 + width * res, spec.lat0, spec.lat0 + height * res)
     def dem_fn(lo, la):
-        return truth_dem(lo, la, extent, spec.dem_relief_m)
+        return truth_dem(lo, la, extent, spec.dem_relief_m, fresh_per_square_degree=spec.fresh_craters)
 
     def albedo_fn(lo, la):
         return truth_albedo(lo, la, extent)
@@ -188,7 +200,10 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
     u = np.linspace(-1, 1, spec.n_images)
     exposures = 1.0 + spec.exposure_spread * rng.permutation(u)
     # Scale so the brightest pixels stay below 255: DN = gain * A * T * R.
-    gain = 120.0
+    gain = spec.gain
+    dem_all = None
+    if spec.cast_shadows:
+        dem_all = dem_fn(*geometry.lonlat_grid(gt, (height + 2 * m, width + 2 * m)))
     sun_pos, sc_pos, keys = {}, {}, []
     for k in range(spec.n_images):
         key = f"SIM-IMG-{k:03d}"
@@ -202,7 +217,11 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
         sun, sc = _sun_and_spacecraft(spec, k, float(lon.mean()), float(lat.mean()), rng)
         ci, ce, al = geometry.illumination(pts, normals, sun, sc)
         r = reflectance(spec.reflectance_type, ci, ce, al, spec.c1, spec.c2)
-        r = np.where(ci >= 0.3, r, 0.0)
+        if dem_all is not None:  # shadows keep the scattered light, a fraction of the flat ground's signal
+            shade = cast_shadow_mask(dem_all, gt, sun, (m, m + height, c0, c0 + spec.image_px)) | (ci <= 0)
+            up = pts / np.linalg.norm(pts, axis=-1, keepdims=True)
+            flat = reflectance(spec.reflectance_type, *geometry.illumination(pts, up, sun, sc), spec.c1, spec.c2)
+            r = np.where(shade, spec.scatter * flat, r)
         signal = gain * albedo_fn(lon, lat) * exposures[k] * r
         dn = np.clip(np.round(signal + rng.normal(0, spec.noise_dn, signal.shape)), 0, 255).astype(np.uint8)
         alpha = np.full(dn.shape, 255, np.uint8)

@@ -126,3 +126,27 @@ def test_photk_settings_files_parse(photk_tests):
     s2 = load_settings(photk_tests / "photometry_settings_2.txt")
     assert s1.simulation_box == s2.simulation_box == (6.0, 10.0, -10.0, -9.0)
     assert s1.reflectance_type == 2 and s2.reflectance_type == 0 and s2.dem_dir is None
+
+
+@pytest.mark.parametrize("extra, reflectance, expected", [
+    ("", 2, True),  # default: on whenever a DEM is used
+    ("", 1, True),
+    ("CAST_SHADOWS 0\n", 2, False),
+    ("CAST_SHADOWS 1\n", 2, True),
+])
+def test_cast_shadows_default_on_with_a_dem(tmp_path, extra, reflectance, expected):
+    p = tmp_path / "s.txt"
+    p.write_text(LEGACY.replace("REFLECTANCE_TYPE          2", f"REFLECTANCE_TYPE {reflectance}") + extra)
+    assert load_settings(p).uses_cast_shadows is expected
+
+
+def test_cast_shadows_toml_and_mosaic(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text('drg_dir = "drg"\ndem_dir = "dem"\nsun_position_file = "s"\nspacecraft_position_file = "c"\n'
+                 "cast_shadows = false\n")
+    assert load_settings(p).uses_cast_shadows is False
+    p.write_text('drg_dir = "drg"\nreflectance_type = 0\ncast_shadows = true\n')
+    assert load_settings(p).uses_cast_shadows is False  # mosaic mode has no DEM
+    p.write_text('drg_dir = "drg"\ncast_shadows = 2\n')
+    with pytest.raises(SettingsError, match="CAST_SHADOWS must be one of 0, 1"):
+        load_settings(p)

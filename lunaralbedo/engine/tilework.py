@@ -16,8 +16,9 @@ import numpy as np
 from ..io.cache import load_stack, save_stack
 from ..io.rasters import read_dem_onto_grid, read_drg_onto_grid, write_geotiff
 from ..model import exposure_init, geometry, reflectance, shadows, updates
-from ..constants import MIN_COS_INCIDENCE
+from ..constants import MIN_COS_INCIDENCE_MODEL
 from .scene import Scene
+from .terrain import cast_shadow_masks
 
 
 @dataclass
@@ -64,6 +65,12 @@ def _geometry_stack(scene: Scene, tile):
     return dem[inner], pts[inner], normals[inner], ~np.isfinite(dem[inner])
 
 
+def _saturation(dtype: str) -> float | None:
+    """The saturated value of an integer DRG (its type's maximum, e.g. 255); None for float DRGs."""
+    dt = np.dtype(dtype)
+    return float(np.iinfo(dt).max) if dt.kind in "ui" else None
+
+
 def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
     """Read every image over tile ``t`` onto its grid, compute geometry, cache the stack.
 
@@ -81,17 +88,22 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
     thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
     per_image: dict[str, list] = {name: [] for name in ("image", "wblend", "usable", "geometric", "alpha", "cos_i")}
     keep = []
+    cast = cast_shadow_masks(scene, tile, scene.tile_images[t]) if geo is not None and s.uses_cast_shadows else {}
     for k in scene.tile_images[t]:
-        got = read_drg_onto_grid(scene.images[k], scene.profiles[k], tile.transform, (tile.height, tile.width), scene.crs, thresh)
+        info = scene.images[k]
+        got = read_drg_onto_grid(info, scene.profiles[k], tile.transform, (tile.height, tile.width), scene.crs, thresh,
+                                 saturation=_saturation(info.dtype))
         if got is None:
             continue
         val, ok, wt, use = got
         use &= val > 0
+        if int(k) in cast:
+            use &= ~cast[int(k)]
         layers = {}
         if geo is not None:
             dem, pts, normals, bad = geo
             ci, ce, al = geometry.illumination(pts, normals, scene.sun[k], scene.spacecraft[k])
-            use &= ~bad & (ci >= MIN_COS_INCIDENCE) & (ce > 0)
+            use &= ~bad & (ci >= MIN_COS_INCIDENCE_MODEL) & (ce > 0)
             if s.reflectance_type == reflectance.LUNAR_LAMBERT:
                 layers["geometric"] = reflectance.lunar_lambert_geometric(ci, ce, al)
             else:
