@@ -133,7 +133,8 @@ def test_skipped_cubes_are_reported_and_failures_write_nothing(realdata, tmp_pat
     out = CliRunner().invoke(main, ["ingest", *map(str, cubes), "--dem", str(SAMPLE / "dem"), "-o", str(tmp_path / "w")])
     assert out.exit_code == 0, out.output
     assert "skipped broken_____" in out.output and "skipped AS15-M-1450" in out.output
-    assert "pushframe geometry is not supported for orthoprojection" in out.output
+    # the WAC push-frame cube is modelled now; it is skipped per band only because it lies outside the sample DEM
+    assert "skipped M1181493B01" in out.output and "pushframe geometry is not supported" not in out.output
     assert sorted(p.name for p in (tmp_path / "w/DRG").iterdir()) == ["SIM-F-00001.tif"]
     assert list(read_positions(tmp_path / "w/meta/sunpos.txt")) == ["SIM-F-00001"]
     # nothing ingestible: exit 2 with the reasons, no settings file

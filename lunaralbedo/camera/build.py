@@ -70,10 +70,14 @@ def detector_map(label: IsisLabel) -> DetectorMap:
     return DetectorMap((s0, (s1 - s0) / ns), (l0, (l1 - l0) / nl), summing, line_summing, start, 1.0)
 
 
-def build_camera(label: IsisLabel, ephemeris, code: int) -> CameraModel:
-    """A frame camera or a line scanner for the cube (needs the ephemeris' instrument pointing)."""
+def build_camera(label: IsisLabel, ephemeris, code: int, band: int = 1) -> CameraModel:
+    """A frame camera, line scanner or (LRO WAC) push-frame camera for band ``band`` of the cube."""
     kind = camera_kind(label)
-    if kind in ("pushframe", "radar"):
+    if kind == "pushframe":
+        from .pushframe import build_pushframe
+
+        return build_pushframe(label, ephemeris, band)
+    if kind == "radar":
         raise IsisError(f"{label.path}: {kind} geometry is not supported for orthoprojection (positions are)")
     _b, lines, samples = label.shape
     focal = focal_plane(label, code)

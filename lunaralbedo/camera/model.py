@@ -101,6 +101,12 @@ class CameraModel:
             return float(self.knots[0])
         return float(self.timing.et(self.detector.alpha((self.samples + 1) / 2, (self.lines + 1) / 2)[1]))
 
+    def pixel_et(self, sample, line):
+        """Exposure time (s, TDB) of cube pixels (the frame time for a frame camera)."""
+        if self.timing is None:
+            return np.full(np.broadcast(np.asarray(sample), np.asarray(line)).shape, float(self.knots[0]))
+        return self.timing.et(self.detector.alpha(sample, line)[1])
+
     # -- state at an alpha line (line scanner) or the frame time ---------------------
     def _state(self, alpha_line):
         if self.timing is None:

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from ..engine.solve import METHODS
-from ._common import reports_errors
+from ._common import parallel_options, reports_errors
 
 
 def _print_summary(result) -> None:
@@ -35,8 +35,7 @@ def _print_summary(result) -> None:
 @click.option("--method", type=click.Choice(METHODS), default="overlap", show_default=True,
               help="overlap: exposures initialised from image overlaps and damped phase step; seed: the manual's plain updates.")
 @click.option("--legacy", is_flag=True, help="Follow PhotometryTK's conventions exactly (uint8 tiles, legacy output tree).")
-@click.option("--workers", type=int, default=None, help="Local worker processes (default: NUM_PROCESSES capped at the CPU count).")
-@click.option("--scheduler", default=None, help="Address of an existing dask.distributed scheduler (tcp://host:port).")
+@parallel_options("NUM_PROCESSES capped at the CPU count")
 @click.option("--cluster", type=click.Choice(["pbs", "slurm"]), default=None, help="Start workers as batch jobs (dask-jobqueue).")
 @click.option("--queue", default=None, help="Batch queue / partition (with --cluster).")
 @click.option("--cores", type=int, default=None, help="Cores per batch job (with --cluster).")

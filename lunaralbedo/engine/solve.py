@@ -25,7 +25,7 @@ from ..io import outputs
 from ..io.atomic import remove_stale_temporaries
 from ..model import exposure_init, reflectance, updates
 from ..settings import Settings, load_settings
-from .executor import make_executor
+from ..parallel import local_workers, make_executor
 from .scene import Scene, build_scene
 from .tilework import SolveState, finalize_tile, iterate_tile, prepare_tile
 
@@ -142,10 +142,7 @@ def solve(
         raise SettingsError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     out = Path(out).resolve() if out is not None else default_out_dir(settings)
     max_iter = settings.max_num_iter if max_iter is None else max_iter
-    if workers is None:
-        import os
-
-        workers = max(1, min(settings.num_processes, os.cpu_count() or 1))
+    workers = local_workers(workers, settings.num_processes)
     created = _check_out_dir(out, settings, resume)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()

@@ -31,3 +31,35 @@ def make_keys(paths: Sequence[str | Path]) -> list[str]:
         used.add(key)
         keys.append(key)
     return keys
+
+
+def _bands(path: Path) -> list[float | None]:
+    """Band centres (nm) of a Level-1 push-frame cube (one DRG each), else ``[None]`` (band 1 only)."""
+    from ..camera.timing import camera_kind
+    from ..errors import LunarAlbedoError
+    from ..isis.labels import read_label, value_of
+
+    try:
+        label = read_label(path)
+        if label.is_map_projected or not label.has("Instrument") or camera_kind(label) != "pushframe":
+            return [None]
+        c = value_of(label.group("BandBin")["Center"])
+        centers = [float(value_of(x)) for x in (c if isinstance(c, (list, tuple)) else [c])]
+        return centers if len(centers) == label.shape[0] else [None]
+    except (LunarAlbedoError, KeyError, ValueError, TypeError):
+        return [None]  # the cube's own task reports what is wrong with it
+
+
+def band_items(paths: Sequence[str | Path]) -> list[tuple[Path, str, int, float | None]]:
+    """``(path, key, band, centre nm)`` per DRG to make: one per band of multi-band push-frame cubes.
+
+    Band ``b`` of such a cube gets the key ``<first 8 characters of its key>B<bb>`` (e.g. ``M1181493B01``).
+    """
+    items = []
+    for path, key in zip(paths, make_keys(paths)):
+        centers = _bands(Path(path))
+        if len(centers) == 1:
+            items.append((Path(path), key, 1, centers[0]))
+        else:
+            items.extend((Path(path), key[: KEY_LENGTH - 3] + f"B{b:02d}", b, c) for b, c in enumerate(centers, 1))
+    return items

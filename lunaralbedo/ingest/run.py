@@ -19,9 +19,10 @@ from ..io.positions import write_positions
 from ..isis.pixels import read_band
 from ..spice.kernels import expand_kernel_args
 from ..camera.build import build_camera
+from ..camera.pushframe import PushFrameCamera
 from .dem import DemMosaic, load_dems
 from .grid import mpp_to_degrees
-from .keys import make_keys
+from .keys import band_items
 from .observation import open_observation
 from .orthoproject import footprint, level2_bounds, orthoproject, warp_level2
 from .workdir import remove_stale_drgs, write_dem, write_drg, write_settings
@@ -33,6 +34,8 @@ class CubeResult:
 
     path: Path
     key: str
+    band: int = 1
+    band_center_nm: float | None = None
     box: tuple[float, float, float, float] | None = None
     valid_pixels: int = 0
     grid_pixels: int = 0
@@ -85,8 +88,12 @@ def _ingest_one(res: CubeResult, obs, dem: DemMosaic, mpp_deg, drg_dir: Path, le
         res.kind = "level2"
         lon, lat = level2_bounds(label)
     else:
-        camera = build_camera(label, obs.ephemeris, obs.code)
+        camera = build_camera(label, obs.ephemeris, obs.code, band=res.band)
         res.kind = "line scanner" if camera.is_line_scanner else "frame camera"
+        if isinstance(camera, PushFrameCamera):  # positions at this band's centre time (framelet timing)
+            res.kind = f"push-frame band {res.band}"
+            res.sun = np.asarray(obs.ephemeris.sun(camera.center_et), dtype=np.float64)
+            res.spacecraft = np.asarray(obs.ephemeris.spacecraft(camera.center_et), dtype=np.float64)
         lon, lat = footprint(camera, dem.height)
     box = _box(_normalize_lon(lon, dem), lat)
     if box is None:
@@ -96,20 +103,20 @@ def _ingest_one(res: CubeResult, obs, dem: DemMosaic, mpp_deg, drg_dir: Path, le
     if label.is_map_projected:
         values = warp_level2(label, grid)
     else:
-        values = orthoproject(camera, read_band(label, 1), grid, heights)
+        values = orthoproject(camera, read_band(label, res.band), grid, heights)
     res.seconds = time.perf_counter() - t0
     res.valid_pixels = int(np.isfinite(values).sum())
     res.grid_pixels = int(values.size)
     if res.valid_pixels == 0:
         raise InputError(f"{res.path}: no pixel of the image falls on the DEM")
     res.box = box
-    write_drg(drg_dir / f"{res.key}.tif", values, grid, legacy_8bit)
+    write_drg(drg_dir / f"{res.key}.tif", values, grid, legacy_8bit, res.band_center_nm)
 
 
 def _process_cube(item, *, extra, isisdata, source, dem: DemMosaic, mpp_deg, drg_dir: Path, legacy_8bit: bool) -> CubeResult:
     """One task of the ingest graph: positions and DRG of one cube (skipped with the reason on error)."""
-    path, key = item
-    res = CubeResult(Path(path), key)
+    path, key, band, center = item
+    res = CubeResult(Path(path), key, band, center)
     try:
         with open_observation(path, key, extra, isisdata, source) as obs:
             res.source, res.sun, res.spacecraft = obs.source, obs.sun.copy(), obs.spacecraft.copy()
@@ -135,7 +142,7 @@ def ingest(cubes: Sequence[str | Path], dems: Sequence[str | Path], workdir: str
     SPICE kernel pool).  ``on_cube`` is called for each result, in the cubes' order.
     Raises :class:`InputError` when no cube could be ingested.
     """
-    from ..engine.executor import make_executor
+    from ..parallel import make_executor
 
     workdir = Path(workdir)
     if not cubes:
@@ -150,7 +157,7 @@ def ingest(cubes: Sequence[str | Path], dems: Sequence[str | Path], workdir: str
     executor = make_executor(workers, scheduler, progress=progress)
     try:
         results = executor.map(
-            _process_cube, list(zip(cubes, make_keys(cubes))), "ingest", shared=("dem",),
+            _process_cube, band_items(cubes), "ingest", shared=("dem",),
             extra=extra, isisdata=isisdata, source=source, dem=dem, mpp_deg=mpp_deg, drg_dir=drg_dir, legacy_8bit=legacy_8bit,
         )
     finally:

@@ -22,17 +22,23 @@ from .grid import Grid
 NO_DEM = -32767.0
 
 
-def write_drg(path: Path, values: np.ndarray, grid: Grid, legacy_8bit: bool = False) -> None:
-    """One DRG: float32 value + mask bands, or (legacy) uint8 stretch + 0/255 alpha."""
+def write_drg(path: Path, values: np.ndarray, grid: Grid, legacy_8bit: bool = False, band_center_nm=None) -> None:
+    """One DRG: float32 value + mask bands, or (legacy) uint8 stretch + 0/255 alpha.
+
+    ``band_center_nm`` (the cube band's wavelength) goes into the first band's
+    description (``"<centre> nm"``) and tag ``band_center_nm``.
+    """
+    meta = {} if band_center_nm is None else dict(descriptions=[f"{band_center_nm:g} nm"],
+                                                   tags=[dict(band_center_nm=f"{band_center_nm:g}")])
     valid = np.isfinite(values)
     if legacy_8bit:
         hi = float(np.percentile(values[valid], 99.5)) if valid.any() else 1.0
         v = np.clip(np.round(values / (hi if hi > 0 else 1.0) * 200.0), 1, 255)
         bands = np.stack([np.where(valid, v, 0), np.where(valid, 255, 0)]).astype(np.uint8)
-        write_geotiff(path, bands, grid.transform, MOON_CRS, nodata=None, dtype="uint8")
+        write_geotiff(path, bands, grid.transform, MOON_CRS, nodata=None, dtype="uint8", **meta)
         return
     bands = np.stack([np.where(valid, values, np.nan), valid.astype(np.float64)]).astype(np.float32)
-    write_geotiff(path, bands, grid.transform, MOON_CRS, nodata=float("nan"), dtype="float32")
+    write_geotiff(path, bands, grid.transform, MOON_CRS, nodata=float("nan"), dtype="float32", **meta)
 
 
 def remove_stale_drgs(drg_dir: Path, keep: set[str]) -> list[Path]:

@@ -229,8 +229,12 @@ def write_geotiff(
     nodata: float | None = None,
     dtype: str | None = None,
     compress: str = "zstd",
+    descriptions: Sequence[str] | None = None,
+    tags: Sequence[dict] | None = None,
 ) -> None:
     """Write one or more bands as a GeoTIFF, atomically (temp file + rename).
+
+    ``descriptions`` and ``tags`` (one dict per band) are written with the pixels.
 
     Default compression is ZSTD (level 1) with the floating-point or horizontal
     predictor: about 4x faster to write than DEFLATE at the same size; GDAL >= 2.3,
@@ -258,6 +262,10 @@ def write_geotiff(
     with atomic_path(path) as tmp:
         with rasterio.open(tmp, "w", **profile) as dst:
             dst.write(arr.astype(dtype, copy=False))
+            for k, text in enumerate(descriptions or ()):
+                dst.set_band_description(k + 1, text)
+            for k, band_tags in enumerate(tags or ()):
+                dst.update_tags(k + 1, **band_tags)
 
 
 def read_drg_onto_grid(

@@ -1,0 +1,1 @@
+"""Photometric functions of the Moon (pure NumPy): a registry of reflectance models."""
