@@ -30,7 +30,7 @@ _SPEC: dict[str, tuple[type, Any, tuple | None]] = {
     "NUM_PROCESSES": (int, 1, None),
     "TILE_SIZE": (float, 4.0, None),
     "SIMULATION_BOX": (tuple, (-180.0, 180.0, -90.0, 90.0), None),
-    "REFLECTANCE_TYPE": (int, 2, (0, 1, 2)),
+    "REFLECTANCE_TYPE": (int, 2, (0, 1, 2, 3)),
     "SHADOW_THRESH": (float, 40.0, None),
     "SHADOW_TYPE": (int, 1, (0, 1, 2, 3)),
     "TR_CONST": (float, 1.5, None),
@@ -42,7 +42,13 @@ _SPEC: dict[str, tuple[type, Any, tuple | None]] = {
     "USE_NORMALIZED_COST_FUN": (int, 0, (0, 1)),
     "COMPUTE_ERRORS": (int, 1, (0, 1)),
     "CAST_SHADOWS": (int, None, (0, 1)),  # None: on whenever a DEM is used (REFLECTANCE_TYPE >= 1)
+    "HAPKE_PARAMETERS": (Path, None, None),  # ISIS-style PVL (REFLECTANCE_TYPE 3)
+    "HAPKE_PARAMETER_MAP": (Path, None, None),  # optional parameter cube (Sato et al. WAC map)
+    "HAPKE_BAND_CENTER": (float, None, None),  # nm: which Parameters group, when the PVL has several
 }
+
+#: TOML ``reflectance = "<model>"`` names of REFLECTANCE_TYPE.
+REFLECTANCE_NAMES = {"mosaic": 0, "lambert": 1, "lunar-lambert": 2, "hapke": 3}
 
 
 @dataclass(frozen=True)
@@ -72,6 +78,9 @@ class Settings:
     use_normalized_cost_fun: int = 0
     compute_errors: int = 1
     cast_shadows: int | None = None
+    hapke_parameters: Path | None = None
+    hapke_parameter_map: Path | None = None
+    hapke_band_center: float | None = None
     source: Path | None = field(default=None, compare=False)
 
     @property
@@ -179,8 +188,10 @@ def _validate(values: dict[str, Any], where: str) -> None:
         for key in ("DEM_DIR", "SUN_POSITION_FILE", "SPACECRAFT_POSITION_FILE"):
             if values.get(key) is None:
                 raise SettingsError(
-                    f"{where}: {key} is required when REFLECTANCE_TYPE is 1 or 2 (only 0, mosaic mode, runs without it)"
+                    f"{where}: {key} is required when REFLECTANCE_TYPE is 1, 2 or 3 (only 0, mosaic mode, runs without it)"
                 )
+    if values["REFLECTANCE_TYPE"] == 3 and values.get("HAPKE_PARAMETERS") is None:
+        raise SettingsError(f"{where}: HAPKE_PARAMETERS (an ISIS-style PVL) is required when REFLECTANCE_TYPE is 3 (Hapke)")
 
 
 def _build(pairs: list[tuple[str, Any, str]], base: Path, source: Path) -> Settings:
@@ -222,6 +233,10 @@ def parse_toml(text: str, source: Path) -> Settings:
     for key, raw in data.items():
         if isinstance(raw, dict):
             raise SettingsError(f"{source}: tables are not allowed (key {key!r}); write settings at top level")
+        if key == "reflectance":  # the model by name
+            if raw not in REFLECTANCE_NAMES:
+                raise SettingsError(f"{source}: reflectance must be one of {', '.join(REFLECTANCE_NAMES)}, got {raw!r}")
+            key, raw = "reflectance_type", REFLECTANCE_NAMES[raw]
         pairs.append((key.upper(), raw, f"{source}: key {key!r}"))
     return _build(pairs, source.parent, source)
 

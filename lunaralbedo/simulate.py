@@ -28,8 +28,24 @@ from .io.positions import write_positions
 from .io.rasters import MOON_CRS, write_geotiff
 from .model import geometry
 from .model.cast_shadows import cast_shadow_mask, shadow_reach_km
+from .model.photometry.hapke_solver import HapkeModel
 from .model.reflectance import reflectance
 from .settings import legacy_text
+
+
+#: HapkeLROC constants of the forward model's Hapke scenes (THETA in degrees), reference geometry (60, 0, 60).
+HAPKE_DEFAULTS = {"W": 0.3, "B": 0.25, "C": 0.6, "BCO": 0.9, "HC": 0.06, "BSO": 1.6, "HS": 0.07, "THETA": 20.0, "PHI": 0.4}
+HAPKE_REFERENCE = (60.0, 0.0, 60.0)
+
+
+def hapke_pvl_text(constants: dict, reference=HAPKE_REFERENCE) -> str:
+    """An ISIS-style HapkeLROC parameter file with constant parameters (the solver's HAPKE_PARAMETERS)."""
+    lines = ["Object = PhotometricModel", "  Units  = Degrees"]
+    lines += [f"  {k} = {v:g}" for k, v in zip(("Incref", "Emiref", "Pharef"), reference)]
+    lines += ["  Group = Algorithm", "    Name = HapkeLROC", "  EndGroup", "  Group = Parameters"]
+    lines += [f"    {k} = {v:g}" for k, v in constants.items()]
+    lines += ["  EndGroup", "EndObject", "End"]
+    return "\n".join(lines) + "\n"
 
 
 @dataclass
@@ -60,6 +76,8 @@ class SceneSpec:
     sun_azimuths: tuple[float, ...] = (90.0,)  # degrees clockwise from north, cycled over the images
     cast_shadows: bool = False  # render cast shadows (and attached ones) lit by scattered light only
     scatter: float = 0.25  # shadows receive this fraction of the flat ground's signal
+    hapke: dict | None = None  # REFLECTANCE_TYPE 3: HapkeLROC constants (HAPKE_DEFAULTS when None)
+
 
     @property
     def step_px(self) -> int:
@@ -201,6 +219,11 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
     exposures = 1.0 + spec.exposure_spread * rng.permutation(u)
     # Scale so the brightest pixels stay below 255: DN = gain * A * T * R.
     gain = spec.gain
+    hapke = None
+    if spec.reflectance_type == 3:
+        constants = spec.hapke or HAPKE_DEFAULTS
+        hapke = HapkeModel("HapkeLROC", HAPKE_REFERENCE, dict(constants))
+        atomic_write_text(out / "meta" / "hapke.pvl", hapke_pvl_text(constants))
     dem_all = None
     if spec.cast_shadows:
         dem_all = dem_fn(*geometry.lonlat_grid(gt, (height + 2 * m, width + 2 * m)))
@@ -216,11 +239,11 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
         pts, lon, lat = pts[1:-1, 1:-1], lon[1:-1, 1:-1], lat[1:-1, 1:-1]
         sun, sc = _sun_and_spacecraft(spec, k, float(lon.mean()), float(lat.mean()), rng)
         ci, ce, al = geometry.illumination(pts, normals, sun, sc)
-        r = reflectance(spec.reflectance_type, ci, ce, al, spec.c1, spec.c2)
+        r = reflectance(spec.reflectance_type, ci, ce, al, spec.c1, spec.c2, hapke)
         if dem_all is not None:  # shadows keep the scattered light, a fraction of the flat ground's signal
             shade = cast_shadow_mask(dem_all, gt, sun, (m, m + height, c0, c0 + spec.image_px)) | (ci <= 0)
             up = pts / np.linalg.norm(pts, axis=-1, keepdims=True)
-            flat = reflectance(spec.reflectance_type, *geometry.illumination(pts, up, sun, sc), spec.c1, spec.c2)
+            flat = reflectance(spec.reflectance_type, *geometry.illumination(pts, up, sun, sc), spec.c1, spec.c2, hapke)
             r = np.where(shade, spec.scatter * flat, r)
         signal = gain * albedo_fn(lon, lat) * exposures[k] * r
         dn = np.clip(np.round(signal + rng.normal(0, spec.noise_dn, signal.shape)), 0, 255).astype(np.uint8)
@@ -251,6 +274,7 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
             "USE_WEIGHTS": 1,
             "USE_NORMALIZED_COST_FUN": spec.use_normalized_cost_fun,
             "COMPUTE_ERRORS": 1,
+            "HAPKE_PARAMETERS": "meta/hapke.pvl" if hapke is not None else None,
         },
         f"Synthetic scene rendered by lunaralbedo.simulate (seed {spec.seed})",
     )

@@ -126,6 +126,10 @@ def build_scene(settings: Settings, skip_missing: bool = False, map_fn=map) -> S
     for im in images:
         if crs0 is not None and im.crs is not None and geographic_crs(im.crs) != crs0:
             raise InputError(f"{im.path}: its body/datum differs from the first DRG's ({images[0].path})")
+    if settings.reflectance_type == 3:  # Hapke: a bad parameter file fails here, before any tile work
+        from .terrain import solver_hapke
+
+        solver_hapke(settings)
     images, sun, sc = _positions(settings, images, skip_missing, skipped)
     if not images:
         raise SolverError("no DRG left after skipping images without positions")

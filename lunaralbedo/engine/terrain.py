@@ -1,4 +1,4 @@
-"""Terrain of one tile: the DEM with the margin cast shadows need, and each image's cast-shadow mask.
+"""Terrain of one tile: the DEM with the margin cast shadows need, each image's cast-shadow mask, the Hapke setup.
 
 The margin is found from the terrain itself: the DEM is read around the tile, the
 longest shadow its relief can cast into the tile with the lowest Sun of the tile's
@@ -9,6 +9,7 @@ the margin (up to :data:`~lunaralbedo.model.cast_shadows.MAX_REACH_KM`).
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import numpy as np
 from rasterio.transform import Affine
@@ -56,3 +57,15 @@ def cast_shadow_masks(scene, tile, images) -> dict[int, np.ndarray]:
         margin = min(max(need, 2 * margin), max_margin)
     window = (margin, margin + tile.height, margin, margin + tile.width)
     return {int(k): cast_shadow_mask(dem, transform, scene.sun[k], window) for k in images}
+
+
+def solver_hapke(settings):
+    """The Hapke model and parameter source of REFLECTANCE_TYPE 3 (parsed once per process)."""
+    return _solver_hapke(settings.hapke_parameters, settings.hapke_parameter_map, settings.hapke_band_center)
+
+
+@lru_cache(maxsize=4)
+def _solver_hapke(pvl, pmap, center):
+    from ..phocorr.solver_params import load_solver_hapke
+
+    return load_solver_hapke(pvl, pmap, center)

@@ -18,7 +18,7 @@ from ..io.rasters import read_dem_onto_grid, read_drg_onto_grid, write_geotiff
 from ..model import exposure_init, geometry, reflectance, shadows, updates
 from ..constants import MIN_COS_INCIDENCE_MODEL
 from .scene import Scene
-from .terrain import cast_shadow_masks
+from .terrain import cast_shadow_masks, solver_hapke
 
 
 @dataclass
@@ -89,6 +89,7 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
     per_image: dict[str, list] = {name: [] for name in ("image", "wblend", "usable", "geometric", "alpha", "cos_i")}
     keep = []
     cast = cast_shadow_masks(scene, tile, scene.tile_images[t]) if geo is not None and s.uses_cast_shadows else {}
+    hapke, hapke_params = (solver_hapke(s) if s.reflectance_type == reflectance.HAPKE else None), None
     for k in scene.tile_images[t]:
         info = scene.images[k]
         got = read_drg_onto_grid(info, scene.profiles[k], tile.transform, (tile.height, tile.width), scene.crs, thresh,
@@ -106,6 +107,10 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
             use &= ~bad & (ci >= MIN_COS_INCIDENCE_MODEL) & (ce > 0)
             if s.reflectance_type == reflectance.LUNAR_LAMBERT:
                 layers["geometric"] = reflectance.lunar_lambert_geometric(ci, ce, al)
+            elif s.reflectance_type == reflectance.HAPKE:
+                if hapke_params is None:
+                    hapke_params = hapke.params_at(*geometry.lonlat_grid(tile.transform, (tile.height, tile.width)))
+                layers["geometric"] = hapke.model.normalised(ci, ce, al, hapke_params)
             else:
                 layers["geometric"] = np.where(ci > 0, ci, 0.0)
             layers["alpha"] = al
@@ -144,7 +149,7 @@ def _reflectance(arrays, kind, c):
     if kind == reflectance.MOSAIC:
         return np.ones_like(arrays["image"]), None, None, None
     g = np.asarray(arrays["geometric"])
-    if kind == reflectance.LAMBERT:
+    if kind in (reflectance.LAMBERT, reflectance.HAPKE):
         return g, None, None, None
     a = np.asarray(arrays["alpha"])
     e = np.exp(np.float32(-c[0]) * a)

@@ -24,6 +24,7 @@ from ..constants import LUNAR_LAMBERT_A, LUNAR_LAMBERT_B, LUNAR_LAMBERT_C
 LAMBERT = 1
 LUNAR_LAMBERT = 2
 MOSAIC = 0
+HAPKE = 3  # normalised Hapke (model.photometry.hapke_solver), no fitted parameters
 
 
 def lunar_lambert_weight(alpha_deg):
@@ -57,8 +58,11 @@ def phase_factor_derivatives(alpha_rad, c1):
     return -a * np.exp(-c1 * a), np.ones_like(a)
 
 
-def reflectance(kind, cos_i, cos_e, alpha_rad, c1=1.4, c2=0.5):
-    """Reflectance of kind 0 (mosaic: 1), 1 (Lambertian: cos i) or 2 (Lunar-Lambertian, eq. 2)."""
+def reflectance(kind, cos_i, cos_e, alpha_rad, c1=1.4, c2=0.5, hapke=None):
+    """Reflectance of kind 0 (mosaic: 1), 1 (Lambertian: cos i), 2 (Lunar-Lambertian, eq. 2) or 3 (``hapke``,
+    a :class:`~lunaralbedo.model.photometry.hapke_solver.HapkeModel` with constant parameters, normalised)."""
+    if kind == HAPKE:
+        return hapke.normalised(cos_i, cos_e, alpha_rad)
     if kind == MOSAIC:
         return np.ones(np.shape(cos_i))
     if kind == LAMBERT:
@@ -66,4 +70,4 @@ def reflectance(kind, cos_i, cos_e, alpha_rad, c1=1.4, c2=0.5):
         return np.where(ci > 0, ci, 0.0)
     if kind == LUNAR_LAMBERT:
         return phase_factor(alpha_rad, c1, c2) * lunar_lambert_geometric(cos_i, cos_e, alpha_rad)
-    raise ValueError(f"reflectance kind must be 0, 1 or 2, got {kind!r}")
+    raise ValueError(f"reflectance kind must be 0, 1, 2 or 3, got {kind!r}")
