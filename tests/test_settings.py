@@ -105,7 +105,7 @@ def test_invalid_values_name_key_and_allowed_values(tmp_path, line, words):
 
 
 def test_geometry_required_for_lunar_lambert(tmp_path):
-    with pytest.raises(SettingsError, match="DEM_DIR is required when REFLECTANCE_TYPE is 1 or 2"):
+    with pytest.raises(SettingsError, match="DEM_DIR is required when REFLECTANCE_TYPE is 1, 2 or 3"):
         load_settings(write(tmp_path, "DRG_DIR d\nREFLECTANCE_TYPE 2\n"))
 
 
