@@ -15,7 +15,7 @@ KEY_LENGTH = 11
 #: The legacy program treated reflectance as zero when cos(i) is below this (``--legacy`` keeps it).
 MIN_COS_INCIDENCE = 0.3
 
-#: The solver's own limit: incidence up to 85 degrees (docs/solver-photometry.md).  Below it, an
+#: The solver's own limit: incidence up to 85 degrees (docs/photometry.md, "In the solver").  Below it, an
 #: observation enters the albedo with the weight w (T R)^2 its signal earns; beyond it a 1-degree
 #: error of the DEM normal changes R by more than 20 % (tan 85 deg = 11.4), so the model is not trusted.
 MIN_COS_INCIDENCE_MODEL = 0.087
