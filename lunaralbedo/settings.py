@@ -45,6 +45,7 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     "USE_WEIGHTS": (int, 1, (0, 1)),
     "USE_NORMALIZED_COST_FUN": (int, 0, (0, 1)),
     "COMPUTE_ERRORS": (int, 1, (0, 1)),
+    "CAST_SHADOWS": (int, None, (0, 1)),  # None: on whenever the model uses a DEM
     "REFLECTANCE": (str, None, tuple(photometry.names())),  # the model by name (TOML); wins over REFLECTANCE_TYPE
 }
 _MODEL_KEYS = photometry.declared_settings()
@@ -76,6 +77,7 @@ class Settings:
     use_weights: int = 1
     use_normalized_cost_fun: int = 0
     compute_errors: int = 1
+    cast_shadows: int | None = None
     #: Values of the model-declared keys, ``((LEGACY_KEY, value), ...)``; read as attributes (``s.phase_coeff_c1``).
     model_settings: tuple[tuple[str, Any], ...] = ()
     source: Path | None = field(default=None, compare=False)
@@ -106,15 +108,24 @@ class Settings:
         """True when a DEM and Sun/spacecraft positions are required."""
         return self.model.needs_geometry
 
+    @property
+    def uses_cast_shadows(self) -> bool:
+        """Cast shadows from the DEM: CAST_SHADOWS when given, else on whenever a DEM is used."""
+        if not self.needs_geometry:
+            return False
+        return bool(self.cast_shadows) if self.cast_shadows is not None else True
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly echo (paths as strings); model-declared keys in snake_case like the others."""
+        def plain(v):
+            return str(v) if isinstance(v, Path) else (list(v) if isinstance(v, tuple) else v)
+
         out = {}
         for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
             if f.name == "model_settings":
-                out.update({k.lower(): getattr(self, k.lower()) for k in _MODEL_KEYS})
+                out.update({k.lower(): plain(getattr(self, k.lower())) for k in _MODEL_KEYS})
                 continue
-            out[f.name] = str(v) if isinstance(v, Path) else (list(v) if isinstance(v, tuple) else v)
+            out[f.name] = plain(getattr(self, f.name))
         return out
 
     def to_legacy_text(self) -> str:

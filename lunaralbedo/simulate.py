@@ -23,11 +23,13 @@ import numpy as np
 from rasterio.transform import Affine
 
 from .constants import MOON_RADIUS_KM
+from .engine.photometry import bind
 from .io.atomic import atomic_write_text
 from .io.positions import write_positions
 from .io.rasters import MOON_CRS, write_geotiff
 from .model import geometry
 from .model import photometry
+from .model.cast_shadows import cast_shadow_mask, shadow_reach_km
 from .settings import legacy_text
 
 
@@ -54,6 +56,11 @@ class SceneSpec:
     use_normalized_cost_fun: int = 0
     shadow_thresh: float = 10.0
     seed: int = 7
+    gain: float = 120.0  # DN per unit of A T R
+    fresh_craters: float = 0.0  # fresh bowl craters per square degree (simulate.fresh_craters)
+    sun_azimuths: tuple[float, ...] = (90.0,)  # degrees clockwise from north, cycled over the images
+    cast_shadows: bool = False  # render cast shadows (and attached ones) lit by scattered light only
+    scatter: float = 0.25  # shadows receive this fraction of the flat ground's signal
 
     @property
     def step_px(self) -> int:
@@ -95,12 +102,44 @@ def truth_albedo(lon, lat, extent, seed=3):
     return np.clip(a, 0.3, 1.8)
 
 
-def truth_dem(lon, lat, extent, relief_m, seed=5):
-    """Heights (metres above the 1737.4 km sphere) with gentle hills and craters over ``extent``."""
+def truth_dem(lon, lat, extent, relief_m, seed=5, fresh_per_square_degree=0.0):
+    """Heights (metres above the 1737.4 km sphere) with gentle hills and craters over ``extent``.
+
+    With ``fresh_per_square_degree`` > 0, fresh bowl craters (:func:`fresh_craters`) are added.
+    """
     h = relief_m * 0.3 * np.sin(2.5 * lon) * np.cos(3.1 * lat)
     for cx, cy, r, _ in _near(_features(extent, 2.5, seed), lon, lat, 3):
         d2 = ((lon - cx) ** 2 + (lat - cy) ** 2) / (r * r)
         h = h + relief_m * (-np.exp(-d2 * 2) + 0.4 * np.exp(-((np.sqrt(d2) - 1) ** 2) * 8))
+    if fresh_per_square_degree > 0:
+        h = h + fresh_craters(lon, lat, extent, fresh_per_square_degree, seed + 50)
+    return h
+
+
+def fresh_craters(lon, lat, extent, per_square_degree, seed=55):
+    """Heights (metres) of fresh simple craters: parabolic bowls, depth 0.2 x diameter, raised rims.
+
+    Radii 0.6-2.4 km (0.02-0.08 degrees); inside the rim (normalised radius
+    :math:`\rho < 1`) :math:`h = d(\rho^2 - 1) + h_r`, outside :math:`h_r\rho^{-3}`, with
+    depth :math:`d = 0.4 r` and rim height :math:`h_r = 0.08 r` (walls ~39 degrees at the rim), the
+    outer flank brought smoothly to zero at 4 radii.
+    """
+    rng = np.random.default_rng(seed)
+    area = (extent[1] - extent[0]) * (extent[3] - extent[2])
+    n = max(1, int(round(per_square_degree * area)))
+    cx = rng.uniform(extent[0], extent[1], n)
+    cy = rng.uniform(extent[2], extent[3], n)
+    rad = 0.02 * 4.0 ** rng.uniform(0, 1, n)
+    h = np.zeros(np.broadcast(lon, lat).shape)
+    lo0, lo1, la0, la1 = np.min(lon), np.max(lon), np.min(lat), np.max(lat)
+    for x, y, r in zip(cx, cy, rad):
+        if not (lo0 - 4 * r <= x <= lo1 + 4 * r and la0 - 4 * r <= y <= la1 + 4 * r):
+            continue
+        rho = np.sqrt((lon - x) ** 2 + (lat - y) ** 2) / r
+        r_m = np.radians(r) * MOON_RADIUS_KM * 1000.0
+        depth, rim = 0.4 * r_m, 0.08 * r_m
+        outside = rim * np.clip((np.maximum(rho, 1) ** -3 - 1 / 64) / (1 - 1 / 64), 0, None)  # zero from 4 radii
+        h += np.where(rho < 1, depth * (rho**2 - 1) + rim, outside)
     return h
 
 
@@ -123,11 +162,14 @@ def _write_field(path: Path, fn, transform: Affine, shape: tuple[int, int], noda
 
 
 def _sun_and_spacecraft(spec: SceneSpec, k: int, lon_c: float, lat_c: float, rng) -> tuple[np.ndarray, np.ndarray]:
-    """Sun 1 AU away at the given incidence from the east-west plane; spacecraft above the centre."""
+    """Sun 1 AU away at the given incidence (+-3 degrees) and azimuth; spacecraft above the centre."""
     inc = np.radians(spec.sun_incidence_deg + rng.uniform(-3, 3))
+    az = np.radians(spec.sun_azimuths[k % len(spec.sun_azimuths)])
     up = geometry.body_fixed(lon_c, lat_c, 0.0) / MOON_RADIUS_KM
-    east = np.array([-np.sin(np.radians(lon_c)), np.cos(np.radians(lon_c)), 0.0])
-    sun_dir = np.cos(inc) * up + np.sin(inc) * east
+    lo, la = np.radians(lon_c), np.radians(lat_c)
+    east = np.array([-np.sin(lo), np.cos(lo), 0.0])
+    north = np.array([-np.sin(la) * np.cos(lo), -np.sin(la) * np.sin(lo), np.cos(la)])
+    sun_dir = np.cos(inc) * up + np.sin(inc) * (np.sin(az) * east + np.cos(az) * north)
     sun = sun_dir * 1.496e8
     off = rng.uniform(-0.08, 0.08, 2)  # a little off-nadir, degrees of arc
     sc = geometry.body_fixed(lon_c + off[0], lat_c + off[1], spec.altitude_km * 1000.0)
@@ -141,12 +183,15 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
     rng = np.random.default_rng(spec.seed)
     res = spec.res_deg
     width, height = spec.width_px, spec.image_px
-    # Global truth grid, with a margin of 8 px for the DEM; evaluated window by window.
+    # Global truth grid, with a margin for the DEM (8 px, or the longest cast shadow); evaluated window by window.
     m = 8
+    if spec.cast_shadows:
+        reach = shadow_reach_km(2.0 * spec.dem_relief_m, np.radians(87.0 - spec.sun_incidence_deg))
+        m = max(m, int(np.ceil(reach / (np.radians(res) * MOON_RADIUS_KM))) + 2)
     gt = Affine(res, 0, spec.lon0 - m * res, 0, -res, spec.lat0 + height * res + m * res)
     extent = (spec.lon0, spec.lon0 + width * res, spec.lat0, spec.lat0 + height * res)
     def dem_fn(lo, la):
-        return truth_dem(lo, la, extent, spec.dem_relief_m)
+        return truth_dem(lo, la, extent, spec.dem_relief_m, fresh_per_square_degree=spec.fresh_craters)
 
     def albedo_fn(lo, la):
         return truth_albedo(lo, la, extent)
@@ -156,7 +201,16 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
     u = np.linspace(-1, 1, spec.n_images)
     exposures = 1.0 + spec.exposure_spread * rng.permutation(u)
     # Scale so the brightest pixels stay below 255: DN = gain * A * T * R.
-    gain = 120.0
+    gain = spec.gain
+    model, model_files = photometry.get(spec.reflectance_type), {}
+    for key, (name, text) in model.examples.items():  # the model's own files (e.g. Hapke's parameter PVL)
+        atomic_write_text(out / "meta" / name, text)
+        model_files[key] = f"meta/{name}"
+    model = bind(model, {key: out / rel for key, rel in model_files.items()}, str(out))
+    params = (spec.c1, spec.c2)[: len(model.parameters)]
+    dem_all = None
+    if spec.cast_shadows:
+        dem_all = dem_fn(*geometry.lonlat_grid(gt, (height + 2 * m, width + 2 * m)))
     sun_pos, sc_pos, keys = {}, {}, []
     for k in range(spec.n_images):
         key = f"SIM-IMG-{k:03d}"
@@ -169,9 +223,12 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
         pts, lon, lat = pts[1:-1, 1:-1], lon[1:-1, 1:-1], lat[1:-1, 1:-1]
         sun, sc = _sun_and_spacecraft(spec, k, float(lon.mean()), float(lat.mean()), rng)
         ci, ce, al = geometry.illumination(pts, normals, sun, sc)
-        model = photometry.get(spec.reflectance_type)
-        r = model.reflectance(ci, ce, al, (spec.c1, spec.c2)[: len(model.parameters)])
-        r = np.where(ci >= 0.3, r, 0.0)
+        r = model.reflectance(ci, ce, al, params)
+        if dem_all is not None:  # shadows keep the scattered light, a fraction of the flat ground's signal
+            shade = cast_shadow_mask(dem_all, gt, sun, (m, m + height, c0, c0 + spec.image_px)) | (ci <= 0)
+            up = pts / np.linalg.norm(pts, axis=-1, keepdims=True)
+            flat = model.reflectance(*geometry.illumination(pts, up, sun, sc), params)
+            r = np.where(shade, spec.scatter * flat, r)
         signal = gain * albedo_fn(lon, lat) * exposures[k] * r
         dn = np.clip(np.round(signal + rng.normal(0, spec.noise_dn, signal.shape)), 0, 255).astype(np.uint8)
         alpha = np.full(dn.shape, 255, np.uint8)
@@ -181,7 +238,7 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
     write_positions(out / "meta" / "sunpos.txt", sun_pos)
     write_positions(out / "meta" / "spacecraftpos.txt", sc_pos)
     box = (spec.lon0, spec.lon0 + width * res, spec.lat0, spec.lat0 + height * res)
-    geometry_files = spec.reflectance_type != 0
+    geometry_files = model.needs_geometry
     settings = legacy_text(
         {
             "DRG_DIR": "DRG",
@@ -201,6 +258,7 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
             "USE_WEIGHTS": 1,
             "USE_NORMALIZED_COST_FUN": spec.use_normalized_cost_fun,
             "COMPUTE_ERRORS": 1,
+            **model_files,
         },
         f"Synthetic scene rendered by lunaralbedo.simulate (seed {spec.seed})",
     )

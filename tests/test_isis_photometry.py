@@ -121,7 +121,7 @@ def test_lrowacphomap_correct_mode_uses_the_band_own_parameters(isis, tmp_path):
     assert res[0].count == 3366 and res[0].mean == pytest.approx(165.39, abs=0.01)
     # the definition, checked pixel by pixel with the 415 nm parameters of the map pixel
     from lunaralbedo.isis.pixels import read_band
-    from lunaralbedo.phocorr.hapkemap import read_parameter_map
+    from lunaralbedo.isis.parameter_map import read_parameter_map
 
     pmap = read_parameter_map(isis / PARAM_MAP)
     ph, em, inc, lat, lon = (read_band(isis / "back.reduced.cub", b) for b in range(1, 6))

@@ -141,7 +141,7 @@ def test_toml_names_the_reflectance_model(tmp_path, toml_line, code):
 
 
 def test_unknown_reflectance_model_is_named(tmp_path):
-    with pytest.raises(SettingsError, match="REFLECTANCE must be one of mosaic, lambert, lunar-lambert, got 'hapke2'"):
+    with pytest.raises(SettingsError, match="REFLECTANCE must be one of mosaic, lambert, lunar-lambert, hapke, got 'hapke2'"):
         load_settings(write(tmp_path, 'drg_dir = "d"\nreflectance = "hapke2"\n', "s.toml"))
 
 
@@ -149,3 +149,27 @@ def test_model_declared_settings_are_read_as_attributes(tmp_path):
     s = load_settings(write(tmp_path, LEGACY.replace("PHASE_COEFF_C1            1.4", "PHASE_COEFF_C1 1.25")))
     assert s.phase_coeff_c1 == 1.25 and s.initial_params.tolist() == [1.25, 0.5]
     assert s.to_dict()["phase_coeff_c1"] == 1.25
+
+
+@pytest.mark.parametrize("extra, reflectance, expected", [
+    ("", 2, True),  # default: on whenever a DEM is used
+    ("", 1, True),
+    ("CAST_SHADOWS 0\n", 2, False),
+    ("CAST_SHADOWS 1\n", 2, True),
+])
+def test_cast_shadows_default_on_with_a_dem(tmp_path, extra, reflectance, expected):
+    p = tmp_path / "s.txt"
+    p.write_text(LEGACY.replace("REFLECTANCE_TYPE          2", f"REFLECTANCE_TYPE {reflectance}") + extra)
+    assert load_settings(p).uses_cast_shadows is expected
+
+
+def test_cast_shadows_toml_and_mosaic(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text('drg_dir = "drg"\ndem_dir = "dem"\nsun_position_file = "s"\nspacecraft_position_file = "c"\n'
+                 "cast_shadows = false\n")
+    assert load_settings(p).uses_cast_shadows is False
+    p.write_text('drg_dir = "drg"\nreflectance_type = 0\ncast_shadows = true\n')
+    assert load_settings(p).uses_cast_shadows is False  # mosaic mode has no DEM
+    p.write_text('drg_dir = "drg"\ncast_shadows = 2\n')
+    with pytest.raises(SettingsError, match="CAST_SHADOWS must be one of 0, 1"):
+        load_settings(p)

@@ -14,7 +14,7 @@ from ._common import reports_errors
 @click.option("--size", "image_px", type=int, default=120, show_default=True, help="Image size in pixels (square).")
 @click.option("--res", "res_deg", type=float, default=0.01, show_default=True, help="Pixel size in degrees.")
 @click.option("--spread", "exposure_spread", type=float, default=0.4, show_default=True, help="Exposures within 1 +- spread.")
-@click.option("--reflectance", "reflectance_type", type=click.IntRange(0, 2), default=2, show_default=True)
+@click.option("--reflectance", "reflectance_type", type=click.IntRange(0, 3), default=2, show_default=True)
 @click.option("--tile-size", type=float, default=1.0, show_default=True, help="TILE_SIZE of the written settings (degrees).")
 @click.option("--noise", "noise_dn", type=float, default=1.0, show_default=True, help="Gaussian noise, DN.")
 @click.option("--seed", type=int, default=7, show_default=True)

@@ -21,6 +21,7 @@ from ..io.positions import read_positions
 from ..io.rasters import RasterInfo, catalog_drgs, geographic_crs, intersects, list_rasters, raster_info
 from ..model.weights import WeightProfile, merge_profiles, profile_from_mask
 from ..settings import Settings
+from .photometry import solver_model
 from .tiles import Tile, make_tiles
 
 #: Pixels of padding around each tile while solving (legacy: 5).
@@ -127,6 +128,7 @@ def build_scene(settings: Settings, skip_missing: bool = False, map_fn=map) -> S
     for im in images:
         if crs0 is not None and im.crs is not None and geographic_crs(im.crs) != crs0:
             raise InputError(f"{im.path}: its body/datum differs from the first DRG's ({images[0].path})")
+    solver_model(settings)  # a model's own files (e.g. Hapke's parameters) fail here, before any tile work
     images, sun, sc = _positions(settings, images, skip_missing, skipped)
     if not images:
         raise SolverError("no DRG left after skipping images without positions")

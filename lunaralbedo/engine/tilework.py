@@ -15,9 +15,11 @@ import numpy as np
 
 from ..io.cache import load_stack, save_stack
 from ..io.rasters import read_dem_onto_grid, read_drg_onto_grid, write_geotiff
-from ..constants import MIN_COS_INCIDENCE
-from ..model import exposure_init, geometry, photometry, shadows, updates
+from ..constants import MIN_COS_INCIDENCE_MODEL
+from ..model import exposure_init, geometry, shadows, updates
 from .scene import Scene
+from .photometry import solver_model
+from .terrain import cast_shadow_masks
 
 
 @dataclass
@@ -74,6 +76,12 @@ def _geometry_stack(scene: Scene, tile):
     return dem[inner], pts[inner], normals[inner], ~np.isfinite(dem[inner])
 
 
+def _saturation(dtype: str) -> float | None:
+    """The saturated value of an integer DRG (its type's maximum, e.g. 255); None for float DRGs."""
+    dt = np.dtype(dtype)
+    return float(np.iinfo(dt).max) if dt.kind in "ui" else None
+
+
 def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
     """Read every image over tile ``t`` onto its grid, compute geometry, cache the stack.
 
@@ -86,24 +94,30 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
     if cached is not None:
         return {**cached[1], "reused": True}
     s = scene.settings
-    model = s.model
+    model = solver_model(s)
     tile = scene.tiles[t]
     geo = _geometry_stack(scene, tile) if model.needs_geometry else None
+    lon, lat = geometry.lonlat_grid(tile.transform, (tile.height, tile.width)) if geo is not None else (None, None)
     thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
     per_image: dict[str, list] = {name: [] for name in ("image", "wblend", "usable")}
     keep = []
+    cast = cast_shadow_masks(scene, tile, scene.tile_images[t]) if geo is not None and s.uses_cast_shadows else {}
     for k in scene.tile_images[t]:
-        got = read_drg_onto_grid(scene.images[k], scene.profiles[k], tile.transform, (tile.height, tile.width), scene.crs, thresh)
+        info = scene.images[k]
+        got = read_drg_onto_grid(info, scene.profiles[k], tile.transform, (tile.height, tile.width), scene.crs, thresh,
+                                 saturation=_saturation(info.dtype))
         if got is None:
             continue
         val, ok, wt, use = got
         use &= val > 0
+        if int(k) in cast:
+            use &= ~cast[int(k)]
         layers = {}
         if geo is not None:
             dem, pts, normals, bad = geo
             ci, ce, al = geometry.illumination(pts, normals, scene.sun[k], scene.spacecraft[k])
-            use &= ~bad & (ci >= MIN_COS_INCIDENCE) & (ce > 0)
-            layers = model.layers(ci, ce, al)
+            use &= ~bad & (ci >= MIN_COS_INCIDENCE_MODEL) & (ce > 0)
+            layers = model.layers(ci, ce, al, lon=lon, lat=lat)
             if s.shadow_type == shadows.LAMBERT_RATIO:
                 layers["cos_i"] = ci
         if not use.any():

@@ -276,6 +276,7 @@ def read_drg_onto_grid(
     dst_shape: tuple[int, int],
     dst_crs: CRS | None,
     lit_threshold: float | None = None,
+    saturation: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
     """Resample one DRG onto a target grid: ``(value, valid, weight, lit)`` or None if it misses the grid.
 
@@ -283,7 +284,8 @@ def read_drg_onto_grid(
     bilinear neighbours are valid (alpha band > 0 and not nodata); ``weight`` the
     centre-line tent weight of :mod:`lunaralbedo.model.weights` (computed from
     ``profile`` on the source grid, then resampled); ``lit`` is True where all four
-    neighbours are >= ``lit_threshold`` (always True when it is None).  Only the
+    neighbours are >= ``lit_threshold`` (always True when it is None) and, when
+    ``saturation`` is given, below it (saturated pixels are left out).  Only the
     covering window (plus a 2-pixel margin) of the source is read.
     """
     from ..model.weights import window_weights
@@ -306,8 +308,14 @@ def read_drg_onto_grid(
     r0, c0 = int(win.row_off), int(win.col_off)
     weight = window_weights(profile, r0, c0, value.shape[0], value.shape[1]) * valid
     bands = [np.where(valid, value, 0.0).astype(np.float32), valid.astype(np.float32), weight]
-    if lit_threshold is not None:
-        bands.append((valid & (value >= lit_threshold)).astype(np.float32))
+    usable = lit_threshold is not None or saturation is not None
+    if usable:
+        good = valid.copy()
+        if lit_threshold is not None:
+            good &= value >= lit_threshold
+        if saturation is not None:
+            good &= value < saturation
+        bands.append(good.astype(np.float32))
     src = np.stack(bands)
     dst = np.zeros((len(bands), h, w), dtype=np.float32)
     reproject(
@@ -322,7 +330,7 @@ def read_drg_onto_grid(
     ok = dst[1] > 0.9999
     if not ok.any():
         return None
-    lit = ok if lit_threshold is None else ok & (dst[3] > 0.9999)
+    lit = ok & (dst[3] > 0.9999) if usable else ok
     return dst[0], ok, np.where(ok, dst[2], 0.0).astype(np.float32), lit
 
 

@@ -66,3 +66,20 @@ def get_ci(mapping: Any, name: str, default: Any = None) -> Any:
 def groups(mapping: Any, name: str) -> list:
     """All groups called ``name`` (case-insensitive), in file order."""
     return [v for k, v in mapping.items() if k.casefold() == name.casefold() and hasattr(v, "items")]
+
+
+def plain(aggregation: Any) -> dict:
+    """An aggregation as plain values: keywords upper-cased (units stripped); groups/objects as lists
+    of plain dicts under their upper-cased name, in file order."""
+    out: dict[str, Any] = {}
+    for key, value in aggregation.items():
+        if hasattr(value, "items"):
+            out.setdefault(key.upper(), []).append(plain(value))
+        else:
+            out[key.upper()] = value_of(value)
+    return out
+
+
+def read_object(path: str | Path, name: str) -> dict:
+    """The first object ``name`` of the PVL file ``path`` as :func:`plain` values (IsisError if absent)."""
+    return plain(find_object(read_pvl(path), name, str(path)))

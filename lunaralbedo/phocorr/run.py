@@ -21,7 +21,8 @@ from ..errors import InputError, IsisError
 from ..io.rasters import write_geotiff
 from ..isis.labels import read_label
 from ..isis.pixels import read_band
-from .hapkemap import hapke_map_correction, read_parameter_map
+from ..isis.parameter_map import read_parameter_map
+from .hapkemap import hapke_map_correction
 from .params import load_hapke_map, load_lroc_empirical
 
 MODELS = ("lroc-empirical", "hapke-map")

@@ -8,6 +8,7 @@ code      name               module
 0         ``mosaic``         :mod:`.mosaic` (R = 1)
 1         ``lambert``        :mod:`.lambert` (R = cos i)
 2         ``lunar-lambert``  :mod:`.lunar_lambert` (eq. 2; fits c1, c2)
+3         ``hapke``          :mod:`.hapke_model` (ISIS Hapke, normalised)
 ========  =================  =========================================
 
 The interface is :class:`~.base.PhotometricModel`.  Adding a model is one new module
@@ -18,11 +19,12 @@ and the outputs all go through :func:`get`.
 from __future__ import annotations
 
 from ...errors import SettingsError
-from . import lambert, lunar_lambert, mosaic
+from . import hapke_model, lambert, lunar_lambert, mosaic
 from .base import PhotometricModel, SettingSpec
 
 #: Every model, by name, in code order.
-REGISTRY: dict[str, PhotometricModel] = {m.name: m for m in (mosaic.MODEL, lambert.MODEL, lunar_lambert.MODEL)}
+REGISTRY: dict[str, PhotometricModel] = {m.name: m for m in (mosaic.MODEL, lambert.MODEL, lunar_lambert.MODEL,
+                                                                 hapke_model.MODEL)}
 
 
 def get(name_or_code: str | int) -> PhotometricModel:

@@ -3,8 +3,10 @@ r"""The interface every photometric model implements (see :mod:`lunaralbedo.mode
 A model is a :class:`PhotometricModel` value built by its own module.  The solver
 never looks inside: it asks the model for
 
-* ``layers(cos_i, cos_e, alpha)``: the per-observation arrays that do not depend on
-  the fitted parameters (cached once per tile; float32 in the cache);
+* ``layers(cos_i, cos_e, alpha, lon=None, lat=None)``: the per-observation arrays that
+  do not depend on the fitted parameters (cached once per tile; float32 in the cache);
+  ``lon``, ``lat`` (degrees) are the ground points, for models whose parameters vary
+  over the ground (Hapke with a parameter map);
 * ``reflectance_from(arrays, params)``: :math:`R` from those cached ``arrays`` (which
   also hold ``"image"``, the observed stack); keeps the arrays' dtype, so float32
   caches give float32 :math:`R`;
@@ -12,7 +14,10 @@ never looks inside: it asks the model for
   fitted parameter, same dtype (used by eq. 5);
 
 and the forward model asks for ``reflectance(cos_i, cos_e, alpha, params)``
-(float64).  Angles: :math:`\cos i`, :math:`\cos e` dimensionless, :math:`\alpha` in
+(float64).  A model whose settings name files (``files``: settings key -> file kind) is
+used *bound*: the engine reads those files (:mod:`lunaralbedo.engine.photometry`) and
+``configure(values, contents, where)`` returns the model bound to them; the model itself
+does no I/O.  Angles: :math:`\cos i`, :math:`\cos e` dimensionless, :math:`\alpha` in
 radians.  A model that fits parameters must provide an ``"alpha"`` layer (the solver
 takes the observed phase-angle range from it).
 """
@@ -50,6 +55,13 @@ class PhotometricModel:
     #: ``curve(alpha, params)``: the parameter-dependent part of R against phase angle (radians),
     #: which caps the damped step; default: R at the symmetric geometry i = e = alpha/2.
     curve: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+    #: Settings keys naming files the model needs, with the file's kind (``"photometric-pvl"``, ``"parameter-map"``).
+    files: dict[str, str] = field(default_factory=dict)
+    #: ``configure(values, contents, where)``: the model bound to its settings ``values`` (legacy KEY -> value)
+    #: and the ``contents`` of its ``files`` (KEY -> what was read); None: usable as is.
+    configure: Callable[..., "PhotometricModel"] | None = None
+    #: Files a forward-model scene writes for this model: settings KEY -> (file name, text).
+    examples: dict[str, tuple[str, str]] = field(default_factory=dict)
 
     def initial(self, values: Mapping[str, Any]) -> np.ndarray:
         """Initial fitted parameters (float64) from settings values keyed by legacy key."""

@@ -12,7 +12,7 @@ def reflectance(cos_i, cos_e=None, alpha=None, params=()):
     return np.where(ci > 0, ci, 0.0)
 
 
-def layers(cos_i, cos_e, alpha):
+def layers(cos_i, cos_e, alpha, lon=None, lat=None):
     """The cached layer: ``geometric`` = :math:`R` itself."""
     return {"geometric": np.where(cos_i > 0, cos_i, 0.0)}
 

@@ -65,7 +65,7 @@ def phase_factor_derivatives(alpha_rad, c1):
     return -a * _exp_term(a, c1), np.ones_like(a)
 
 
-def layers(cos_i, cos_e, alpha):
+def layers(cos_i, cos_e, alpha, lon=None, lat=None):
     """Cached per observation: the bracket of eq. 2 (``geometric``) and the phase angle (``alpha``, radians)."""
     return {"geometric": geometric(cos_i, cos_e, alpha), "alpha": alpha}
 

@@ -20,7 +20,7 @@ MODEL = PhotometricModel(
     name="mosaic",
     code=0,
     description="R = 1: a plain mosaic (no DEM, no positions)",
-    layers=lambda cos_i, cos_e, alpha: {},
+    layers=lambda cos_i, cos_e, alpha, lon=None, lat=None: {},
     reflectance_from=reflectance_from,
     reflectance=reflectance,
     needs_geometry=False,

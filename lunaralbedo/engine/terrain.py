@@ -1,0 +1,59 @@
+"""Terrain of one tile: the DEM with the margin cast shadows need, and each image's cast-shadow mask.
+
+The margin is found from the terrain itself: the DEM is read around the tile, the
+longest shadow its relief can cast into the tile with the lowest Sun of the tile's
+images is computed (:func:`~lunaralbedo.model.cast_shadows.shadow_reach_km`, curvature
+counted), and the DEM is read again with a wider margin while that reach exceeds
+the margin (up to :data:`~lunaralbedo.model.cast_shadows.MAX_REACH_KM`).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from rasterio.transform import Affine
+
+from ..constants import MOON_RADIUS_KM
+from ..io.rasters import read_dem_onto_grid
+from ..model import geometry
+from ..model.cast_shadows import MAX_REACH_KM, cast_shadow_mask, shadow_reach_km, sun_elevation
+
+#: Margin (pixels) first read around a tile for cast shadows.
+FIRST_MARGIN_PX = 16
+
+
+def _read(scene, tile, margin: int) -> tuple[np.ndarray, Affine]:
+    transform = tile.transform @ Affine.translation(-margin, -margin)
+    shape = (tile.height + 2 * margin, tile.width + 2 * margin)
+    return read_dem_onto_grid(scene.dems, transform, shape, scene.crs, scene.settings.no_dem_data_val), transform
+
+
+def _pixel_km(tile) -> float:
+    lat = math.radians(tile.north - tile.height * tile.res_y / 2)
+    return math.radians(1.0) * MOON_RADIUS_KM * min(tile.res_x * max(math.cos(lat), 1e-3), tile.res_y)
+
+
+def cast_shadow_masks(scene, tile, images) -> dict[int, np.ndarray]:
+    """Per image index ``k`` in ``images``: True where tile pixels are in the terrain's cast shadow."""
+    if not len(images) or not scene.dems:
+        return {}
+    lon_c = tile.west + tile.width * tile.res_x / 2
+    lat_c = tile.north - tile.height * tile.res_y / 2
+    centre = geometry.body_fixed(lon_c, lat_c, 0.0)
+    elev = min(float(sun_elevation(centre, scene.sun[k])) for k in images)
+    px_km = _pixel_km(tile)
+    max_margin = int(math.ceil(MAX_REACH_KM / px_km)) + 2
+    margin = FIRST_MARGIN_PX
+    while True:
+        dem, transform = _read(scene, tile, margin)
+        inner = dem[margin:margin + tile.height, margin:margin + tile.width]
+        if not np.isfinite(inner).any():
+            return {}
+        relief = float(np.nanmax(dem) - np.nanmin(inner))
+        need = int(math.ceil(shadow_reach_km(relief, elev) / px_km)) + 2
+        if need <= margin or margin >= max_margin:
+            break
+        margin = min(max(need, 2 * margin), max_margin)
+    window = (margin, margin + tile.height, margin, margin + tile.width)
+    return {int(k): cast_shadow_mask(dem, transform, scene.sun[k], window) for k in images}
+

@@ -1,0 +1,127 @@
+r"""Cast shadows from a DEM: ground points whose ray to the Sun is blocked by terrain.
+
+A ground point :math:`\mathbf{p}` (body-fixed, km; a DEM pixel centre at its height)
+is in cast shadow when some point of its ray to the Sun,
+:math:`\mathbf{q}(s) = \mathbf{p} + s\,\hat{\mathbf{l}}`, :math:`s > 0`, lies below the
+terrain, i.e. :math:`|\mathbf{q}| < R + h(\lambda_q, \phi_q)/1000` with :math:`h` the
+DEM height (metres, bilinear between pixel centres) under :math:`\mathbf{q}`.
+
+The ray is marched in 3-D body-fixed coordinates, so the Moon's curvature is exact:
+a ray leaving the ground horizontally is :math:`s^2/2R` above the sphere after
+:math:`s` km (29 m at 10 km), which shortens long shadows (a 1 km wall under a Sun
+1° high casts a 36 km shadow on the sphere, 57 km on a plane).  The march stops when
+the ray is higher than the highest DEM point (it cannot be blocked any more) or
+leaves the DEM grid (terrain beyond the grid cannot be seen: read the DEM with a
+margin of :func:`shadow_reach_km` around the area of interest).
+
+Frames and units: body-fixed km for positions, metres for heights above the
+1737.4 km sphere, degrees for the north-up lon/lat grid (pixel centres at
+``transform * (col + 0.5, row + 0.5)``).  Pure NumPy/numba, no I/O.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..constants import MOON_RADIUS_KM
+
+#: March step, in pixels of the DEM grid (half a pixel: no ridge of the bilinear DEM is stepped over
+#: by more than half a pixel).
+STEP_PX = 0.5
+#: The ray must be this far below the bilinear terrain to count as blocked (metres): keeps the
+#: first half-pixel steps on a smoothly curved slope (bilinear chords) from shadowing the point itself.
+TOLERANCE_M = 0.5
+#: Longest shadow searched for (km); terrain farther than this from a point is not considered.
+MAX_REACH_KM = 150.0
+
+
+def sun_elevation(points_km: np.ndarray, sun_km) -> np.ndarray:
+    """Elevation (radians) of the Sun above the local horizon of the sphere at each point ``(..., 3)``."""
+    p = np.asarray(points_km, dtype=np.float64)
+    up = p / np.linalg.norm(p, axis=-1, keepdims=True)
+    l = np.asarray(sun_km, dtype=np.float64) - p
+    l /= np.linalg.norm(l, axis=-1, keepdims=True)
+    return np.arcsin(np.clip(np.einsum("...i,...i->...", up, l), -1.0, 1.0))
+
+
+def shadow_reach_km(relief_m: float, elevation_rad: float, max_km: float = MAX_REACH_KM) -> float:
+    r"""Longest shadow (km) that terrain ``relief_m`` high can cast with the Sun ``elevation_rad`` high.
+
+    On the sphere a ray rising at elevation :math:`\epsilon` is
+    :math:`s\tan\epsilon + s^2/2R` above the start after :math:`s` km; the reach is the
+    :math:`s` where that equals the relief, capped at ``max_km``.
+    """
+    h = max(float(relief_m), 0.0) / 1000.0
+    t = math.tan(max(float(elevation_rad), 0.0))
+    a = 1.0 / (2.0 * MOON_RADIUS_KM)
+    s = (-t + math.sqrt(t * t + 4.0 * a * h)) / (2.0 * a)
+    return min(s, max_km)
+
+
+@njit(cache=True)
+def _march(dem, lon0, dlon, lat0, dlat, sun, r0, r1, c0, c1, step_km, max_steps, hmax_m, tol_m, radius):
+    h_, w_ = dem.shape
+    out = np.zeros((r1 - r0, c1 - c0), np.bool_)
+    d2r = math.pi / 180.0
+    lon_mid = lon0 + dlon * w_ / 2.0
+    for i in range(r0, r1):
+        lat = (lat0 + (i + 0.5) * dlat) * d2r
+        for j in range(c0, c1):
+            h = dem[i, j]
+            if not np.isfinite(h):
+                continue
+            lon = (lon0 + (j + 0.5) * dlon) * d2r
+            r = radius + h / 1000.0
+            px, py, pz = r * math.cos(lat) * math.cos(lon), r * math.cos(lat) * math.sin(lon), r * math.sin(lat)
+            lx, ly, lz = sun[0] - px, sun[1] - py, sun[2] - pz
+            n = math.sqrt(lx * lx + ly * ly + lz * lz)
+            lx, ly, lz = lx / n, ly / n, lz / n
+            for s in range(1, max_steps + 1):
+                qx, qy, qz = px + s * step_km * lx, py + s * step_km * ly, pz + s * step_km * lz
+                rq = math.sqrt(qx * qx + qy * qy + qz * qz)
+                hray = (rq - radius) * 1000.0
+                if hray > hmax_m:
+                    break
+                lonq = math.atan2(qy, qx) / d2r
+                lonq = lon_mid + ((lonq - lon_mid + 180.0) % 360.0 - 180.0)
+                latq = math.asin(qz / rq) / d2r
+                x = (lonq - lon0) / dlon - 0.5
+                y = (latq - lat0) / dlat - 0.5
+                if x < 0.0 or y < 0.0 or x > w_ - 1 or y > h_ - 1:
+                    break
+                ix, iy = min(int(x), w_ - 2), min(int(y), h_ - 2)
+                fx, fy = x - ix, y - iy
+                z = ((dem[iy, ix] * (1 - fx) + dem[iy, ix + 1] * fx) * (1 - fy)
+                     + (dem[iy + 1, ix] * (1 - fx) + dem[iy + 1, ix + 1] * fx) * fy)
+                if np.isfinite(z) and hray < z - tol_m:
+                    out[i - r0, j - c0] = True
+                    break
+    return out
+
+
+def cast_shadow_mask(dem_m, transform, sun_km, window=None, *, max_reach_km: float = MAX_REACH_KM,
+                     step_px: float = STEP_PX, tolerance_m: float = TOLERANCE_M) -> np.ndarray:
+    """True where a DEM pixel centre is in the cast shadow of the terrain for the Sun at ``sun_km``.
+
+    ``dem_m``: heights (metres above the 1737.4 km sphere, NaN where unknown) on the
+    north-up lon/lat grid of the affine ``transform`` (degrees); ``sun_km``: Sun
+    position, body-fixed km; ``window``: ``(row0, row1, col0, col1)`` of the pixels to
+    decide (default: all; the rest of the grid is the margin that can cast shadows
+    into it).  Returns a bool array of the window's shape.  Pixels whose own height is
+    NaN are reported lit (they have no ground point); NaN terrain blocks nothing.
+    """
+    dem = np.ascontiguousarray(dem_m, dtype=np.float64)
+    h, w = dem.shape
+    r0, r1, c0, c1 = window if window is not None else (0, h, 0, w)
+    if h < 2 or w < 2 or not np.isfinite(dem).any():
+        return np.zeros((r1 - r0, c1 - c0), bool)
+    lat_mid = math.radians(transform.f + transform.e * h / 2.0)
+    px_km = math.radians(1.0) * MOON_RADIUS_KM * min(abs(transform.a) * max(math.cos(lat_mid), 1e-3), abs(transform.e))
+    step_km = step_px * px_km
+    max_steps = max(1, int(math.ceil(max_reach_km / step_km)))
+    hmax = float(np.nanmax(dem))
+    return _march(dem, float(transform.c), float(transform.a), float(transform.f), float(transform.e),
+                  np.asarray(sun_km, dtype=np.float64), int(r0), int(r1), int(c0), int(c1), step_km, max_steps,
+                  hmax, float(tolerance_m), MOON_RADIUS_KM)

@@ -1,0 +1,126 @@
+"""Cast shadows from the DEM (issue 13): against a brute-force ray cast on the continuous terrain, and the Moon's curvature."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from rasterio.transform import Affine
+
+from lunaralbedo.constants import MOON_RADIUS_KM
+from lunaralbedo.model import geometry
+from lunaralbedo.model.cast_shadows import cast_shadow_mask, shadow_reach_km, sun_elevation
+from lunaralbedo.simulate import truth_dem
+
+
+def _sun(lon_deg, lat_deg, incidence_deg, azimuth_deg=90.0):
+    """Sun 1 AU away, ``incidence_deg`` from the zenith of (lon, lat), from azimuth (clockwise from north)."""
+    up = geometry.body_fixed(lon_deg, lat_deg, 0.0) / MOON_RADIUS_KM
+    lo, la = np.radians(lon_deg), np.radians(lat_deg)
+    east = np.array([-np.sin(lo), np.cos(lo), 0.0])
+    north = np.array([-np.sin(la) * np.cos(lo), -np.sin(la) * np.sin(lo), np.cos(la)])
+    az, inc = np.radians(azimuth_deg), np.radians(incidence_deg)
+    d = np.cos(inc) * up + np.sin(inc) * (np.sin(az) * east + np.cos(az) * north)
+    return d * 1.496e8
+
+
+def _brute_force(fn, lon, lat, sun, step_km, reach_km, hmax):
+    """Ray cast on the continuous terrain ``fn(lon, lat)`` (metres), every ``step_km``, all pixels at once."""
+    p = geometry.body_fixed(lon, lat, fn(lon, lat))
+    l = sun - p
+    l /= np.linalg.norm(l, axis=-1, keepdims=True)
+    shadow = np.zeros(lon.shape, bool)
+    active = np.ones(lon.shape, bool)
+    for s in np.arange(step_km, reach_km, step_km):
+        q = p[active] + s * l[active]
+        lo, la, hray = geometry.lonlat_height(q)
+        blocked = hray < fn(lo, la)
+        idx = np.flatnonzero(active)
+        shadow.flat[idx[blocked]] = True
+        done = blocked | (hray > hmax)
+        active.flat[idx[done]] = False
+        if not active.any():
+            break
+    return shadow
+
+
+def _bilinear(dem, transform):
+    """The DEM as the solver sees it: bilinear between pixel centres (a continuous function of lon, lat)."""
+    from scipy.interpolate import RegularGridInterpolator
+
+    h, w = dem.shape
+    lats = transform.f + transform.e * (np.arange(h) + 0.5)
+    lons = transform.c + transform.a * (np.arange(w) + 0.5)
+    f = RegularGridInterpolator((lats[::-1], lons), dem[::-1], bounds_error=False, fill_value=-1e9)
+    return lambda lo, la: f(np.stack([la, lo], axis=-1))
+
+
+@pytest.mark.parametrize("incidence, azimuth", [(74.0, 90.0), (78.0, 240.0)])
+def test_mask_agrees_with_a_ray_cast_on_the_continuous_terrain(incidence, azimuth):
+    res = 0.0025  # degrees (76 m): the smallest craters (0.6 km radius) span 8 pixels
+    extent = (10.0, 11.2, -5.0, -4.0)
+
+    def fn(lo, la):  # hills plus fresh craters with ~39-degree walls
+        return truth_dem(lo, la, extent, 300.0, fresh_per_square_degree=100.0)
+
+    margin = 40  # px (3 km): a 0.5 km rim-to-floor drop casts at most 2.4 km with the Sun 12 degrees high
+    h, w = 90, 120
+    transform = Affine(res, 0, 10.45 - margin * res, 0, -res, -4.4 + margin * res)
+    lon, lat = geometry.lonlat_grid(transform, (h + 2 * margin, w + 2 * margin))
+    dem = fn(lon, lat)
+    sun = _sun(10.6, -4.5, incidence, azimuth)
+    mask = cast_shadow_mask(dem, transform, sun, (margin, margin + h, margin, margin + w))
+    inner = (slice(margin, margin + h), slice(margin, margin + w))
+    hmax = np.max(dem) + 1
+    # 1. the marching itself: the same (bilinear) terrain, ray cast every 8 m
+    same = _brute_force(_bilinear(dem, transform), lon[inner], lat[inner], sun, 0.008, 40.0, hmax)
+    assert 0.08 < same.mean() < 0.6  # a real low-Sun scene: shadows are common, not everywhere
+    assert np.mean(mask == same) >= 0.995, (np.mean(mask == same), same.mean(), mask.mean())
+    # 2. against the continuous terrain the DEM samples (rims are cusps the grid rounds off a little)
+    truth = _brute_force(fn, lon[inner], lat[inner], sun, 0.008, 40.0, hmax)
+    agree = np.mean(mask == truth)
+    assert agree >= 0.98, (agree, truth.mean(), mask.mean())
+    assert abs(mask.mean() - truth.mean()) < 0.025
+
+
+def test_curvature_shortens_a_long_shadow_as_the_sphere_does():
+    """A 1 km wall, Sun 2 degrees high over it: the shadow ends where the sphere says, not where a plane would."""
+    res, wall_h = 0.005, 1000.0
+    lon_w = 12.0
+    n_west = 400  # 2 degrees of ground west of the wall
+    transform = Affine(res, 0, lon_w - n_west * res, 0, -res, 3 * res / 2)
+    lon, lat = geometry.lonlat_grid(transform, (3, n_west + 10))
+    dem = np.where((lon >= lon_w) & (lon < lon_w + 3 * res), wall_h, 0.0)
+    eps_w = np.radians(2.0)
+    sun = _sun(lon_w, 0.0, 90.0 - 2.0)
+    mask = cast_shadow_mask(dem, transform, sun, (1, 2, 0, n_west))[0]
+    west_of_wall = np.flatnonzero(~mask)
+    tip = west_of_wall.max()  # last lit pixel west of the wall: the shadow runs from it to the wall
+    length_deg = lon_w - lon[1, tip + 1]
+    # exact on the sphere: a point theta west of the wall sees the wall's top at elevation above
+    # the Sun's while cos(eps_w - theta) > R cos(eps_w) / (R + H)
+    r = MOON_RADIUS_KM
+    theta = eps_w - math.acos((r + wall_h / 1000) * math.cos(eps_w) / r)
+    # within 5 pixels (1.6 % of the 300-pixel shadow): near its tip the ray grazes the wall's top for less
+    # than one half-pixel march step (2 px), and the bilinear wall is not a sharp edge (a dense ray cast
+    # on it ends 1.7 px short too)
+    assert length_deg == pytest.approx(math.degrees(theta), abs=5 * res)
+    # the same from the tip's own horizon: s tan(eps) + s^2 / 2R = H (what shadow_reach_km computes)
+    eps_tip = float(sun_elevation(geometry.body_fixed(lon[1, tip + 1], 0.0, 0.0), sun))
+    s_km = math.radians(length_deg) * r
+    assert shadow_reach_km(wall_h, eps_tip) == pytest.approx(s_km, rel=0.03)
+    flat = wall_h / 1000 / math.tan(eps_tip)  # a plane would put the tip 2.5 times farther
+    assert flat > 2 * s_km
+
+
+def test_nan_heights_block_nothing_and_have_no_shadow():
+    transform = Affine(0.01, 0, 0, 0, -0.01, 0.5)
+    dem = np.zeros((50, 50))
+    dem[:, 20:23] = 2000.0
+    dem[:, 21] = np.nan
+    dem[10, :] = np.nan
+    sun = _sun(0.25, 0.25, 80.0)
+    m = cast_shadow_mask(dem, transform, sun)
+    assert not m[10].any()
+    assert m[30, 10:20].all()  # still shadowed by the wall's finite columns
+    assert not m[30, 23:].any()
