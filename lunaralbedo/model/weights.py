@@ -112,3 +112,8 @@ def window_weights(profile: WeightProfile, row_off: int, col_off: int, height: i
     w_row = tent(cols[None, :], profile.row_first[rows_c][:, None], profile.row_last[rows_c][:, None])
     w_col = tent(rows[:, None], profile.col_first[cols_c][None, :], profile.col_last[cols_c][None, :])
     return (w_row * w_col).astype(np.float32)
+
+
+def source_weights(profile: WeightProfile, row_off: int, col_off: int, valid: np.ndarray) -> np.ndarray:
+    """Blending weights (float32) of the image window at ``(row_off, col_off)``, zero where not ``valid``."""
+    return window_weights(profile, row_off, col_off, valid.shape[0], valid.shape[1]) * valid
