@@ -161,3 +161,41 @@ def test_overlap_exposure_recovers_exposures_from_log_ratios():
 def test_seed_exposure_is_tr_const_over_mean_reflectance():
     t = exposure_init.seed_exposure(1.5, np.array([10.0, 0.0]), np.array([20.0, 0.0]))
     np.testing.assert_allclose(t, [3.0, 1.5])
+
+
+def test_legacy_numerics_are_options_of_the_same_formulas():
+    """Backward-difference normals, the float32 tent and the float32 seed exposure agree with the defaults."""
+    from rasterio.transform import Affine
+
+    t = Affine(0.01, 0, 30.0, 0, -0.01, 60.0)
+    lon, lat = geometry.lonlat_grid(t, (12, 15))
+    heights = 300.0 * np.sin(np.radians(lon) * 40) * np.cos(np.radians(lat) * 30)
+    km = geometry.body_fixed(lon, lat, heights)
+    m = geometry.body_fixed(lon, lat, heights, unit="m")
+    np.testing.assert_allclose(m / 1000.0, km, rtol=1e-14)
+    central, backward = geometry.dem_normals(km), geometry.dem_normals(m, differences="backward")
+    assert np.isnan(backward[0]).all() and np.isnan(backward[:, 0]).all()  # no upper/left neighbour
+    cosang = np.sum(central[1:-1, 1:-1] * backward[1:-1, 1:-1], axis=-1)
+    assert cosang.min() > np.cos(np.radians(1.0))  # half a pixel apart on a smooth DEM: < 1 degree
+    with pytest.raises(ValueError):
+        geometry.dem_normals(km, differences="forward")
+    x = np.linspace(-2.0, 12.0, 57)
+    w64 = weights.tent_about(x, 5.0, 4.0)
+    w32 = weights.tent_about(x, 5.0, 4.0, dtype=np.float32)
+    assert w32.dtype == np.float32 and w64[np.argmin(np.abs(x - 5.0))] == 1.0
+    np.testing.assert_allclose(w32, w64, atol=1e-6)
+    assert np.all(weights.tent_about(x, 5.0, 0.0, dtype=np.float32) == 0)  # zero extent: no weight
+    t32 = exposure_init.seed_exposure(1.5, np.array([7.0]), np.array([3]), dtype=np.float32)
+    assert t32.dtype == np.float32 and t32[0] == np.float32(np.float32(1.5) / np.float32(7.0 / 3))
+
+
+def test_one_tile_naming_and_grid_rule_with_the_legacy_spelling_as_an_option():
+    from lunaralbedo.engine.tiles import make_tiles, tile_name, tile_starts
+
+    assert tile_name(4.0, -8.0) == tile_name(4.0, -8.0, legacy=True) == "tile_4E8S"
+    assert tile_name(4.5, -8.0) == "tile_4p5E8S" and tile_name(4.5, -8.0, legacy=True) == "tile_4.5E8S"
+    assert tile_name(-0.25, 0.0, legacy=True) == "tile_0.25W0N"
+    assert tile_starts(-1.0, 9.0, 4.0) == tile_starts(-1.0, 9.0, 4.0, legacy=True) == [-4.0, 0.0, 4.0, 8.0]
+    assert tile_starts(0.0, 8.0, 4.0) == [0.0, 4.0] and tile_starts(0.0, 8.0, 4.0, legacy=True) == [0.0, 4.0]
+    tiles = make_tiles((0.0, 8.0, -8.0, 0.0), 4.0, (0.5, 0.5))
+    assert [t.name for t in tiles] == ["tile_0E0N", "tile_4E0N", "tile_0E4S", "tile_4E4S"]

@@ -21,9 +21,45 @@ def _fmt(value: float, pos: str, neg: str) -> str:
     return f"{txt}{pos if value >= 0 else neg}"
 
 
-def tile_name(west: float, north: float) -> str:
-    """Legacy tile name from the unpadded upper-left corner (degrees)."""
-    return f"tile_{_fmt(west, 'E', 'W')}{_fmt(north, 'N', 'S')}"
+def _fmt_legacy(value: float, pos: str, neg: str) -> str:
+    """``%g`` (6 significant digits) of ``|value|``, as C++ ``ostream`` printed the doubles."""
+    return f"{(value + 0.0) if value >= 0 else -value:g}{pos if value >= 0 else neg}"
+
+
+def tile_name(west: float, north: float, legacy: bool = False) -> str:
+    """Tile name ``tile_<lon>{E|W}<lat>{N|S}`` from the unpadded upper-left corner (degrees).
+
+    The one tile-naming rule of the package.  Whole degrees print as integers
+    (``tile_4E8S``); fractions print with ``p`` for the point (``tile_4p5E8S``),
+    or, with ``legacy=True``, as PhotometryTK's ``ostream`` printed them
+    (``tile_4.5E8S``: ``%g``, 6 significant digits), the names of the legacy tree.
+    """
+    fmt = _fmt_legacy if legacy else _fmt
+    return f"tile_{fmt(west, 'E', 'W')}{fmt(north, 'N', 'S')}"
+
+
+def tile_starts(lo: float, hi: float, tile_size: float, legacy: bool = False) -> list[float]:
+    """Starts (west or south edges, degrees) of the TILE_SIZE tiles meeting ``[lo, hi]``, ascending.
+
+    The one rule of the tile grid: tiles start on multiples of ``tile_size``, from
+    the one holding ``lo`` to the last starting below ``hi``.  By default ``k * tile_size``
+    with a 1e-9 tolerance on the edges (a box ending exactly on a multiple does not
+    reach into the next tile).  ``legacy=True`` follows PhotometryTK's loop exactly:
+    ``x = ts * floor(lo / ts)`` then ``x += ts`` while ``x < hi`` (no tolerance, the
+    starts accumulate the float rounding of ``ts``), as the legacy tile names need.
+    """
+    if legacy:
+        starts, x = [], tile_size * math.floor(lo / tile_size)
+        while x < hi:
+            starts.append(x)
+            x += tile_size
+        return starts
+    return [k * tile_size for k in tile_indices(lo, hi, tile_size)]
+
+
+def tile_indices(lo: float, hi: float, tile_size: float) -> range:
+    """Indices ``k`` of the tiles ``[k ts, (k+1) ts]`` meeting ``[lo, hi]`` (see :func:`tile_starts`)."""
+    return range(math.floor(lo / tile_size + 1e-9), math.ceil(hi / tile_size - 1e-9))
 
 
 @dataclass(frozen=True)
@@ -97,16 +133,14 @@ def make_tiles(
     nx = max(1, math.ceil(tile_size / res[0] - 1e-6))
     ny = max(1, math.ceil(tile_size / res[1] - 1e-6))
     rx, ry = (tile_size / nx, tile_size / ny) if exact else res
-    i0, i1 = math.floor(lon0 / tile_size + 1e-9), math.ceil(lon1 / tile_size - 1e-9)
-    j0, j1 = math.floor(lat0 / tile_size + 1e-9), math.ceil(lat1 / tile_size - 1e-9)
     tiles = []
-    for j in range(j1, j0, -1):  # north edge index, north to south
-        for i in range(i0, i1):
+    for j in reversed(tile_indices(lat0, lat1, tile_size)):  # north to south
+        for i in tile_indices(lon0, lon1, tile_size):
             tiles.append(
                 Tile(
                     index=len(tiles),
                     west=i * tile_size,
-                    north=j * tile_size,
+                    north=(j + 1) * tile_size,
                     size_deg=tile_size,
                     res_x=rx,
                     res_y=ry,

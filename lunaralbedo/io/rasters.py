@@ -282,13 +282,15 @@ def read_drg_onto_grid(
 
     ``value`` is band 1 (float32, bilinear); ``valid`` is True where all four
     bilinear neighbours are valid (alpha band > 0 and not nodata); ``weight`` the
-    centre-line tent weight of :mod:`lunaralbedo.model.weights` (computed from
+    blending weight of :func:`lunaralbedo.model.weights.source_weights` (computed from
     ``profile`` on the source grid, then resampled); ``lit`` is True where all four
-    neighbours are >= ``lit_threshold`` (always True when it is None) and, when
+    neighbours are usable by :func:`lunaralbedo.model.shadows.usable_pixels`: lit with the
+    threshold ``lit_threshold`` (shadow type 1; always lit when it is None) and, when
     ``saturation`` is given, below it (saturated pixels are left out).  Only the
     covering window (plus a 2-pixel margin) of the source is read.
     """
-    from ..model.weights import window_weights
+    from ..model import shadows
+    from ..model.weights import source_weights
 
     h, w = dst_shape
     with raster_errors(info.path), rasterio.open(info.path) as ds:
@@ -306,16 +308,10 @@ def read_drg_onto_grid(
         src_transform = ds.window_transform(win)
         src_crs = ds.crs or dst_crs
     r0, c0 = int(win.row_off), int(win.col_off)
-    weight = window_weights(profile, r0, c0, value.shape[0], value.shape[1]) * valid
-    bands = [np.where(valid, value, 0.0).astype(np.float32), valid.astype(np.float32), weight]
+    bands = [np.where(valid, value, 0.0).astype(np.float32), valid.astype(np.float32), source_weights(profile, r0, c0, valid)]
     usable = lit_threshold is not None or saturation is not None
     if usable:
-        good = valid.copy()
-        if lit_threshold is not None:
-            good &= value >= lit_threshold
-        if saturation is not None:
-            good &= value < saturation
-        bands.append(good.astype(np.float32))
+        bands.append(shadows.usable_pixels(value, valid, lit_threshold, saturation).astype(np.float32))
     src = np.stack(bands)
     dst = np.zeros((len(bands), h, w), dtype=np.float32)
     reproject(

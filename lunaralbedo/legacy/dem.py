@@ -17,22 +17,9 @@ import math
 import numpy as np
 
 from .interp import bicubic_f32
-from .vwgeo import Geo
+from .vwgeo import Geo, sub_window
 
 MARGIN = 2
-
-
-def _sub_window(geo: Geo, nw: tuple[float, float], se: tuple[float, float]) -> tuple[int, int, int, int] | None:
-    """Legacy getSubImageWithMargin: ``(col0, row0, col1, row1)`` of the part of ``geo`` around the box."""
-    bc, br = float(geo.col(nw[0])), float(geo.row(nw[1]))
-    ec, er = float(geo.col(se[0])), float(geo.row(se[1]))
-    c0 = max(0, math.floor(bc) - MARGIN)
-    c1 = min(geo.width, math.ceil(ec) + MARGIN)
-    r0 = max(0, math.floor(br) - MARGIN)
-    r1 = min(geo.height, math.ceil(er) + MARGIN)
-    if c0 >= c1 or r0 >= r1:
-        return None
-    return (c0, r0, c1, r1)
 
 
 def merge_dems(dems: list[tuple[np.ndarray, Geo]], nodata: float, nw, se) -> tuple[np.ndarray, Geo] | None:
@@ -44,7 +31,7 @@ def merge_dems(dems: list[tuple[np.ndarray, Geo]], nodata: float, nw, se) -> tup
     nd = np.float32(nodata)
     merged = count = mgeo = None
     for data, geo in dems:
-        win = _sub_window(geo, nw, se)
+        win = sub_window(geo, nw, se, MARGIN)
         if win is None:
             continue
         c0, r0, c1, r1 = win

@@ -5,7 +5,7 @@ pixels has a non-zero weight), over the DRG pixels whose centres fall inside
 the *unpadded* tile, average the reflectance interpolated (bilinear, float32)
 from the tile's DEM grid where all four neighbours have a non-zero
 reflectance and the DRG pixel is valid and not below the shadow threshold.
-The exposure is ``TR_CONST / mean(R)`` in float32.
+The exposure is ``TR_CONST / mean(R)`` in float32 (``model.exposure_init.seed_exposure``).
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import numpy as np
 
 from .interp import bilinear_f32
 from .reflect import reflectance
-from .tilesolve import Image, Params, shadow_threshold
+from .tilesolve import Image, Params, seq_sum, shadow_threshold
 from .vwgeo import Geo, boxes_overlap
 from .weights import line_weights
 
@@ -29,8 +29,10 @@ def _pixel_range(img_geo: Geo, inner) -> tuple[int, int, int, int]:
     return r0, r1, c0, c1
 
 
-def mean_reflectance(img: Image, tiles, p: Params, initial_exposure: float = 1.0) -> tuple[float, int]:
-    """``(mean R as float32, number of pixels)`` of one image over the overlapping tiles.
+def reflectance_sum(img: Image, tiles, p: Params, initial_exposure: float = 1.0) -> tuple[float, int]:
+    """``(sum of R, number of pixels)`` of one image over the overlapping tiles (legacy order, float64).
+
+    The exposure is then :func:`lunaralbedo.model.exposure_init.seed_exposure` in float32.
 
     ``tiles`` yields ``(tile_geo, inner, surface)`` in the tile-list order, where
     ``surface`` = ``(points, normals)`` of the tile's DEM.
@@ -63,14 +65,6 @@ def mean_reflectance(img: Image, tiles, p: Params, initial_exposure: float = 1.0
         vals, ok = img.values[rr[m], cc[m]], img.valid[rr[m], cc[m]]
         keep = ok & (vals >= t)
         Rk = Ri[keep]
-        if Rk.size:
-            total = float(np.cumsum(np.concatenate([[total], Rk]))[-1])
-            count += int(Rk.size)
-    if count == 0:
-        return float("nan"), 0
-    return float(np.float32(total / count)), count
-
-
-def initial_exposure(mean_r: float, tr_const: float) -> float:
-    """``TR_CONST / mean R`` in float32 (the legacy types)."""
-    return float(np.float32(np.float32(tr_const) / np.float32(mean_r)))
+        total = seq_sum(total, Rk)
+        count += int(Rk.size)
+    return total, count

@@ -3,9 +3,9 @@
 Conventions (SOURCES.md and the legacy numerics):
 
 * a DEM pixel is the point ``(R + h)(cos lat cos lon, cos lat sin lon, sin lat)``
-  in metres (R = 1737400 m), lon/lat of the pixel centre;
-* the normal at ``(x, y)`` is ``-normalize((p - p_left) x (p - p_up))``; pixels
-  of the first row/column, or next to a nodata height, have none;
+  in metres (R = 1737400 m), lon/lat of the pixel centre (``model.geometry.body_fixed``);
+* the normal at ``(x, y)`` is ``-normalize((p - p_left) x (p - p_up))`` (``model.geometry.dem_normals``
+  with backward differences); pixels of the first row/column, or next to a nodata height, have none;
 * Lunar-Lambertian reflectance (eq. 2, :mod:`lunaralbedo.model.photometry.lunar_lambert`)
   stored as float32 (as the legacy images were), zero where ``cos i < 0.3``; ``c1``,
   ``c2`` rounded to float32 as the legacy parser stored them;
@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..constants import MIN_COS_INCIDENCE, MOON_RADIUS_M
+from ..constants import MIN_COS_INCIDENCE
+from ..model import geometry
 from ..model.photometry import lunar_lambert
 from .vwgeo import Geo
 
@@ -23,22 +24,17 @@ MOSAIC, LAMBERT, LUNAR_LAMBERT = 0, 1, 2  # REFLECTANCE_TYPE codes (see model.ph
 
 
 def surface(dem: np.ndarray, geo: Geo, nodata: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(points (H, W, 3) in m, normals (H, W, 3))``; normals are NaN where undefined."""
+    """``(points (H, W, 3) in m, normals (H, W, 3))``; normals are NaN where undefined.
+
+    Points and normals are :func:`lunaralbedo.model.geometry.body_fixed` (in metres)
+    and :func:`~lunaralbedo.model.geometry.dem_normals` with backward differences.
+    """
     h, w = dem.shape
-    lon = np.radians(geo.lon(np.arange(w)))[None, :]
-    lat = np.radians(geo.lat(np.arange(h)))[:, None]
-    r = MOON_RADIUS_M + dem.astype(np.float64)
-    cl = np.cos(lat)
-    p = np.stack([r * cl * np.cos(lon), r * cl * np.sin(lon), r * np.sin(lat) * np.ones_like(lon)], axis=-1)
-    bad = dem == np.float32(nodata)
-    normals = np.full(p.shape, np.nan)
-    ok = ~(bad[1:, 1:] | bad[1:, :-1] | bad[:-1, 1:])
-    dx = p[1:, 1:] - p[1:, :-1]
-    dy = p[1:, 1:] - p[:-1, 1:]
-    n = np.cross(dx, dy)
-    n = -n / np.linalg.norm(n, axis=-1, keepdims=True)
-    normals[1:, 1:] = np.where(ok[..., None], n, np.nan)
-    return p, normals
+    lon = np.broadcast_to(geo.lon(np.arange(w))[None, :], (h, w))
+    lat = np.broadcast_to(geo.lat(np.arange(h))[:, None], (h, w))
+    p = geometry.body_fixed(lon, lat, dem, unit="m")
+    bad = (dem == np.float32(nodata))[..., None]
+    return p, geometry.dem_normals(np.where(bad, np.nan, p), differences="backward")
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

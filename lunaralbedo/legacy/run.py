@@ -27,11 +27,12 @@ import numpy as np
 
 from ..errors import SettingsError
 from ..io.atomic import atomic_write_text, remove_stale_temporaries
+from ..model import exposure_init
 from ..settings import Settings
 from . import outputs
 from .catalog import gather, write_lists
 from .dem import mean_dem_tile
-from .exposure import initial_exposure, mean_reflectance
+from .exposure import reflectance_sum
 from .reflect import surface
 from .tilesolve import Params, solve_tile
 from .vwgeo import boxes_overlap, legacy_box, unpadded_corners
@@ -140,10 +141,11 @@ def solve_legacy(settings: Settings, out: Path, progress: bool = True) -> dict:
         t = time.perf_counter()
         tile_surf = [(tl.geo, inner[tl.name], surfaces[tl.name]) for tl in tiles]
         for im in inp.images:
-            mean_r, n = mean_reflectance(im, tile_surf, params())
+            r_sum, n = reflectance_sum(im, tile_surf, params())
             # No usable pixel: the legacy program divided by zero and printed nan; so do we, and the
             # image is then left out of the albedo passes (the legacy run would spread NaNs).
-            exposures[im.key] = initial_exposure(mean_r, settings.tr_const) if n else float("nan")
+            t_seed = exposure_init.seed_exposure(settings.tr_const, r_sum, n, dtype=np.float32)
+            exposures[im.key] = float(t_seed) if n else float("nan")
             outputs.append_line(out / "exposure" / f"{im.key}_exposure.txt", f"{exposures[im.key]:f}")
             exposures[im.key] = outputs.reread_float(exposures[im.key])
         unusable = [k for k, v in exposures.items() if not np.isfinite(v)]

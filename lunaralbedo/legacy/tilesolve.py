@@ -13,9 +13,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..model import updates
+from ..model.photometry import lunar_lambert
 from .interp import bilinear_f32
 from .reflect import reflectance
-from .vwgeo import Geo, boxes_overlap
+from .vwgeo import Geo, boxes_overlap, sub_window
 from .weights import CenterLines, line_weights
 
 MODES = ("weights_sum", "init", "update", "phase", "errors")
@@ -76,7 +78,7 @@ def shadow_threshold(p: Params, exposure_refl: np.ndarray) -> np.ndarray:
     return np.full(np.shape(exposure_refl), np.float32(-1.0))
 
 
-def _seq_sum(start: float, terms: np.ndarray) -> float:
+def seq_sum(start: float, terms: np.ndarray) -> float:
     """``start + t0 + t1 + ...`` summed left to right in float64 (the legacy loop order)."""
     if terms.size == 0:
         return start
@@ -85,14 +87,9 @@ def _seq_sum(start: float, terms: np.ndarray) -> float:
 
 def sub_image_window(img_geo: Geo, tile_geo: Geo) -> tuple[int, int, int, int] | None:
     """Legacy getSubImageWithMargin of an image around a tile: ``(col0, row0, col1, row1)``."""
-    bc, br = float(img_geo.col(tile_geo.lon(0))), float(img_geo.row(tile_geo.lat(0)))
-    ec = float(img_geo.col(tile_geo.lon(tile_geo.width - 1)))
-    er = float(img_geo.row(tile_geo.lat(tile_geo.height - 1)))
-    c0, c1 = max(0, math.floor(bc) - 2), min(img_geo.width, math.ceil(ec) + 2)
-    r0, r1 = max(0, math.floor(br) - 2), min(img_geo.height, math.ceil(er) + 2)
-    if c0 >= c1 or r0 >= r1:
-        return None
-    return (c0, r0, c1, r1)
+    nw = (float(tile_geo.lon(0)), float(tile_geo.lat(0)))
+    se = (float(tile_geo.lon(tile_geo.width - 1)), float(tile_geo.lat(tile_geo.height - 1)))
+    return sub_window(img_geo, nw, se)
 
 
 def solve_tile(mode, tile_geo: Geo, inner, images, exposures, p: Params, surface=None, weights_sum=None, albedo_in=None):
@@ -183,37 +180,38 @@ def solve_tile(mode, tile_geo: Geo, inner, images, exposures, p: Params, surface
         if mode == "weights_sum":
             norm[m] = (norm[m].astype(np.float64) + ws).astype(f32)
             continue
-        if mode == "init":
-            acc[m] = (acc[m].astype(np.float64) + pix * er_ * ws).astype(f32)
-            norm[m] = (norm[m].astype(np.float64) + er_ * er_ * ws).astype(f32)
+        if mode == "init":  # eq. 3
+            num_k, den_k = updates.albedo_terms(pix, er_, ws)
+            acc[m] = (acc[m].astype(np.float64) + num_k).astype(f32)
+            norm[m] = (norm[m].astype(np.float64) + den_k).astype(f32)
             continue
         a_val, a_ok = albedo_in
         m2 = a_ok[m]
         sel = np.flatnonzero(m.ravel())[m2]
         A = a_val.ravel()[sel].astype(np.float64)
         pix, ws, er_ = pix[m2], ws[m2], er_[m2]
-        diff = pix - A * er_
+        diff = pix - A * er_  # the residual I - ATR
         inside = in_tile.ravel()[sel]
-        if mode == "update":
+        if mode == "update":  # eq. 6
             accf, normf = acc.ravel(), norm.ravel()
-            accf[sel] = (accf[sel].astype(np.float64) + diff * er_ * ws).astype(f32)
-            normf[sel] = (normf[sel].astype(np.float64) + er_ * er_ * ws).astype(f32)
-        elif mode == "phase":
+            num_k, den_k = updates.albedo_terms(diff, er_, ws)
+            accf[sel] = (accf[sel].astype(np.float64) + num_k).astype(f32)
+            normf[sel] = (normf[sel].astype(np.float64) + den_k).astype(f32)
+        elif mode == "phase":  # eq. 5 with dR/dc of eq. 2, G = R / P from the stored R
             al = alpha.ravel()[sel].astype(np.float64)[inside]
-            e = np.exp(-float(f32(p.c1)) * al)
-            d2 = A[inside] * er_[inside] / (e + float(f32(p.c2)))
-            d1 = d2 * (-al * e)
+            c = (float(f32(p.c1)), float(f32(p.c2)))
+            layers = {"alpha": al, "geometric": er_[inside] / lunar_lambert.phase_factor(al, *c)}
+            d1, d2 = (A[inside] * d for d in lunar_lambert.derivatives_from(layers, c))
             dd, ww = diff[inside], ws[inside]
-            pcd[0] = _seq_sum(pcd[0], dd * d1 * ww)
-            pcd[1] = _seq_sum(pcd[1], d1 * d1 * ww)
-            pcd[2] = _seq_sum(pcd[2], dd * d2 * ww)
-            pcd[3] = _seq_sum(pcd[3], d2 * d2 * ww)
-        else:  # errors
+            pcd[0] = seq_sum(pcd[0], dd * d1 * ww)
+            pcd[1] = seq_sum(pcd[1], d1 * d1 * ww)
+            pcd[2] = seq_sum(pcd[2], dd * d2 * ww)
+            pcd[3] = seq_sum(pcd[3], d2 * d2 * ww)
+        else:  # errors, eq. 7
             errf, normf = err.ravel(), norm.ravel()
-            q = diff / er_
-            errf[sel] = (errf[sel].astype(np.float64) + q * q * ws).astype(f32)
+            errf[sel] = (errf[sel].astype(np.float64) + updates.error_terms(pix, A, er_, ws)).astype(f32)
             normf[sel] = (normf[sel].astype(np.float64) + ws).astype(f32)
-        cost = _seq_sum(cost, (diff * diff * ws)[inside])
+        cost = seq_sum(cost, updates.cost_terms(diff, ws)[inside])  # eq. 1
     res = TileResult(cost=cost, phase=tuple(pcd))
     if mode == "weights_sum":
         res.value = norm

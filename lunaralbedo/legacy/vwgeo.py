@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..engine.tiles import tile_name  # noqa: F401  (re-exported: same naming rule)
+from ..engine.tiles import tile_name, tile_starts
 
 #: The legacy program padded every tile by this many pixels while solving.
 PIXEL_PADDING = 5
@@ -76,6 +76,21 @@ class Geo:
         w, e = sorted((float(np.float32(x0)), float(np.float32(x1))))
         s, n = sorted((float(np.float32(y0)), float(np.float32(y1))))
         return (w, e, s, n)
+
+
+def sub_window(geo: Geo, nw: tuple[float, float], se: tuple[float, float], margin: int = 2) -> tuple[int, int, int, int] | None:
+    """Legacy getSubImageWithMargin: ``(col0, row0, col1, row1)`` of the part of ``geo`` around the box.
+
+    ``nw``/``se`` are the lon/lat of the box's north-west and south-east pixel centres;
+    the window is widened by ``margin`` pixels and clipped to the image (None when empty).
+    """
+    bc, br = float(geo.col(nw[0])), float(geo.row(nw[1]))
+    ec, er = float(geo.col(se[0])), float(geo.row(se[1]))
+    c0, c1 = max(0, math.floor(bc) - margin), min(geo.width, math.ceil(ec) + margin)
+    r0, r1 = max(0, math.floor(br) - margin), min(geo.height, math.ceil(er) + margin)
+    if c0 >= c1 or r0 >= r1:
+        return None
+    return (c0, r0, c1, r1)
 
 
 def boxes_overlap(b1, b2) -> bool:
@@ -137,15 +152,8 @@ def tiles_for_images(image_corners, tile_size: float, ref: Geo, pad: int = PIXEL
     the tiles take.  ``tile_size`` is used as the float32 the legacy parser stored.
     """
     ts = float(np.float32(tile_size))
-    keys: set[tuple[float, float]] = set()
-    for w, e, s, n in image_corners:
-        y = ts * math.floor(s / ts)
-        while y < n:
-            x = ts * math.floor(w / ts)
-            while x < e:
-                keys.add((y, x))
-                x += ts
-            y += ts
+    keys = {(y, x) for w, e, s, n in image_corners
+            for y in tile_starts(s, n, ts, legacy=True) for x in tile_starts(w, e, ts, legacy=True)}
     tiles = []
     cur = ref
     for min_y, min_x in sorted(keys):
@@ -160,15 +168,8 @@ def tiles_for_images(image_corners, tile_size: float, ref: Geo, pad: int = PIXEL
         nrows = int(_round_half_away((y0p - y1p) / ref.e))
         geo = Geo(c=x0p, a=ref.a, f=y1p, e=ref.e, width=ncols, height=nrows)
         cur = geo
-        tiles.append(LegacyTile(name=_legacy_name(min_x, max_y), min_x=min_x, max_x=max_x, min_y=min_y, max_y=max_y, geo=geo, pad=pad))
+        tiles.append(LegacyTile(name=tile_name(min_x, max_y, legacy=True), min_x=min_x, max_x=max_x, min_y=min_y, max_y=max_y, geo=geo, pad=pad))
     return tiles
-
-
-def _legacy_name(min_x: float, max_y: float) -> str:
-    """``tile_<lon>{E|W}<lat>{N|S}`` as C++ ``ostream`` printed the doubles (``%g``, 6 digits)."""
-    e, se = (min_x + 0.0, "E") if min_x >= 0 else (-min_x, "W")
-    n, sn = (max_y + 0.0, "N") if max_y >= 0 else (-max_y, "S")
-    return f"tile_{e:g}{se}{n:g}{sn}"
 
 
 def unpadded_corners(tile_geo: Geo, tile_size: float, pad: int = PIXEL_PADDING) -> tuple[float, float, float, float]:

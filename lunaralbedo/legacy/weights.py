@@ -1,4 +1,5 @@
-"""Legacy per-image blending weights (reconstruct --save-weights), pure math.
+"""Legacy per-image blending weights (reconstruct --save-weights): the tent of
+:mod:`lunaralbedo.model.weights` with the legacy centre lines and float32 numerics.
 
 For every row of a DRG the legacy program kept the centre (integer midpoint)
 and extent of its valid pixels, and likewise for every column.  The weight at
@@ -15,6 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from ..model.weights import profile_from_mask, tent_about
 
 
 @dataclass(frozen=True)
@@ -37,20 +40,20 @@ class CenterLines:
 
 
 def center_lines(valid: np.ndarray) -> CenterLines:
-    """Legacy ComputeImageCenterLines from the validity mask ``(rows, cols)`` of a DRG."""
-    valid = np.asarray(valid, dtype=bool)
-    nrows, ncols = valid.shape
+    """Legacy ComputeImageCenterLines from the validity mask ``(rows, cols)`` of a DRG.
 
-    def lines(mask: np.ndarray, n_other: int) -> tuple[np.ndarray, np.ndarray]:
-        idx = np.arange(mask.shape[1])
-        any_ = mask.any(axis=1)
-        lo = np.where(any_, np.where(mask, idx, n_other).min(axis=1), n_other)
-        hi = np.where(any_, np.where(mask, idx, 0).max(axis=1), 0)
-        center = (lo + hi) // 2  # both >= 0: C integer division
-        return center.astype(np.int64), np.maximum(hi - lo, 0).astype(np.int64)
+    The first/last valid pixels are :func:`lunaralbedo.model.weights.profile_from_mask`;
+    the legacy kept their integer midpoint (C division) and distance.
+    """
+    p = profile_from_mask(valid)
 
-    hc, hm = lines(valid, ncols)
-    vc, vm = lines(valid.T, nrows)
+    def lines(first: np.ndarray, last: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        first, last = first.astype(np.int64), last.astype(np.int64)
+        hi = np.maximum(last, 0)  # an empty row/column: first = its length, last = 0
+        return (first + hi) // 2, np.maximum(last - first, 0)
+
+    hc, hm = lines(p.row_first, p.row_last)
+    vc, vm = lines(p.col_first, p.col_last)
     return CenterLines(hc, hm, vc, vm)
 
 
@@ -59,17 +62,13 @@ def _c_round(v: np.ndarray) -> np.ndarray:
 
 
 def _tent(along: np.ndarray, across: np.ndarray, center: np.ndarray, maxdist: np.ndarray) -> np.ndarray:
+    """The float32 tent (:func:`lunaralbedo.model.weights.tent_about`) of the line nearest to ``across``."""
     pos = _c_round(across)
     n = len(center)
     inside = (pos >= 0) & (pos < n)
     p = np.clip(pos, 0, max(n - 1, 0)).astype(np.int64)
-    md = (maxdist[p] / 2.0).astype(np.float32)
-    ctr = center[p].astype(np.float32)
-    dist = np.abs(along - ctr.astype(np.float64)).astype(np.float32)
-    with np.errstate(divide="ignore", invalid="ignore"):  # zero extents are masked below
-        a = (-1.0 / md.astype(np.float64)).astype(np.float32)
-        w = np.maximum(np.float32(0.0), a * dist + np.float32(1.0)).astype(np.float32)
-    return np.where(inside & (md != 0), w, np.float32(0.0)).astype(np.float32)
+    w = tent_about(along, center[p], maxdist[p] / 2.0, dtype=np.float32)
+    return np.where(inside, w, np.float32(0.0)).astype(np.float32)
 
 
 def line_weights(cl: CenterLines, x: np.ndarray, y: np.ndarray) -> np.ndarray:

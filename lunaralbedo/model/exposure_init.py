@@ -32,10 +32,16 @@ def mean_reflectance_sums(r, usable):
     return rs, n
 
 
-def seed_exposure(tr_const, r_sum, r_count):
-    r""":math:`T^k = \mathrm{TR\_CONST}/\overline{R^k}`; images without usable pixels get TR_CONST."""
+def seed_exposure(tr_const, r_sum, r_count, dtype=np.float64):
+    r""":math:`T^k = \mathrm{TR\_CONST}/\overline{R^k}` (seed 000 section 7, step 1); images without usable pixels get TR_CONST.
+
+    ``dtype=np.float32`` gives the legacy numerics: the mean and the quotient rounded to float32.
+    """
     with np.errstate(divide="ignore", invalid="ignore"):
         mean_r = np.where(r_count > 0, r_sum / r_count, np.nan)
+    if np.dtype(dtype) == np.float32:
+        mean_r, tr_const = mean_r.astype(np.float32), np.float32(tr_const)
+        return np.where(np.isfinite(mean_r) & (mean_r > 0), tr_const / mean_r, tr_const).astype(np.float32)
     return np.where(np.isfinite(mean_r) & (mean_r > 0), tr_const / mean_r, float(tr_const))
 
 

@@ -31,11 +31,20 @@ def lonlat_grid(transform, shape):
     return np.broadcast_to(lon[None, :], shape), np.broadcast_to(lat[:, None], shape)
 
 
-def body_fixed(lon_deg, lat_deg, height_m):
-    """Body-fixed points (km), shape ``(..., 3)``, from lon/lat (degrees) and height (metres)."""
+def body_fixed(lon_deg, lat_deg, height_m, unit: str = "km"):
+    """Body-fixed points, shape ``(..., 3)``, from lon/lat (degrees) and height (metres).
+
+    In km by default; ``unit="m"`` gives metres (:math:`R + h` with R = 1737400 m),
+    the numerics of the legacy mode.
+    """
     lon = np.radians(np.asarray(lon_deg, dtype=np.float64))
     lat = np.radians(np.asarray(lat_deg, dtype=np.float64))
-    r = MOON_RADIUS_KM + np.asarray(height_m, dtype=np.float64) / 1000.0
+    if unit == "km":
+        r = MOON_RADIUS_KM + np.asarray(height_m, dtype=np.float64) / 1000.0
+    elif unit == "m":
+        r = MOON_RADIUS_M + np.asarray(height_m, dtype=np.float64)
+    else:
+        raise ValueError(f"unit must be km or m, got {unit!r}")
     cl = np.cos(lat)
     return np.stack([r * cl * np.cos(lon), r * cl * np.sin(lon), r * np.sin(lat)], axis=-1)
 
@@ -69,17 +78,30 @@ def _central_difference(a, axis):
     return g if axis == 0 else g.T
 
 
-def dem_normals(points_km):
-    """Outward unit normals of a grid of body-fixed points ``(H, W, 3)`` (central differences).
+def _backward_difference(a, axis):
+    """``a[i] - a[i-1]`` along ``axis`` of a 2-D array; NaN in the first row (column)."""
+    g = np.full_like(a, np.nan)
+    a, g = (a, g) if axis == 0 else (a.T, g.T)
+    g[1:] = a[1:] - a[:-1]
+    return g if axis == 0 else g.T
+
+
+def dem_normals(points_km, differences: str = "central"):
+    """Outward unit normals of a grid of body-fixed points ``(H, W, 3)``.
 
     The normal is (towards south) x (towards east) of the neighbouring points, flipped
-    to point away from the Moon's centre.  Edge pixels use one-sided differences;
-    pixels next to NaN heights are NaN.
+    to point away from the Moon's centre.  ``differences="central"`` (the solver):
+    central differences, one-sided at the edges.  ``differences="backward"`` (the
+    legacy mode): ``p - p_up`` and ``p - p_left``, so the first row and column have
+    no normal (NaN).  Pixels next to NaN heights are NaN.  Any length unit.
     """
     p = np.asarray(points_km, dtype=np.float64)
+    diff = {"central": _central_difference, "backward": _backward_difference}.get(differences)
+    if diff is None:
+        raise ValueError(f"differences must be central or backward, got {differences!r}")
     x, y, z = (np.ascontiguousarray(p[..., i]) for i in range(3))
-    rx, ry, rz = (_central_difference(c, 0) for c in (x, y, z))  # towards south (increasing row)
-    cx, cy, cz = (_central_difference(c, 1) for c in (x, y, z))  # towards east (increasing column)
+    rx, ry, rz = (diff(c, 0) for c in (x, y, z))  # towards south (increasing row)
+    cx, cy, cz = (diff(c, 1) for c in (x, y, z))  # towards east (increasing column)
     nx, ny, nz = ry * cz - rz * cy, rz * cx - rx * cz, rx * cy - ry * cx
     norm = np.sqrt(nx * nx + ny * ny + nz * nz)
     norm = np.where(nx * x + ny * y + nz * z < 0, -norm, norm)

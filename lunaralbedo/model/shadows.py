@@ -27,6 +27,19 @@ def static_lit(image: np.ndarray, shadow_type: int, thresh: float) -> np.ndarray
     return np.isfinite(image) | ~np.isfinite(image)
 
 
+def usable_pixels(image: np.ndarray, valid: np.ndarray, lit_threshold: float | None = None,
+                  saturation: float | None = None) -> np.ndarray:
+    """Pixels that can be observations: ``valid``, lit by :func:`static_lit` (shadow type 1) with
+    ``lit_threshold`` when it is given, and below ``saturation`` (a DRG's maximum value) when given."""
+    good = np.asarray(valid, dtype=bool).copy()
+    if lit_threshold is not None:
+        good &= static_lit(image, THRESHOLD, lit_threshold)
+    if saturation is not None:
+        with np.errstate(invalid="ignore"):
+            good &= np.asarray(image) < saturation
+    return good
+
+
 def dynamic_lit(image: np.ndarray, reflectance: np.ndarray, exposure: np.ndarray, thresh: float) -> np.ndarray:
     r"""Lit mask of types 2/3: :math:`I/(R\,T) \ge t`; ``exposure`` broadcasts over the image stack."""
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -22,6 +22,19 @@ def _f64sum(x, axis=None):
     return np.sum(x, axis=axis, dtype=np.float64)
 
 
+def albedo_terms(values, tr, w):
+    r"""Per-observation numerator and denominator terms of eqs. 3 and 6: :math:`(V\,TR\,Sw,\ (TR)^2 Sw)`.
+
+    With :math:`V = I` their sums over :math:`k` give eq. 3, :math:`A = \sum V TRSw / \sum (TR)^2 Sw`;
+    with the residual :math:`V = I - ATR` they give the Gauss-Newton step of eq. 6,
+    :math:`\delta A = \sum V TRSw / \sum (TR)^2 Sw`.  ``tr`` is :math:`T^k R^k_{ij}`, ``w`` is
+    :math:`S w`; the dtype of the inputs is kept (float32 in the solver, float64 in the
+    legacy mode, which accumulates them image by image in float32).
+    """
+    trw = tr * w
+    return values * trw, tr * trw
+
+
 def albedo(image, tr, w):
     r"""Albedo that minimises :math:`Q` for fixed exposure and reflectance (eqs. 3 and 6).
 
@@ -31,9 +44,9 @@ def albedo(image, tr, w):
     :math:`Q` is quadratic in :math:`A`.  ``tr`` is :math:`T^k R^k_{ij}`.  Returns
     float32 albedo, NaN where no image contributes.
     """
-    trw = tr * w
-    num = _f64sum(image * trw, axis=0)
-    den = _f64sum(tr * trw, axis=0)
+    num_k, den_k = albedo_terms(image, tr, w)
+    num = _f64sum(num_k, axis=0)
+    den = _f64sum(den_k, axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         a = np.where(den > 0, num / den, np.nan)
     return a.astype(np.float32)
@@ -44,9 +57,14 @@ def residuals(image, a, tr, w):
     return image - np.nan_to_num(a)[None] * tr
 
 
+def cost_terms(res, w):
+    r"""Per-observation terms :math:`(I - ATR)^2 S w` of the cost of eq. 1 (dtype of the inputs)."""
+    return res * res * w
+
+
 def cost(res, w):
     r"""The cost :math:`Q = \sum_k\sum_{ij}(I - ATR)^2 S w` of eq. 1 (float64)."""
-    return float(_f64sum(res * res * w))
+    return float(_f64sum(cost_terms(res, w)))
 
 
 def exposure_sums(image, a, r, w):
@@ -136,6 +154,13 @@ def phase_update_damped(c, jtj, jtr, alpha_range, curve, damping=0.1, max_rel_ch
     return c + step
 
 
+def error_terms(image, a, tr, w_shadow):
+    r"""Per-observation numerator terms :math:`(I/(TR) - A)^2 S w` of eq. 7 (0 where :math:`Sw = 0`)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dev = np.where(w_shadow > 0, image / tr - a, 0.0)
+    return dev * dev * w_shadow
+
+
 def error_map(image, a, tr, w_shadow, w_blend):
     r"""Per-pixel albedo error (eq. 7).
 
@@ -143,9 +168,7 @@ def error_map(image, a, tr, w_shadow, w_blend):
 
     ``w_shadow`` is :math:`S w`, ``w_blend`` is :math:`w`.  NaN where no weight.
     """
-    with np.errstate(divide="ignore", invalid="ignore"):
-        dev = np.where(w_shadow > 0, image / tr - a[None], 0.0)
-    num = _f64sum(dev * dev * w_shadow, axis=0)
+    num = _f64sum(error_terms(image, a[None], tr, w_shadow), axis=0)
     den = _f64sum(w_blend, axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         e = np.where(den > 0, num / den, np.nan)

@@ -72,15 +72,35 @@ def merge_profiles(parts: list[tuple[int, WeightProfile]], height: int, width: i
     return WeightProfile(rf, rl, cf, cl)
 
 
+def tent_about(x: np.ndarray, centre: np.ndarray, half: np.ndarray, dtype=np.float64) -> np.ndarray:
+    r""":math:`\max(0, 1 - |x - c|/h)`: 1 at the centre ``c``, 0 at distance ``h`` and beyond, 0 where ``h = 0``.
+
+    The one implementation of the blending tent of eq. 1.  ``dtype=np.float64`` (the
+    solver) evaluates it in float64.  ``dtype=np.float32`` gives PhotometryTK's numerics,
+    which the legacy gold needs: ``c``, ``h``, :math:`|x - c|` and the slope :math:`-1/h`
+    rounded to float32 and :math:`t = (-1/h)|x - c| + 1` in float32.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if np.dtype(dtype) == np.float32:
+        f32 = np.float32
+        h = np.asarray(half).astype(f32)
+        dist = np.abs(x - np.asarray(centre).astype(f32).astype(np.float64)).astype(f32)
+        with np.errstate(divide="ignore", invalid="ignore"):  # zero half-widths are masked below
+            slope = (-1.0 / h.astype(np.float64)).astype(f32)
+            t = np.maximum(f32(0.0), slope * dist + f32(1.0)).astype(f32)
+        return np.where(h != 0, t, f32(0.0)).astype(f32)
+    c = np.asarray(centre, dtype=np.float64)
+    h = np.asarray(half, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = 1.0 - np.abs(x - c) / h
+    return np.where(h > 0, np.clip(t, 0.0, 1.0), 0.0)
+
+
 def tent(x: np.ndarray, first: np.ndarray, last: np.ndarray) -> np.ndarray:
     """:math:`t(x; a, b)`: 1 at the centre of ``[a, b]``, 0 at and beyond its ends."""
-    x = np.asarray(x, dtype=np.float64)
     a = np.asarray(first, dtype=np.float64)
     b = np.asarray(last, dtype=np.float64)
-    half = (b - a) / 2.0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = 1.0 - np.abs(x - (a + b) / 2.0) / half
-    return np.where(half > 0, np.clip(t, 0.0, 1.0), 0.0)
+    return tent_about(x, (a + b) / 2.0, (b - a) / 2.0)
 
 
 def window_weights(profile: WeightProfile, row_off: int, col_off: int, height: int, width: int) -> np.ndarray:
@@ -92,3 +112,8 @@ def window_weights(profile: WeightProfile, row_off: int, col_off: int, height: i
     w_row = tent(cols[None, :], profile.row_first[rows_c][:, None], profile.row_last[rows_c][:, None])
     w_col = tent(rows[:, None], profile.col_first[cols_c][None, :], profile.col_last[cols_c][None, :])
     return (w_row * w_col).astype(np.float32)
+
+
+def source_weights(profile: WeightProfile, row_off: int, col_off: int, valid: np.ndarray) -> np.ndarray:
+    """Blending weights (float32) of the image window at ``(row_off, col_off)``, zero where not ``valid``."""
+    return window_weights(profile, row_off, col_off, valid.shape[0], valid.shape[1]) * valid
