@@ -11,7 +11,9 @@ The scene is written in the exact input contract of ``lunaralbedo solve``:
 Images are :math:`I = \\mathrm{round}(A\\,T\\,R + n)` clipped to 0..255 (eq. 1's model),
 with :math:`R` from the photometric model (:mod:`lunaralbedo.model.photometry`), Gaussian noise
 ``n`` and 8-bit quantisation.  Geometry: a strip of images along longitude near
-the equator, each with its own Sun and spacecraft position.
+the equator, each with its own Sun and spacecraft position.  The strip may straddle
+±180° (``SceneSpec.centred(180.0)``): longitudes are continuous, and ``wrap_lon``
+writes the DRGs east of 180° with -180..180 file longitudes, as a mission archive would.
 """
 from __future__ import annotations
 
@@ -39,7 +41,7 @@ class SceneSpec:
     image_px: int = 120  # square images, pixels
     res_deg: float = 0.01  # pixel size, degrees
     overlap: float = 0.5  # fraction of an image shared with the next
-    lon0: float = 10.0  # west edge of the strip, degrees
+    lon0: float = 10.0  # west edge of the strip, degrees (continuous: may pass 180)
     lat0: float = -5.0  # south edge, degrees
     exposure_spread: float = 0.4  # exposures in 1 +- spread
     reflectance_type: int = 2
@@ -54,6 +56,15 @@ class SceneSpec:
     use_normalized_cost_fun: int = 0
     shadow_thresh: float = 10.0
     seed: int = 7
+    wrap_lon: bool = False  # DRGs east of 180 deg written at -180..180, SIMULATION_BOX as lon0:east-360
+
+    @classmethod
+    def centred(cls, lon_center: float, lat_center: float = 0.0, **kwargs) -> "SceneSpec":
+        """A spec whose strip is centred on ``(lon_center, lat_center)`` degrees."""
+        spec = cls(**kwargs)
+        spec.lon0 = lon_center - spec.width_px * spec.res_deg / 2
+        spec.lat0 = lat_center - spec.image_px * spec.res_deg / 2
+        return spec
 
     @property
     def step_px(self) -> int:
@@ -175,12 +186,16 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
         signal = gain * albedo_fn(lon, lat) * exposures[k] * r
         dn = np.clip(np.round(signal + rng.normal(0, spec.noise_dn, signal.shape)), 0, 255).astype(np.uint8)
         alpha = np.full(dn.shape, 255, np.uint8)
+        if spec.wrap_lon and transform.c >= 180.0:  # the file says -180..-170 for 180..190
+            transform = Affine.translation(-360.0, 0.0) @ transform
         write_geotiff(out / "DRG" / f"{key}_drg.tif", np.stack([dn, alpha]), transform, MOON_CRS)
         sun_pos[key], sc_pos[key] = sun, sc
         keys.append(key)
     write_positions(out / "meta" / "sunpos.txt", sun_pos)
     write_positions(out / "meta" / "spacecraftpos.txt", sc_pos)
     box = (spec.lon0, spec.lon0 + width * res, spec.lat0, spec.lat0 + height * res)
+    if spec.wrap_lon and box[1] > 180.0:
+        box = (box[0], box[1] - 360.0, box[2], box[3])  # written e.g. 179.5:-179.5
     geometry_files = spec.reflectance_type != 0
     settings = legacy_text(
         {
