@@ -18,6 +18,7 @@ writes the DRGs east of 180° with -180..180 file longitudes, as a mission archi
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -25,6 +26,8 @@ import numpy as np
 from rasterio.transform import Affine
 
 from .constants import MOON_RADIUS_KM
+from .errors import InputError, OutputError
+from .io.guard import check_output_dir
 from .io.atomic import atomic_write_text
 from .io.positions import write_positions
 from .io.rasters import MOON_CRS, write_geotiff
@@ -66,6 +69,20 @@ class SceneSpec:
         spec.lat0 = lat_center - spec.image_px * spec.res_deg / 2
         return spec
 
+    def validate(self) -> "SceneSpec":
+        """:class:`InputError` naming the parameter (and its ``simulate`` option) when a value cannot make a scene."""
+        for name, (option, lo, hi, lo_open) in _LIMITS.items():
+            v = getattr(self, name)
+            bad = not isinstance(v, (int, float)) or isinstance(v, bool) or not np.isfinite(v)
+            bad = bad or (v <= lo if lo_open else v < lo) or (hi is not None and v >= hi)
+            if bad:
+                rng = f"{'>' if lo_open else '>='} {lo:g}" + (f" and < {hi:g}" if hi is not None else "")
+                raise InputError(f"{option} ({name}) must be a number {rng}, got {v!r}")
+        if self.width_px * self.res_deg > 360.0 or self.lat0 < -90.0 or self.lat0 + self.image_px * self.res_deg > 90.0:
+            raise InputError(f"--res/--size/--images: the strip ({self.width_px} x {self.image_px} pixels of "
+                             f"{self.res_deg:g} deg from lon {self.lon0:g}, lat {self.lat0:g}) does not fit on the Moon")
+        return self
+
     @property
     def step_px(self) -> int:
         return max(1, int(round(self.image_px * (1 - self.overlap))))
@@ -73,6 +90,20 @@ class SceneSpec:
     @property
     def width_px(self) -> int:
         return self.image_px + self.step_px * (self.n_images - 1)
+
+
+#: name -> (simulate option, lower limit, upper limit (exclusive) or None, lower limit exclusive)
+_LIMITS = {
+    "n_images": ("--images", 1, None, False),
+    "image_px": ("--size", 8, None, False),
+    "res_deg": ("--res", 0.0, None, True),
+    "overlap": ("overlap", 0.0, 1.0, False),
+    "exposure_spread": ("--spread", 0.0, 1.0, False),
+    "noise_dn": ("--noise", 0.0, None, False),
+    "tile_size": ("--tile-size", 0.0, None, True),
+    "max_num_iter": ("max_num_iter", 1, None, False),
+    "altitude_km": ("altitude_km", 0.0, None, True),
+}
 
 
 def _features(extent, per_square_degree, seed):
@@ -146,9 +177,25 @@ def _sun_and_spacecraft(spec: SceneSpec, k: int, lon_c: float, lat_c: float, rng
 
 
 def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
-    """Render the scene of ``spec`` into ``out_dir`` (see module docstring); return the truth."""
-    spec = spec or SceneSpec()
-    out = Path(out_dir)
+    """Render the scene of ``spec`` into ``out_dir`` (see module docstring); return the truth.
+
+    :class:`InputError` for a spec that cannot make a scene, :class:`OutputError` when
+    ``out_dir`` cannot be created or is not empty; both before anything is written.
+    """
+    spec = (spec or SceneSpec()).validate()
+    out = check_output_dir(out_dir, "scene folder")
+    if out.is_dir() and any(out.iterdir()):
+        raise OutputError(f"{out}: the scene folder exists and is not empty")
+    created = not out.exists()
+    try:
+        return _render(out, spec)
+    except BaseException:
+        if created:  # nothing half-written: a failed render leaves no scene folder behind
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+
+
+def _render(out: Path, spec: SceneSpec) -> dict:
     rng = np.random.default_rng(spec.seed)
     res = spec.res_deg
     width, height = spec.width_px, spec.image_px
