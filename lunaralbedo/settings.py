@@ -4,7 +4,9 @@ Two spellings of the same settings are accepted:
 
 * the legacy text file: one ``KEY value`` per line, ``#`` comments, free
   spacing, empty values allowed (e.g. no DEM in mosaic mode) and
-  ``SIMULATION_BOX lon_min:lon_max:lat_min:lat_max`` with or without spaces;
+  ``SIMULATION_BOX lon_min:lon_max:lat_min:lat_max`` with or without spaces
+  (a box across ±180° may be written ``170:190`` or ``170:-170``; both are kept as
+  the continuous longitudes 170..190);
 * a ``.toml`` file with the same keys in snake_case.
 
 Relative paths resolve against the folder of the settings file.  Unknown keys
@@ -26,6 +28,7 @@ from typing import Any
 
 from .errors import SettingsError
 from .model import photometry
+from .model.longitude import box_longitudes
 
 #: (legacy key, type, default, allowed values or None); model-declared keys follow TR_CONST.
 _CORE: dict[str, tuple[type, Any, tuple | None]] = {
@@ -175,8 +178,11 @@ def _parse_box(text: str, where: str) -> tuple[float, float, float, float]:
             f"{where}: SIMULATION_BOX must be lon_min:lon_max:lat_min:lat_max (4 numbers), got {text!r}"
         )
     lon0, lon1, lat0, lat1 = vals
+    lon0, lon1 = box_longitudes(lon0, lon1)  # 170:-170 crosses the antimeridian: 170..190
     if not (lon0 < lon1 and lat0 < lat1):
         raise SettingsError(f"{where}: SIMULATION_BOX needs lon_min < lon_max and lat_min < lat_max, got {text!r}")
+    if lon1 - lon0 > 360.0 + 1e-9:
+        raise SettingsError(f"{where}: SIMULATION_BOX spans more than 360 degrees of longitude, got {text!r}")
     # The legacy sample used -180:180:-180:180 for "the whole Moon": clamp latitudes.
     return (lon0, lon1, max(lat0, -90.0), min(lat1, 90.0))
 

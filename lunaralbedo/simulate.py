@@ -11,11 +11,14 @@ The scene is written in the exact input contract of ``lunaralbedo solve``:
 Images are :math:`I = \\mathrm{round}(A\\,T\\,R + n)` clipped to 0..255 (eq. 1's model),
 with :math:`R` from the photometric model (:mod:`lunaralbedo.model.photometry`), Gaussian noise
 ``n`` and 8-bit quantisation.  Geometry: a strip of images along longitude near
-the equator, each with its own Sun and spacecraft position.
+the equator, each with its own Sun and spacecraft position.  The strip may straddle
+±180° (``SceneSpec.centred(180.0)``): longitudes are continuous, and ``wrap_lon``
+writes the DRGs east of 180° with -180..180 file longitudes, as a mission archive would.
 """
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -24,6 +27,8 @@ from rasterio.transform import Affine
 
 from .constants import MOON_RADIUS_KM
 from .engine.photometry import bind
+from .errors import InputError, OutputError
+from .io.guard import check_output_dir
 from .io.atomic import atomic_write_text
 from .io.positions import write_positions
 from .io.rasters import MOON_CRS, write_geotiff
@@ -41,7 +46,7 @@ class SceneSpec:
     image_px: int = 120  # square images, pixels
     res_deg: float = 0.01  # pixel size, degrees
     overlap: float = 0.5  # fraction of an image shared with the next
-    lon0: float = 10.0  # west edge of the strip, degrees
+    lon0: float = 10.0  # west edge of the strip, degrees (continuous: may pass 180)
     lat0: float = -5.0  # south edge, degrees
     exposure_spread: float = 0.4  # exposures in 1 +- spread
     reflectance_type: int = 2
@@ -61,6 +66,29 @@ class SceneSpec:
     sun_azimuths: tuple[float, ...] = (90.0,)  # degrees clockwise from north, cycled over the images
     cast_shadows: bool = False  # render cast shadows (and attached ones) lit by scattered light only
     scatter: float = 0.25  # shadows receive this fraction of the flat ground's signal
+    wrap_lon: bool = False  # DRGs east of 180 deg written at -180..180, SIMULATION_BOX as lon0:east-360
+
+    @classmethod
+    def centred(cls, lon_center: float, lat_center: float = 0.0, **kwargs) -> "SceneSpec":
+        """A spec whose strip is centred on ``(lon_center, lat_center)`` degrees."""
+        spec = cls(**kwargs)
+        spec.lon0 = lon_center - spec.width_px * spec.res_deg / 2
+        spec.lat0 = lat_center - spec.image_px * spec.res_deg / 2
+        return spec
+
+    def validate(self) -> "SceneSpec":
+        """:class:`InputError` naming the parameter (and its ``simulate`` option) when a value cannot make a scene."""
+        for name, (option, lo, hi, lo_open) in _LIMITS.items():
+            v = getattr(self, name)
+            bad = not isinstance(v, (int, float)) or isinstance(v, bool) or not np.isfinite(v)
+            bad = bad or (v <= lo if lo_open else v < lo) or (hi is not None and v >= hi)
+            if bad:
+                rng = f"{'>' if lo_open else '>='} {lo:g}" + (f" and < {hi:g}" if hi is not None else "")
+                raise InputError(f"{option} ({name}) must be a number {rng}, got {v!r}")
+        if self.width_px * self.res_deg > 360.0 or self.lat0 < -90.0 or self.lat0 + self.image_px * self.res_deg > 90.0:
+            raise InputError(f"--res/--size/--images: the strip ({self.width_px} x {self.image_px} pixels of "
+                             f"{self.res_deg:g} deg from lon {self.lon0:g}, lat {self.lat0:g}) does not fit on the Moon")
+        return self
 
     @property
     def step_px(self) -> int:
@@ -69,6 +97,20 @@ class SceneSpec:
     @property
     def width_px(self) -> int:
         return self.image_px + self.step_px * (self.n_images - 1)
+
+
+#: name -> (simulate option, lower limit, upper limit (exclusive) or None, lower limit exclusive)
+_LIMITS = {
+    "n_images": ("--images", 1, None, False),
+    "image_px": ("--size", 8, None, False),
+    "res_deg": ("--res", 0.0, None, True),
+    "overlap": ("overlap", 0.0, 1.0, False),
+    "exposure_spread": ("--spread", 0.0, 1.0, False),
+    "noise_dn": ("--noise", 0.0, None, False),
+    "tile_size": ("--tile-size", 0.0, None, True),
+    "max_num_iter": ("max_num_iter", 1, None, False),
+    "altitude_km": ("altitude_km", 0.0, None, True),
+}
 
 
 def _features(extent, per_square_degree, seed):
@@ -177,9 +219,25 @@ def _sun_and_spacecraft(spec: SceneSpec, k: int, lon_c: float, lat_c: float, rng
 
 
 def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
-    """Render the scene of ``spec`` into ``out_dir`` (see module docstring); return the truth."""
-    spec = spec or SceneSpec()
-    out = Path(out_dir)
+    """Render the scene of ``spec`` into ``out_dir`` (see module docstring); return the truth.
+
+    :class:`InputError` for a spec that cannot make a scene, :class:`OutputError` when
+    ``out_dir`` cannot be created or is not empty; both before anything is written.
+    """
+    spec = (spec or SceneSpec()).validate()
+    out = check_output_dir(out_dir, "scene folder")
+    if out.is_dir() and any(out.iterdir()):
+        raise OutputError(f"{out}: the scene folder exists and is not empty")
+    created = not out.exists()
+    try:
+        return _render(out, spec)
+    except BaseException:
+        if created:  # nothing half-written: a failed render leaves no scene folder behind
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+
+
+def _render(out: Path, spec: SceneSpec) -> dict:
     rng = np.random.default_rng(spec.seed)
     res = spec.res_deg
     width, height = spec.width_px, spec.image_px
@@ -232,12 +290,16 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
         signal = gain * albedo_fn(lon, lat) * exposures[k] * r
         dn = np.clip(np.round(signal + rng.normal(0, spec.noise_dn, signal.shape)), 0, 255).astype(np.uint8)
         alpha = np.full(dn.shape, 255, np.uint8)
+        if spec.wrap_lon and transform.c >= 180.0:  # the file says -180..-170 for 180..190
+            transform = Affine.translation(-360.0, 0.0) @ transform
         write_geotiff(out / "DRG" / f"{key}_drg.tif", np.stack([dn, alpha]), transform, MOON_CRS)
         sun_pos[key], sc_pos[key] = sun, sc
         keys.append(key)
     write_positions(out / "meta" / "sunpos.txt", sun_pos)
     write_positions(out / "meta" / "spacecraftpos.txt", sc_pos)
     box = (spec.lon0, spec.lon0 + width * res, spec.lat0, spec.lat0 + height * res)
+    if spec.wrap_lon and box[1] > 180.0:
+        box = (box[0], box[1] - 360.0, box[2], box[3])  # written e.g. 179.5:-179.5
     geometry_files = model.needs_geometry
     settings = legacy_text(
         {

@@ -90,7 +90,9 @@ def test_legacy_whole_moon_box_is_clamped_to_valid_latitudes(tmp_path):
         ("SHADOW_TYPE x", ["SHADOW_TYPE", "one of 0, 1, 2, 3"]),
         ("USE_WEIGHTS 2", ["USE_WEIGHTS", "one of 0, 1"]),
         ("SIMULATION_BOX 1:2:3", ["SIMULATION_BOX", "lon_min:lon_max:lat_min:lat_max"]),
-        ("SIMULATION_BOX 10:6:-10:-9", ["lon_min < lon_max"]),
+        ("SIMULATION_BOX 6:10:-9:-10", ["lat_min < lat_max"]),
+        ("SIMULATION_BOX 6:6:-10:-9", ["lon_min < lon_max"]),
+        ("SIMULATION_BOX -190:180:-10:-9", ["more than 360 degrees"]),
         ("TILE_SIZE -4", ["TILE_SIZE", "> 0"]),
         ("MAX_NUM_ITER 2.5", ["MAX_NUM_ITER", "int"]),
     ],
@@ -102,6 +104,14 @@ def test_invalid_values_name_key_and_allowed_values(tmp_path, line, words):
     for w in words:
         assert w in str(exc.value)
     assert str(tmp_path / "s.txt") in str(exc.value)
+
+
+@pytest.mark.parametrize("box", ["170:190:-1:1", "170:-170:-1:1", "-190:-170:-1:1"])
+def test_a_box_across_the_antimeridian_is_kept_in_continuous_longitudes(tmp_path, box):
+    s = load_settings(write(tmp_path, f"DRG_DIR d\nREFLECTANCE_TYPE 0\nSIMULATION_BOX {box}\n"))
+    lon0, lon1, lat0, lat1 = s.simulation_box
+    assert (lon1 - lon0, lat0, lat1) == (20.0, -1.0, 1.0)  # 20 degrees wide, not 340
+    assert lon0 % 360.0 == 170.0
 
 
 def test_geometry_required_for_lunar_lambert(tmp_path):

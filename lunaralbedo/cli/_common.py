@@ -14,7 +14,7 @@ from typing import Callable
 
 import click
 
-from ..errors import Interrupted, LunarAlbedoError, typed_error
+from ..errors import ClusterError, Interrupted, LunarAlbedoError, typed_error
 
 INTERNAL_ERROR = 1
 
@@ -26,6 +26,8 @@ def debug_enabled() -> bool:
 
 
 def _hint(exc: LunarAlbedoError) -> str:
+    if isinstance(exc, ClusterError):  # the cluster did not start: no work was done
+        return ""
     if exc.exit_code == 3 or isinstance(exc, Interrupted):
         return " (the checkpoint is kept: rerun the same command with --resume where the command has it)"
     return ""

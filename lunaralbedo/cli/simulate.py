@@ -23,7 +23,5 @@ def command(out_dir, **kwargs):
     """Render a strip of overlapping images from a known albedo, DEM, geometry and exposures."""
     from ..simulate import SceneSpec, render_scene
 
-    if out_dir.exists() and any(out_dir.iterdir()):
-        raise click.ClickException(f"{out_dir}: folder exists and is not empty")
     truth = render_scene(out_dir, SceneSpec(**kwargs))
     click.echo(f"rendered {len(truth['keys'])} images into {out_dir}/ (settings: {out_dir}/settings.txt, truth: {out_dir}/truth/)")

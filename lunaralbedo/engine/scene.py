@@ -18,7 +18,7 @@ from rasterio.windows import Window
 from ..errors import InputError, SolverError
 from ..io.guard import raster_errors
 from ..io.positions import read_positions
-from ..io.rasters import RasterInfo, catalog_drgs, geographic_crs, intersects, list_rasters, raster_info
+from ..io.rasters import RasterInfo, catalog_drgs, geographic_crs, intersects_lon, list_rasters, raster_info
 from ..model.weights import WeightProfile, merge_profiles, profile_from_mask
 from ..settings import Settings
 from .photometry import solver_model
@@ -120,7 +120,7 @@ def build_scene(settings: Settings, skip_missing: bool = False, map_fn=map) -> S
     # Legacy convention: the tile grid takes its pixel spacing from the first DRG.
     tiles = make_tiles(settings.simulation_box, settings.tile_size, images[0].lonlat_res, pad=PAD, exact=True)
     for im in images:
-        if not any(intersects(im.lonlat_bounds, t.padded_bounds) for t in tiles):
+        if not any(intersects_lon(im.lonlat_bounds, t.padded_bounds) for t in tiles):
             skipped[im.key] = "overlaps no tile of SIMULATION_BOX"
     images = [im for im in images if im.key not in skipped]
     if not images:
@@ -137,7 +137,7 @@ def build_scene(settings: Settings, skip_missing: bool = False, map_fn=map) -> S
         dems = [raster_info(p) for p in list_rasters(settings.dem_dir, "DEM")]
     tile_images = []
     for t in tiles:
-        idx = [k for k, im in enumerate(images) if intersects(im.lonlat_bounds, t.padded_bounds)]
+        idx = [k for k, im in enumerate(images) if intersects_lon(im.lonlat_bounds, t.padded_bounds)]
         tile_images.append(np.array(idx, dtype=np.int32))
     used = set(np.concatenate(tile_images).tolist()) if tile_images else set()
     for k, im in enumerate(images):

@@ -1,7 +1,9 @@
 """The tile grid: TILE_SIZE-degree tiles aligned on multiples of TILE_SIZE.
 
 A tile is named after its unpadded upper-left corner, ``tile_<lon>{E|W}<lat>{N|S}``
-(legacy convention: ``tile_4E8S`` covers lon 4..8, lat -12..-8).  While solving, a
+(legacy convention: ``tile_4E8S`` covers lon 4..8, lat -12..-8).  Tiles keep the
+continuous longitudes of SIMULATION_BOX (170..190 for a box across ±180°): their
+georeference may pass 180°, their names do not.  While solving, a
 tile is padded by a few pixels so that normals and interpolation at its edge see
 their neighbours; outputs are cropped back to the unpadded tile.
 """
@@ -13,6 +15,7 @@ from dataclasses import dataclass
 from rasterio.transform import Affine
 
 from ..errors import SolverError
+from ..model.longitude import wrap180
 
 
 def _fmt(value: float, pos: str, neg: str) -> str:
@@ -33,9 +36,13 @@ def tile_name(west: float, north: float, legacy: bool = False) -> str:
     (``tile_4E8S``); fractions print with ``p`` for the point (``tile_4p5E8S``),
     or, with ``legacy=True``, as PhotometryTK's ``ostream`` printed them
     (``tile_4.5E8S``: ``%g``, 6 significant digits), the names of the legacy tree.
+    The longitude is named in [-180, 180): a tile at 184..188 (continuous longitudes
+    east of the antimeridian) is ``tile_176W...``, the one at 180..184 ``tile_180W...``
+    (the legacy tree keeps PhotometryTK's names, which never crossed 180 degrees).
     """
-    fmt = _fmt_legacy if legacy else _fmt
-    return f"tile_{fmt(west, 'E', 'W')}{fmt(north, 'N', 'S')}"
+    if legacy:
+        return f"tile_{_fmt_legacy(west, 'E', 'W')}{_fmt_legacy(north, 'N', 'S')}"
+    return f"tile_{_fmt(wrap180(west), 'E', 'W')}{_fmt(north, 'N', 'S')}"
 
 
 def tile_starts(lo: float, hi: float, tile_size: float, legacy: bool = False) -> list[float]:

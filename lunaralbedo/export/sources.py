@@ -32,6 +32,7 @@ from rasterio.windows import Window, from_bounds
 from ..errors import InputError
 from ..io.guard import raster_errors
 from ..io.rasters import intersects  # noqa: F401  (used here and by the other export modules)
+from ..model.longitude import longitude_shifts  # noqa: F401  (re-exported)
 
 TILE_GLOB = "tile_*.tif"
 Bounds = tuple[float, float, float, float]  # (west, south, east, north), degrees
@@ -91,27 +92,6 @@ def _header(path: Path) -> Source:
                 )
     except RasterioIOError as exc:
         raise InputError(f"{path}: cannot open tile: {exc}") from None
-
-
-def longitude_shifts(intervals: Sequence[tuple[float, float]]) -> list[float]:
-    """Shifts (0 or 360) that make the ``(west, east)`` intervals one continuous range.
-
-    Wests are first normalised to [-180, 180); the cut goes into the widest gap of
-    the circular coverage, so tiles on both sides of ±180° end up side by side.
-    """
-    if not intervals:
-        return []
-    norm = [((w + 180.0) % 360.0) - 180.0 - w for w, _ in intervals]  # shift bringing west into [-180, 180)
-    spans = sorted(((w + d, e + d) for (w, e), d in zip(intervals, norm)))
-    best_gap, start = -math.inf, spans[0][0]
-    reach = spans[0][1]
-    for w, e in spans[1:]:
-        if w - reach > best_gap + 1e-9:
-            best_gap, start = w - reach, w
-        reach = max(reach, e)
-    if spans[0][0] + 360.0 - reach >= best_gap - 1e-9:  # the gap across ±180° is the widest: no cut needed
-        start = spans[0][0]
-    return [d + (360.0 if w + d < start - 1e-9 else 0.0) for (w, _), d in zip(intervals, norm)]
 
 
 def find_sources(folder: str | Path, what: str = "albedo") -> list[Source]:

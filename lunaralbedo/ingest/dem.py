@@ -50,8 +50,8 @@ class DemSource:
         lon = np.asarray(lon, dtype=np.float64)
         lat = np.asarray(lat, dtype=np.float64)
         if self.geographic:
-            w, e = self.lon_range()
-            x = np.where(lon < w, lon + 360.0, np.where(lon >= e, lon - 360.0, lon))
+            w = self.lon_range()[0]
+            x = w + np.mod(lon - w, 360.0)  # any longitude (e.g. 185 or -175) onto the DEM's own range
             y = lat
         else:
             xs, ys = warp_transform(MOON_CRS, self.crs, lon.ravel().tolist(), lat.ravel().tolist())

@@ -2,7 +2,9 @@
 
 Per cube: open it (kernels loaded, ``campt``-time positions), build the camera,
 find its footprint on the DEM, orthoproject onto the DEM-aligned grid cropped to
-the footprint and write the DRG.  A cube that fails (bad label, missing kernel,
+the footprint and write the DRG.  Footprints and the written SIMULATION_BOX use
+continuous longitudes: a cube across ±180° gets a DRG at e.g. 179.5..180.4, not a
+360°-wide one.  A cube that fails (bad label, missing kernel,
 no footprint) is skipped with its reason; the run fails only when no cube works.
 """
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 from ..errors import InputError, LunarAlbedoError
 from ..io.positions import write_positions
 from ..isis.pixels import read_band
+from ..model.longitude import continuous_span, union_span
 from ..spice.kernels import expand_kernel_args
 from ..camera.build import build_camera
 from ..camera.pushframe import PushFrameCamera
@@ -65,18 +68,25 @@ class IngestReport:
         return [r for r in self.results if r.skipped is None]
 
 
-def _normalize_lon(lon: np.ndarray, dem: DemMosaic) -> np.ndarray:
+def _lon_base(dem: DemMosaic) -> float:
+    """Longitudes are named like the first DEM's: from 0 for a 0..360 DEM, else from -180."""
     first = dem.sources[0]
-    if first.geographic and first.lon_range()[1] > 180.0:
-        return np.mod(lon, 360.0)
-    return (lon + 180.0) % 360.0 - 180.0
+    return 0.0 if first.geographic and first.lon_range()[1] > 180.0 else -180.0
 
 
-def _box(lon, lat):
+def _box(lon, lat, base: float = -180.0):
+    """``(west, south, east, north)`` of a footprint, continuous longitudes (179.5..180.4 across ±180°)."""
     ok = np.isfinite(lon) & np.isfinite(lat)
     if ok.sum() < 3:
         return None
-    return float(lon[ok].min()), float(lat[ok].min()), float(lon[ok].max()), float(lat[ok].max())
+    west, east = continuous_span(np.asarray(lon)[ok], base)
+    return west, float(lat[ok].min()), east, float(lat[ok].max())
+
+
+def union_box(boxes, base: float = -180.0) -> tuple[float, float, float, float]:
+    """Union ``(west, south, east, north)`` of footprint boxes, continuous across ±180°."""
+    west, east = union_span([(b[0], b[2]) for b in boxes], base)
+    return west, min(b[1] for b in boxes), east, max(b[3] for b in boxes)
 
 
 def _ingest_one(res: CubeResult, obs, dem: DemMosaic, mpp_deg, drg_dir: Path, legacy_8bit: bool):
@@ -95,7 +105,7 @@ def _ingest_one(res: CubeResult, obs, dem: DemMosaic, mpp_deg, drg_dir: Path, le
             res.sun = np.asarray(obs.ephemeris.sun(camera.center_et), dtype=np.float64)
             res.spacecraft = np.asarray(obs.ephemeris.spacecraft(camera.center_et), dtype=np.float64)
         lon, lat = footprint(camera, dem.height)
-    box = _box(_normalize_lon(lon, dem), lat)
+    box = _box(lon, lat, _lon_base(dem))
     if box is None:
         raise InputError(f"{res.path}: the image does not see the Moon's surface (no footprint)")
     grid = dem.base_grid(box, mpp_deg)
@@ -172,8 +182,7 @@ def ingest(cubes: Sequence[str | Path], dems: Sequence[str | Path], workdir: str
         raise InputError(f"no cube could be ingested: {reasons}")
     stale = remove_stale_drgs(drg_dir, {f"{r.key}.tif" for r in done})
     report.removed = stale
-    boxes = np.array([r.box for r in done])
-    west, south, east, north = boxes[:, 0].min(), boxes[:, 1].min(), boxes[:, 2].max(), boxes[:, 3].max()
+    west, south, east, north = union_box([r.box for r in done], _lon_base(dem))
     report.box = (west, east, south, north)
     rx, ry = dem.base_grid((west, south, east, north), mpp_deg).res
     pad = 10  # pixels of DEM beyond the footprints, for the solver's padded tiles

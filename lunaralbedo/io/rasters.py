@@ -2,7 +2,9 @@
 
 Grids are geographic (degrees of planetocentric longitude/latitude on the Moon's
 1737.4 km sphere) unless a DRG says otherwise; every read goes through a window so
-memory depends on the output grid, not on the size of the input image.
+memory depends on the output grid, not on the size of the input image.  Target
+grids may use continuous longitudes past ±180° (a tile at 180..190); a file whose
+longitudes say -180..-170 is read through the grid moved by 360°.
 """
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ from rasterio.windows import Window, from_bounds
 
 from ..constants import KEY_LENGTH
 from ..errors import DuplicateKeyError, InputError
+from ..model.longitude import overlap_shifts
 from .atomic import atomic_path
 from .guard import raster_errors
 
@@ -166,6 +169,31 @@ def intersects(bounds: Sequence[float], box: Sequence[float]) -> bool:
     return bounds[0] < box[2] and box[0] < bounds[2] and bounds[1] < box[3] and box[1] < bounds[3]
 
 
+def intersects_lon(bounds: Sequence[float], box: Sequence[float]) -> bool:
+    """:func:`intersects` modulo 360° in longitude (a DRG at -180..-170 meets a tile at 180..190)."""
+    return bool(overlap_shifts(bounds, box))
+
+
+def _grid_bounds(dst_transform: Affine, dst_shape: tuple[int, int]) -> tuple[float, float, float, float]:
+    h, w = dst_shape
+    west, north = dst_transform @ (0, 0)
+    east, south = dst_transform @ (w, h)
+    return (min(west, east), min(south, north), max(west, east), max(south, north))
+
+
+def _grid_shifts(info: RasterInfo, dst_transform: Affine, dst_shape: tuple[int, int], dst_crs: CRS | None) -> list[Affine]:
+    """The target grid moved by the multiples of 360° that bring it onto ``info``'s longitudes.
+
+    Tiles use continuous longitudes (e.g. 180..190) while a DRG's file may say -180..-170:
+    the same ground.  Reading through the moved grid gives the same pixels.  ``[dst_transform]``
+    when nothing wraps or the target CRS is not geographic.
+    """
+    if dst_crs is not None and not dst_crs.is_geographic:
+        return [dst_transform]
+    shifts = overlap_shifts(info.lonlat_bounds, _grid_bounds(dst_transform, dst_shape)) or [0.0]
+    return [Affine.translation(-s, 0.0) @ dst_transform for s in shifts]
+
+
 def read_onto_grid(
     info: RasterInfo,
     band: int,
@@ -181,6 +209,15 @@ def read_onto_grid(
     interpolation) is read.  ``nodata`` overrides the file's own value when the file
     has none.
     """
+    out = np.full(dst_shape, np.nan, dtype=np.float32)
+    for t in _grid_shifts(info, dst_transform, dst_shape, dst_crs):
+        got = _read_onto_grid_once(info, band, t, dst_shape, dst_crs, resampling, nodata)
+        fill = np.isnan(out)
+        out[fill] = got[fill]
+    return out
+
+
+def _read_onto_grid_once(info, band, dst_transform, dst_shape, dst_crs, resampling, nodata) -> np.ndarray:
     src_nodata = info.nodata if info.nodata is not None else nodata
     out = np.full(dst_shape, np.nan, dtype=np.float32)
     with raster_errors(info.path), rasterio.open(info.path) as ds:
@@ -211,10 +248,7 @@ def read_onto_grid(
 
 def _source_window(ds, dst_transform: Affine, dst_shape: tuple[int, int], dst_crs: CRS | None) -> Window:
     """Window of ``ds`` covering the target grid (in the source's own CRS)."""
-    h, w = dst_shape
-    west, north = dst_transform @ (0, 0)
-    east, south = dst_transform @ (w, h)
-    box = bounds_in(dst_crs, ds.crs, (min(west, east), min(south, north), max(west, east), max(south, north)))
+    box = bounds_in(dst_crs, ds.crs, _grid_bounds(dst_transform, dst_shape))
     return from_bounds(*box, ds.transform)
 
 
@@ -289,6 +323,18 @@ def read_drg_onto_grid(
     ``saturation`` is given, below it (saturated pixels are left out).  Only the
     covering window (plus a 2-pixel margin) of the source is read.
     """
+    got = None
+    for t in _grid_shifts(info, dst_transform, dst_shape, dst_crs):
+        part = _read_drg_once(info, profile, t, dst_shape, dst_crs, lit_threshold, saturation)
+        if got is None or part is None:
+            got = got or part
+            continue
+        take = part[1] & ~got[1]  # pixels only this side of the antimeridian has
+        got = tuple(np.where(take, b, a) for a, b in zip(got, part))
+    return got
+
+
+def _read_drg_once(info, profile, dst_transform, dst_shape, dst_crs, lit_threshold, saturation):
     from ..model import shadows
     from ..model.weights import source_weights
 
@@ -342,14 +388,11 @@ def read_dem_onto_grid(
     """
     from ..model.geometry import radius_to_height
 
-    h, w = dst_shape
-    west, north = dst_transform @ (0, 0)
-    east, south = dst_transform @ (w, h)
-    grid_box = (min(west, east), min(south, north), max(west, east), max(south, north))
+    grid_box = _grid_bounds(dst_transform, dst_shape)
     total = np.zeros(dst_shape, np.float64)
     count = np.zeros(dst_shape, np.int32)
     for info in infos:
-        if not intersects(info.lonlat_bounds, grid_box):
+        if not intersects_lon(info.lonlat_bounds, grid_box):
             continue
         d = read_onto_grid(info, 1, dst_transform, dst_shape, dst_crs, Resampling.bilinear, nodata=nodata)
         d = radius_to_height(d)[0]

@@ -4,14 +4,37 @@ Each function returns ``(client, [objects to close with it])``.
 """
 from __future__ import annotations
 
+import socket
+
 from ..errors import ClusterError, LunarAlbedoError
 from .workers import WORKER_ENV, worker_config
+
+
+def _probe(address: str, timeout: float = 10.0) -> None:
+    """Fail at once (:class:`ClusterError`) when nothing listens at a ``tcp://host:port`` address.
+
+    Dask's client retries a refused connection until its 20 s timeout; a plain socket
+    connect tells a closed port (refused), an unknown host or an unreachable one at once.
+    Other address schemes (tls://, inproc://) are left to Dask.
+    """
+    scheme, sep, rest = address.partition("://")
+    host, colon, port = rest.rpartition(":")
+    if not sep or scheme != "tcp" or not colon or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+    except ConnectionRefusedError:
+        raise ClusterError(f"cannot connect to Dask scheduler {address}: connection refused "
+                           "(no scheduler listens there: start one, e.g. `dask scheduler`, or check the address)") from None
+    except OSError as exc:
+        raise ClusterError(f"cannot connect to Dask scheduler {address}: {exc}") from None
 
 
 def connect(address: str):
     """A client of an existing ``dask.distributed`` scheduler at ``address`` (tcp://host:port)."""
     from distributed import Client
 
+    _probe(address)
     try:
         return Client(address, timeout="20s"), []
     except OSError as exc:
