@@ -24,9 +24,9 @@ a trust-region Newton method from the alternation's result (eq. 13) as the start
 
 Gauges.  The continuous Poisson "density" (eq. 4) is not normalised in :math:`x`, so
 eq. 8 does not fix the overall scale of :math:`g` (it grows without bound as
-:math:`g \to 0`).  The fit therefore holds :math:`g` at ``FIT_SCALE`` = 1000 counts at the
-reference level (where the Poisson weighting is in its Gaussian regime, so the shape
-hardly depends on the choice), and the returned :math:`g` is normalised to
+:math:`g \to 0`).  The fit therefore holds the mean of :math:`\ln g(z_n)` over the observations at
+``ln FIT_SCALE`` (1000 counts: the Poisson weighting's Gaussian regime, so the shape hardly
+depends on the choice; see :mod:`.response_fit` for why this pin), and the returned :math:`g` is normalised to
 :math:`g(z_{ref}) = 1` (OpenCV's convention, :math:`z_{ref} = 128`), with :math:`r`
 rescaled so that :math:`g(z) = r\,t\,c` still holds.  With unknown exposure times the
 data also fit :math:`g^\gamma, r^\gamma, t^\gamma` (the exponential ambiguity): see
@@ -233,3 +233,17 @@ def log_rms_error(g_est: np.ndarray, g_true: np.ndarray) -> float:
     d = np.log(g_est) - np.log(g_true)
     d = d[np.isfinite(d)]
     return float(np.sqrt(np.mean((d - d.mean()) ** 2)))
+
+
+def radiance_map(dn: np.ndarray, valid: np.ndarray, lut: np.ndarray, exposure: np.ndarray) -> np.ndarray:
+    r"""Eq. 10 on a whole aligned stack: :math:`r = \sum_j g(z_j) / \sum_j t_j` over valid, fitted DN.
+
+    ``dn`` (n_images, h, w) integers, ``lut`` g over 0..255 (NaN where not fitted), float32
+    result with NaN where no image has a usable value.
+    """
+    x = lut[dn]
+    ok = valid & np.isfinite(x)
+    num = np.sum(np.where(ok, x, 0.0), axis=0, dtype=np.float64)
+    den = np.sum(np.where(ok, np.asarray(exposure, np.float64)[:, None, None], 0.0), axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 0, num / den, np.nan).astype(np.float32)

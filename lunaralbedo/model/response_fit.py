@@ -10,8 +10,13 @@ whose gradient in :math:`x_n = g(z_n)` is eq. 9's :math:`\ln(r_i t_j c_n) - \Psi
 :math:`\delta_{i(n)i(m)}/X_i - \delta_{nm}\Psi'(x_n+1)` (concave: Cauchy-Schwarz).
 Summed per DN level this is a small dense matrix (levels x levels), built with
 scipy.sparse.  The unknowns handed to scipy's ``trust-exact`` are the log increments
-:math:`v_m` of :math:`\ln g` between free levels (so eq. 7 holds by construction, with
-:math:`\ln g` pinned to ``ln FIT_SCALE`` at the reference level) and, for unknown exposure
+:math:`v_m` of :math:`\ln g` between free levels (so eq. 7 holds by construction), with the
+mean of :math:`\ln x_n` over the observations pinned to ``ln FIT_SCALE``.  That pin is the
+one that does not bend the curve: eq. 8 pulls the scale of :math:`g` down (Stirling:
+:math:`L \approx -\tfrac12\sum_n \ln x_n - \sum_n x_n\varepsilon_n^2/2` with
+:math:`\varepsilon_n` the relative misfit), and that pull, :math:`-n_k/2` on
+:math:`\ln g(k)`, is exactly normal to the constraint, so it only sets the multiplier.  (A pin
+at one level instead pushes every other level down: a visible step in g.) and, for unknown exposure
 times, :math:`u_j = \ln t_j` for :math:`j \ge 1` (:math:`u_0 = 0`: :math:`r t` is all the
 data see).  The start is the seed's alternation of eqs. 10, 11 and 13 (ten passes).
 """
@@ -29,6 +34,8 @@ from .response import (FIT_SCALE, MID_RANGE, Z_REF, Levels, Observations, choose
 
 #: Weight (per observation) of the gamma prior when exposure times are unknown (see :func:`.response.fix_gamma`).
 PRIOR_WEIGHT = 10.0
+#: Largest gradient component (of -L/N) accepted as converged.
+GTOL_ACCEPT = 1e-6
 
 
 @dataclass
@@ -46,6 +53,7 @@ class ResponseFit:
     gamma: dict = field(default_factory=dict)
     residuals: dict = field(default_factory=dict)
     converged: bool = True
+    message: str = ""
 
     def lut(self, n_levels: int = 256) -> np.ndarray:
         """g as a float32 look-up table over 0..n_levels-1; NaN outside the fitted range."""
@@ -57,16 +65,18 @@ class ResponseFit:
 class _Profile:
     """-L_p / N, its gradient and Hessian in the parameters ``(v, u)``; caches the last point."""
 
-    def __init__(self, obs: Observations, lev_idx, lev: Levels, kref: int, t_fixed):
-        self.obs, self.lev_idx, self.lev, self.kref, self.t_fixed = obs, lev_idx, lev, kref, t_fixed
+    def __init__(self, obs: Observations, lev_idx, lev: Levels, t_fixed):
+        self.obs, self.lev_idx, self.lev, self.t_fixed = obs, lev_idx, lev, t_fixed
         nk, self.n_lev = len(lev.knots), lev.hi - lev.lo + 1
         self.nv = nk - 1
-        m = np.arange(nk - 1)[None, :]
-        k = np.arange(nk)[:, None]
-        self.jac = (m < k).astype(float) - (m < kref).astype(float)  # d lg_k / d S_m, S_m = exp(v_m)
         n = len(obs)
         self.b = sp.csr_matrix((np.ones(n), (obs.pixel, lev_idx)), shape=(obs.n_pixels, self.n_lev))
         self.cnt = np.bincount(lev_idx, minlength=self.n_lev).astype(float)
+        self.w_mean = lev.matrix.T @ self.cnt / n  # mean of ln x over the observations = w_mean @ lg_knots
+        m = np.arange(nk - 1)[None, :]
+        k = np.arange(nk)[:, None]
+        tail = np.cumsum(self.w_mean[::-1])[::-1][1:]  # sum of w_mean over knots above increment m
+        self.jac = (m < k).astype(float) - tail[None, :]  # d lg_k / d S_m, S_m = exp(v_m)
         self.scale = float(n)
         self._key = None
         self.prior = None
@@ -80,7 +90,7 @@ class _Profile:
 
     def unpack(self, p):
         s = np.concatenate([[0.0], np.cumsum(np.exp(p[:self.nv]))])
-        lg = np.log(FIT_SCALE) + s - s[self.kref]
+        lg = np.log(FIT_SCALE) + s - self.w_mean @ s
         t = self.t_fixed if self.t_fixed is not None else np.exp(np.concatenate([[0.0], p[self.nv:]]))
         return lg, t
 
@@ -153,14 +163,14 @@ class _Profile:
         return self._hess
 
 
-def _juggle(obs, lev_idx, lev: Levels, kref: int, t, t_free: bool, passes: int):
+def _juggle(obs, lev_idx, lev: Levels, t, t_free: bool, passes: int):
     """The seed's alternation (10), (11), (13) from a linear g; returns (g over the range, t, log-likelihoods).
 
-    g is kept at the fit's scale (FIT_SCALE at knot ``kref``) so the likelihoods compare with the Newton ones.
+    g is kept at the fit's scale (mean of ln x over the observations = ln FIT_SCALE) so the
+    likelihoods compare with the Newton ones.
     """
-    iref = lev.knots[kref] - lev.lo
     g = np.arange(lev.lo, lev.hi + 1, dtype=np.float64)
-    g *= FIT_SCALE / g[iref]
+    g *= FIT_SCALE / np.exp(np.mean(np.log(g[lev_idx])))
     hist = []
     for _ in range(passes):
         x = g[lev_idx]
@@ -173,7 +183,7 @@ def _juggle(obs, lev_idx, lev: Levels, kref: int, t, t_free: bool, passes: int):
         hist.append(log_likelihood(x, mu))
         g_new = response_closed_form(np.log(mu), lev_idx, len(g), exact=False)
         g = np.exp(lev.matrix @ np.log(g_new[lev.knots - lev.lo]))
-        g *= FIT_SCALE / g[iref]
+        g *= FIT_SCALE / np.exp(np.mean(np.log(g[lev_idx])))
     return g, t, hist
 
 
@@ -195,14 +205,13 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
     t_free = exposure is None
     t0 = np.ones(obs.n_images) if t_free else np.asarray(exposure, np.float64)
     zr = int(np.clip(z_ref, lev.lo, lev.hi))
-    kref = int(np.argmin(np.abs(lev.knots - zr)))
-    g0, t_j, hist = _juggle(sub, lev_idx, lev, kref, t0, t_free, juggle_passes)
+    g0, t_j, hist = _juggle(sub, lev_idx, lev, t0, t_free, juggle_passes)
     n_juggle = len(hist)
     g0_k = g0[lev.knots - lev.lo]
     p0 = np.log(np.maximum(np.diff(np.log(g0_k)), 1e-6))
     if t_free:
         p0 = np.concatenate([p0, np.log(t_j[1:] / t_j[0])])
-    prof = _Profile(sub, lev_idx, lev, kref, None if t_free else t0)
+    prof = _Profile(sub, lev_idx, lev, None if t_free else t0)
 
     def record(xk, *_):
         hist.append(-prof.fun(xk)[0] * prof.scale)
@@ -210,6 +219,8 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
     res = minimize(prof.fun, p0, jac=True, hess=prof.hess, method="trust-exact", callback=record,
                    options=dict(maxiter=max_iter, gtol=1e-9))
     prof._eval(res.x)
+    # trust-exact stops with "bad approximation" once steps reach rounding level; the gradient says if that is the optimum
+    converged = bool(res.success or np.max(np.abs(prof._grad)) < GTOL_ACCEPT)
     g, t, r_sub, x, mu = prof.state
     n_params = prof.nv + (obs.n_images - 1 if t_free else 0) + sub.n_pixels
     resid = residual_analysis(x, mu, lev_idx, len(g), n_params=n_params)
@@ -224,4 +235,4 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
     radiance[pix_ids] = r_sub / a
     return ResponseFit(levels=lev, g=g / a, g_initial=g0 / g0[zr - lev.lo], exposure=t, radiance=radiance,
                        loglik=hist, z_ref=zr, n_juggle=n_juggle, gamma=gamma_info, residuals=resid,
-                       converged=bool(res.success))
+                       converged=converged, message=str(res.message))
