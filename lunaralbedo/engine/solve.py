@@ -26,6 +26,7 @@ from ..io.atomic import remove_stale_temporaries
 from ..model import exposure_init, reflectance, updates
 from ..settings import Settings, load_settings
 from .executor import make_executor
+from .response import check_resume, known_exposures, resolve_response
 from .scene import Scene, build_scene
 from .tilework import SolveState, finalize_tile, iterate_tile, prepare_tile
 
@@ -100,15 +101,15 @@ def _reduce_iteration(n_images: int, parts) -> updates.PassSums:
     return total
 
 
-def _update(state: SolveState, sums: updates.PassSums, method: str, kind: int, t_ref: np.ndarray) -> SolveState:
-    t = updates.exposure_update(state.exposure, sums.exp_num, sums.exp_den)
+def _update(state: SolveState, sums: updates.PassSums, method: str, kind: int, t_ref: np.ndarray, fixed=False) -> SolveState:
+    t = updates.exposure_update(state.exposure, sums.exp_num, sums.exp_den) if not fixed else state.exposure
     c = state.c
     if kind == reflectance.LUNAR_LAMBERT and sums.n_obs:
         if method == "seed":
             c = updates.phase_update_seed(state.c, sums.jtj, sums.jtr)
         else:
             c = updates.phase_update_damped(state.c, sums.jtj, sums.jtr, (sums.alpha_min, sums.alpha_max))
-    if method != "seed":
+    if method != "seed" and not fixed:
         # A*T leaves one global scale free: pin the geometric mean of T to the initial one.
         t = t * np.exp(np.mean(np.log(t_ref)) - np.mean(np.log(t)))
     return SolveState(np.asarray(t, dtype=np.float64), np.asarray(c, dtype=np.float64))
@@ -128,6 +129,8 @@ def solve(
     max_iter: int | None = None,
     progress: bool = False,
     plots: bool = True,
+    response: str | Path | None = None,
+    exposure_times: str | Path | None = None,
 ) -> SolveResult:
     """Solve for albedo, exposures and phase coefficients (seed 000 section 7).
 
@@ -136,6 +139,8 @@ def solve(
     ``workers`` local processes (default NUM_PROCESSES capped at the CPU count),
     ``scheduler`` (tcp://host:port) or ``cluster`` ("pbs"/"slurm").  Outputs go to
     ``out`` (default ``albedo_<settings stem>``); nothing is written to input folders.
+    ``response``: None (linear DN), ``"estimate"`` or a ``response.csv`` (seed 002, see
+    :mod:`.response`); ``exposure_times``: a ``key,exposure`` CSV that fixes the exposures.
     """
     settings = settings if isinstance(settings, Settings) else load_settings(settings)
     if method not in METHODS:
@@ -158,7 +163,7 @@ def solve(
         out.mkdir(parents=True, exist_ok=True)
         (out / MARKER).write_text("lunaralbedo solve output folder\n")
         remove_stale_temporaries(out)
-        return _run(scene, out, method, max_iter, tolerance, executor, resume, timings, plots)
+        return _run(scene, out, method, max_iter, tolerance, executor, resume, timings, plots, (response, exposure_times))
     except LunarAlbedoError:
         if created and not resume:
             shutil.rmtree(out, ignore_errors=True)
@@ -179,14 +184,18 @@ def _load_checkpoint(out: Path, scene: Scene, method: str, resume: bool) -> dict
     return state
 
 
-def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots) -> SolveResult:
+def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, resp=(None, None)) -> SolveResult:
     s = scene.settings
     cache = out / CACHE_DIR
     ck = _load_checkpoint(out, scene, method, resume)
     tiles = list(range(len(scene.tiles)))
     t1 = time.perf_counter()
-    metas = executor.map(prepare_tile, tiles, "prepare", shared=("scene",), scene=scene, cache_root=cache)
-    t_init = _reduce_init(scene, metas, method)
+    # camera response (seed 002): g for the prepare step, fixed exposures (engine/response.py)
+    t_known = known_exposures(resp[1], scene.keys) if resp[1] is not None else None
+    lut, resp_report = resolve_response(resp[0], scene, executor, out, t_known, ck, plots)
+    check_resume(ck, lut, t_known)
+    metas = executor.map(prepare_tile, tiles, "prepare", shared=("scene",), scene=scene, cache_root=cache, lut=lut)
+    t_init = _reduce_init(scene, metas, method) if t_known is None else t_known
     timings["prepare"] = time.perf_counter() - t1
     if ck is None:
         ck = {
@@ -198,6 +207,8 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots) ->
             "q": [],
             "c_history": [[s.phase_coeff_c1, s.phase_coeff_c2]],
             "done": False,
+            "response": resp_report,
+            "exposure_fixed": t_known is not None,
         }
         outputs.write_json(out / STATE_FILE, ck)
     state = SolveState(np.array(ck["exposure"]), np.array(ck["c"]))
@@ -211,7 +222,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots) ->
         ck["q"].append(sums.q)
         converged = q_prev is not None and abs(q_prev - sums.q) <= tol * max(sums.q, 1e-300)
         if not converged:
-            state = _update(state, sums, method, s.reflectance_type, t_init)
+            state = _update(state, sums, method, s.reflectance_type, t_init, fixed=t_known is not None)
             ck["c_history"].append(state.c.tolist())
         ck.update(iteration=ck["iteration"] + 1, exposure=state.exposure.tolist(), c=state.c.tolist(), done=converged)
         outputs.write_json(out / STATE_FILE, ck)
@@ -251,6 +262,8 @@ def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timi
         "images_skipped": scene.skipped,
         "tiles": tile_reports,
         "resumed": resume_info if any(resume_info.values()) else None,
+        "response": ck.get("response"),
+        "exposure_fixed": bool(ck.get("exposure_fixed")),
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
     }
     outputs.write_json(out / "report.json", report)

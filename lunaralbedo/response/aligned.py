@@ -116,8 +116,9 @@ def write_outputs(out: Path, fit: ResponseFit, names: Sequence[str], plots: bool
         rio.write_exposure_table(out / "exposure.csv", names, fit.exposure)
     if plots:
         rio.plot_response(out / "response.png", lev.dn, fit.g, fit.g_initial, res["se_log_g"])
-        outputs.plot_exposures(out / "exposure.png", [Path(n).stem[-24:] for n in names], fit.exposure,
-                               np.ones_like(fit.exposure))
+        if not exposure_given:
+            outputs.plot_exposures(out / "exposure.png", [Path(n).stem[-24:] for n in names], fit.exposure,
+                                   np.ones_like(fit.exposure))
         rio.plot_loglik(out / "loglik.png", fit.loglik, fit.n_juggle)
         rio.plot_residuals(out / "residuals.png", lev.dn, res)
 
