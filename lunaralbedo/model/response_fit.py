@@ -102,6 +102,10 @@ class _Profile:
         lg_k, t = self.unpack(p)
         g = np.exp(lev.matrix @ lg_k)
         x = g[self.lev_idx]
+        if not (np.all(np.isfinite(g)) and np.all(g > 0) and np.all(np.isfinite(t))):
+            # a trial step beyond floating point (exp over/underflow): reject it (trust-region shrinks)
+            self._key, self._val, self._grad = p.copy(), np.inf, np.zeros_like(p)
+            return
         ct = t[obs.image] if obs.factor is None else t[obs.image] * obs.factor
         big_x = np.bincount(obs.pixel, x, obs.n_pixels)
         big_c = np.bincount(obs.pixel, ct, obs.n_pixels)
