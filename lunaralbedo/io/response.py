@@ -25,14 +25,18 @@ def write_response_csv(path: Path, dn: np.ndarray, g: np.ndarray, se_log_g: np.n
     atomic_write_text(path, "\n".join(lines) + "\n")
 
 
+def _rows(path: Path, what: str, reader) -> list:
+    try:
+        with open(path, newline="") as fh:
+            return list(reader(fh))
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the {what} ({exc.strerror})") from None
+
+
 def read_response_csv(path: str | Path, n_levels: int = 256) -> np.ndarray:
     """A response.csv as a float32 look-up table over 0..n_levels-1 (NaN at DN it does not list)."""
     path = Path(path)
-    try:
-        with open(path, newline="") as fh:
-            rows = list(csv.DictReader(fh))
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read the response table ({exc.strerror})") from None
+    rows = _rows(path, "response table", csv.DictReader)
     if not rows or not {"dn", "g"} <= set(rows[0]):
         raise InputError(f"{path}: a response table needs the columns dn,g (as written by `lunaralbedo response`)")
     lut = np.full(n_levels, np.nan, np.float32)
@@ -57,11 +61,7 @@ def read_exposure_table(path: str | Path) -> dict[str, float]:
     other columns are ignored.
     """
     path = Path(path)
-    try:
-        with open(path, newline="") as fh:
-            rows = list(csv.reader(fh))
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read the exposure table ({exc.strerror})") from None
+    rows = _rows(path, "exposure table", csv.reader)
     if not rows or "exposure" not in [c.strip() for c in rows[0]]:
         raise InputError(f"{path}: an exposure table needs a header with an 'exposure' column (e.g. image,exposure)")
     col = [c.strip() for c in rows[0]].index("exposure")
