@@ -54,6 +54,8 @@ class SceneSpec:
     use_normalized_cost_fun: int = 0
     shadow_thresh: float = 10.0
     seed: int = 7
+    film_contrast: float = 0.0  # > 0: DN through the S-shaped film curve of response.synthetic (seed 002)
+    film_mid: float = 0.5  # exposure A*T*R at the curve's mid point
 
     @property
     def step_px(self) -> int:
@@ -173,6 +175,10 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
         r = model.reflectance(ci, ce, al, (spec.c1, spec.c2)[: len(model.parameters)])
         r = np.where(ci >= 0.3, r, 0.0)
         signal = gain * albedo_fn(lon, lat) * exposures[k] * r
+        if spec.film_contrast > 0:  # an unknown nonlinear response: DN = f(A T R)
+            from .response.synthetic import FilmCurve
+
+            signal = FilmCurve(k=spec.film_contrast, x0=spec.film_mid).forward(np.maximum(signal / gain, 1e-9))
         dn = np.clip(np.round(signal + rng.normal(0, spec.noise_dn, signal.shape)), 0, 255).astype(np.uint8)
         alpha = np.full(dn.shape, 255, np.uint8)
         write_geotiff(out / "DRG" / f"{key}_drg.tif", np.stack([dn, alpha]), transform, MOON_CRS)

@@ -74,8 +74,11 @@ def _geometry_stack(scene: Scene, tile):
     return dem[inner], pts[inner], normals[inner], ~np.isfinite(dem[inner])
 
 
-def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
+def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | None = None) -> dict:
     """Read every image over tile ``t`` onto its grid, compute geometry, cache the stack.
+
+    ``lut``: camera response g over 0..255 (seed 002), applied to each DRG's DN before
+    it is resampled onto the tile grid; None keeps the DN (linear response).
 
     Returns the tile's initialisation sums (also stored in the cache's meta, so a
     resumed run does not recompute them): per-image reflectance sums for the seed
@@ -93,7 +96,7 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
     per_image: dict[str, list] = {name: [] for name in ("image", "wblend", "usable")}
     keep = []
     for k in scene.tile_images[t]:
-        got = read_drg_onto_grid(scene.images[k], scene.profiles[k], tile.transform, (tile.height, tile.width), scene.crs, thresh)
+        got = read_drg_onto_grid(scene.images[k], scene.profiles[k], tile.transform, (tile.height, tile.width), scene.crs, thresh, lut)
         if got is None:
             continue
         val, ok, wt, use = got

@@ -276,6 +276,8 @@ def read_drg_onto_grid(
     dst_shape: tuple[int, int],
     dst_crs: CRS | None,
     lit_threshold: float | None = None,
+    lut: np.ndarray | None = None,
+    resampling: Resampling = Resampling.bilinear,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
     """Resample one DRG onto a target grid: ``(value, valid, weight, lit)`` or None if it misses the grid.
 
@@ -285,6 +287,10 @@ def read_drg_onto_grid(
     ``profile`` on the source grid, then resampled); ``lit`` is True where all four
     neighbours are >= ``lit_threshold`` (always True when it is None).  Only the
     covering window (plus a 2-pixel margin) of the source is read.
+
+    ``lut`` (a camera response g over 0..255, NaN where undefined; seed 002) maps the DN
+    to sensor exposure *before* resampling, so the result interpolates exposures (the
+    seed's virtual observations, eq. 15); the lit test still uses the DN.
     """
     from ..model.weights import window_weights
 
@@ -304,10 +310,14 @@ def read_drg_onto_grid(
         src_transform = ds.window_transform(win)
         src_crs = ds.crs or dst_crs
     r0, c0 = int(win.row_off), int(win.col_off)
+    lit_dn = value
+    if lut is not None:
+        value = np.asarray(lut, np.float32)[np.clip(np.nan_to_num(value), 0, len(lut) - 1).astype(np.intp)]
+        valid &= np.isfinite(value)
     weight = window_weights(profile, r0, c0, value.shape[0], value.shape[1]) * valid
     bands = [np.where(valid, value, 0.0).astype(np.float32), valid.astype(np.float32), weight]
     if lit_threshold is not None:
-        bands.append((valid & (value >= lit_threshold)).astype(np.float32))
+        bands.append((valid & (lit_dn >= lit_threshold)).astype(np.float32))
     src = np.stack(bands)
     dst = np.zeros((len(bands), h, w), dtype=np.float32)
     reproject(
@@ -317,7 +327,7 @@ def read_drg_onto_grid(
         src_crs=src_crs,
         dst_transform=dst_transform,
         dst_crs=dst_crs or src_crs,
-        resampling=Resampling.bilinear,
+        resampling=resampling,
     )
     ok = dst[1] > 0.9999
     if not ok.any():
