@@ -8,7 +8,10 @@ Prints, in one run on this machine:
    plain rasterio read of the same images (ratio solve / read);
 2. peak resident memory (VmHWM) of a solve for 25, 50 and 100 images;
 3. speed-up 1 -> 2 workers;
-4. iterations needed to get within 1 % of the converged albedo, default method vs --method seed.
+4. iterations needed to get within 1 % of the converged albedo, default method vs --method seed;
+5. camera response fit (seed 002, ``--response``): seconds per million observations
+   (one 8-image stack of ~1 M observations; ``benchmarks/response_bench.py`` has the
+   accuracy comparison with OpenCV and more sizes).
 
 Scenes are rendered once into ``bench_out/`` and reused.  ``--quick`` uses smaller scenes
 (a smoke run, not the figures of docs/performance.md).
@@ -121,7 +124,7 @@ def main() -> int:
     ap.add_argument("--out", default="bench_out")
     ap.add_argument("--quick", action="store_true", help="small scenes (smoke run)")
     ap.add_argument("--json", default=None, help="also write the figures as JSON here")
-    ap.add_argument("--only", default="1,2,3,4", help="comma-separated items to run (3 comes with 1)")
+    ap.add_argument("--only", default="1,2,3,4,5", help="comma-separated items to run (3 comes with 1)")
     args = ap.parse_args()
     root = (REPO / args.out).resolve()
     root.mkdir(exist_ok=True)
@@ -138,6 +141,8 @@ def main() -> int:
         memory(root, figures, mem_px, res_deg)
     if 4 in only:
         convergence(root, q, figures)
+    if 5 in only:
+        response_fit(q, figures)
     if args.json:
         Path(args.json).write_text(json.dumps(figures, indent=2))
     return 0
@@ -207,6 +212,15 @@ def convergence(root: Path, q: bool, figures: dict) -> None:
         print(f"4. iterations to within 1 % of {what}, {method}: {n if n else f'> {limit}'}", flush=True)
     print(f"   (seed after {long_run} iterations differs from the default's answer by "
           f"{100 * figures['convergence']['seed_vs_default_after_long_run']:.1f} %)", flush=True)
+
+
+def response_fit(q: bool, figures: dict) -> None:
+    """Item 5: time of the camera-response fit per million observations (known exposure times)."""
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    from response_bench import timing
+
+    print("5. camera response fit (8 images, known exposure times):", flush=True)
+    figures["response_fit"] = timing([(120, 120)] if q else [(350, 350)])
 
 
 if __name__ == "__main__":

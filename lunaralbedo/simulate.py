@@ -67,6 +67,8 @@ class SceneSpec:
     cast_shadows: bool = False  # render cast shadows (and attached ones) lit by scattered light only
     scatter: float = 0.25  # shadows receive this fraction of the flat ground's signal
     wrap_lon: bool = False  # DRGs east of 180 deg written at -180..180, SIMULATION_BOX as lon0:east-360
+    film_contrast: float = 0.0  # > 0: DN through the S-shaped film curve of response.synthetic (seed 002)
+    film_mid: float = 0.5  # exposure A*T*R at the curve's mid point
 
     @classmethod
     def centred(cls, lon_center: float, lat_center: float = 0.0, **kwargs) -> "SceneSpec":
@@ -288,6 +290,10 @@ def _render(out: Path, spec: SceneSpec) -> dict:
             flat = model.reflectance(*geometry.illumination(pts, up, sun, sc), params)
             r = np.where(shade, spec.scatter * flat, r)
         signal = gain * albedo_fn(lon, lat) * exposures[k] * r
+        if spec.film_contrast > 0:  # an unknown nonlinear response: DN = f(A T R)
+            from .response.synthetic import FilmCurve
+
+            signal = FilmCurve(k=spec.film_contrast, x0=spec.film_mid).forward(np.maximum(signal / gain, 1e-9))
         dn = np.clip(np.round(signal + rng.normal(0, spec.noise_dn, signal.shape)), 0, 255).astype(np.uint8)
         alpha = np.full(dn.shape, 255, np.uint8)
         if spec.wrap_lon and transform.c >= 180.0:  # the file says -180..-170 for 180..190

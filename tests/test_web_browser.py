@@ -210,6 +210,37 @@ def test_report_panel_shows_report_json(served, browser, demo_results):
     assert dict(cells("summary"))["iterations"] == str(report["iterations"])
 
 
+def test_report_panel_shows_a_camera_response(served, browser, demo_results):
+    """A solve run with ``--response`` adds report.json ``response`` and ``residuals``
+    (engine/response.py's format); the panel shows the curve dn -> g and the per-DN residual."""
+    from lunaralbedo.engine.response import report_parts
+    from lunaralbedo.model.response import observations_from_stack
+    from lunaralbedo.model.response_fit import fit_response
+    from lunaralbedo.response.aligned import fit_report
+    from lunaralbedo.response.synthetic import render_stack
+
+    s = render_stack(n_images=4, shape=(60, 60))
+    fit = fit_response(observations_from_stack(s["dn"], np.ones(s["dn"].shape, bool)), s["exposure"])
+    report = json.loads((demo_results / "report.json").read_text())
+    report.update(report_parts({"source": "estimate", **fit_report(fit, ["a", "b", "c", "d"])}))
+    text = json.dumps(report, allow_nan=False)  # as report.js carries report.json: strict JSON, key order kept
+    browser.execute_script("""const d = document.createElement('div'); d.id = 'resp-test'; document.body.append(d);
+        LunarPanel.render(d, JSON.parse(arguments[0]), window.LUNARALBEDO_EXPOSURES, window.LUNARALBEDO_META);
+        d.querySelectorAll('details').forEach(x => x.open = true);""", text)
+    try:
+        curve = _cells(browser, "#resp-test #response")
+        n = len(report["response"]["dn"])
+        assert [(int(a), float(b)) for a, b in curve[:n]] == list(zip(report["response"]["dn"], report["response"]["g"]))
+        assert dict(curve[n:])["source"] == "estimate"
+        assert browser.execute_script("return document.querySelectorAll('#resp-test #response svg circle').length") == n
+        resid = _cells(browser, "#resp-test #residuals")
+        m = len(report["residuals"]["dn"])
+        assert [float(b) for _, b in resid[:m]] == report["residuals"]["bias_log"]
+        assert float(dict(resid[m:])["chi2_per_dof"]) == report["residuals"]["chi2_per_dof"]
+    finally:
+        browser.execute_script("document.getElementById('resp-test').remove();")
+
+
 def test_footprint_tooltip_shows_key_and_exposure(served, browser, demo_results):
     """Hovering a footprint shows an image that covers the point, with its exposure from exposure.csv."""
     from selenium.webdriver.common.action_chains import ActionChains

@@ -24,6 +24,10 @@ def _print_summary(result) -> None:
     e = result.exposure
     click.echo(f"  exposures: min {e.min():.4g}, median {sorted(e)[len(e) // 2]:.4g}, max {e.max():.4g}")
     click.echo(f"  tiles {len(result.tiles)}: {', '.join(result.tiles[:6])}{' ...' if len(result.tiles) > 6 else ''}")
+    if rep.get("response"):
+        r = rep["response"]
+        click.echo(f"  camera response: {r['source']}" + (f", DN {r['dn_range'][0]}-{r['dn_range'][1]}, "
+                   f"chi2/dof {rep['residuals']['chi2_per_dof']:.3g}" if rep.get("residuals") else ""))
     click.echo("  time " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()))
     click.echo(f"  results in {result.out_dir}/ (albedo/, error/, exposure.csv, phase.csv, report.json, *.png)")
 
@@ -48,10 +52,14 @@ def _print_summary(result) -> None:
 @click.option("--max-iter", type=int, default=None, help="Override MAX_NUM_ITER.")
 @click.option("--tolerance", type=float, default=1e-7, show_default=True,
               help="Stop when the cost Q changes by less than this fraction between iterations.")
+@click.option("--response", default=None, metavar="estimate|FILE",
+              help="Camera response (seed 002): 'estimate' fits g with the albedo; FILE reuses a response.csv. Default: linear DN.")
+@click.option("--exposure-times", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="CSV key,exposure (the solver's exposure.csv format) that fixes the exposures.")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @reports_errors
 def command(settings, out, method, legacy, workers, scheduler, cluster, queue, cores, memory, walltime, jobs, account,
-            resume, skip_missing, max_iter, tolerance, quiet):
+            resume, skip_missing, max_iter, tolerance, response, exposure_times, quiet):
     """Solve for the albedo of SETTINGS (legacy PhotometryTK settings file or TOML)."""
     from ..settings import load_settings
 
@@ -74,5 +82,5 @@ def command(settings, out, method, legacy, workers, scheduler, cluster, queue, c
     opts = dict(queue=queue, cores=cores, memory=memory, walltime=walltime, jobs=jobs, account=account)
     result = solve(s, out=out, method=method, workers=workers, scheduler=scheduler, cluster=cluster,
                    cluster_options=opts, resume=resume, skip_missing=skip_missing, max_iter=max_iter, tolerance=tolerance,
-                   progress=not quiet and sys.stderr.isatty())
+                   progress=not quiet and sys.stderr.isatty(), response=response, exposure_times=exposure_times)
     _print_summary(result)

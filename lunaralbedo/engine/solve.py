@@ -32,6 +32,7 @@ from ..io.guard import check_output_dir
 from ..model import exposure_init, updates
 from ..settings import Settings, load_settings
 from ..parallel import local_workers, make_executor
+from .response import check_resume, known_exposures, lut_digest, move_outputs, report_parts, resolve_response
 from .scene import Scene, build_scene
 from .tilework import SolveState, finalize_tile, iterate_tile, prepare_tile
 
@@ -40,10 +41,12 @@ CHECKPOINT_DIR = "checkpoint"  # everything --resume needs; removed when the run
 STATE_FILE = f"{CHECKPOINT_DIR}/state.json"
 CACHE_DIR = f"{CHECKPOINT_DIR}/cache"
 TILES_DIR = f"{CHECKPOINT_DIR}/tiles"  # finalised tiles, moved into OUTDIR at the end
+RESPONSE_DIR = f"{CHECKPOINT_DIR}/response"  # camera response files (engine/response.py), moved likewise
 MARKER = ".lunaralbedo"  # written first into every OUTDIR: marks it as ours
 _TILE_DIRS = ("albedo", "error", "DEM", "weightsSum")
 _OUTPUT_DIRS = (*_TILE_DIRS, "weight")
-_RESULT_FILES = ("report.json", "exposure.csv", "phase.csv", "exposure.png", "cost.png")
+_RESULT_FILES = ("report.json", "exposure.csv", "phase.csv", "exposure.png", "cost.png",
+                 "response.csv", "response.png", "loglik.png", "residuals.png")
 
 
 @dataclass
@@ -118,15 +121,16 @@ def _reduce_iteration(n_images: int, n_params: int, parts) -> updates.PassSums:
     return total
 
 
-def _update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref: np.ndarray) -> SolveState:
-    t = updates.exposure_update(state.exposure, sums.exp_num, sums.exp_den)
+def _update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref: np.ndarray, fixed: bool = False) -> SolveState:
+    """One update of exposures (eq. 4) and parameters (eq. 5); ``fixed``: the exposures are known (kept)."""
+    t = state.exposure if fixed else updates.exposure_update(state.exposure, sums.exp_num, sums.exp_den)
     c = state.params
     if model.parameters and sums.n_obs:
         if method == "seed":
             c = updates.phase_update_seed(c, sums.jtj, sums.jtr)
         else:
             c = updates.phase_update_damped(c, sums.jtj, sums.jtr, (sums.alpha_min, sums.alpha_max), model.phase_curve)
-    if method != "seed":
+    if method != "seed" and not fixed:
         # A*T leaves one global scale free: pin the geometric mean of T to the initial one.
         t = t * np.exp(np.mean(np.log(t_ref)) - np.mean(np.log(t)))
     return SolveState(np.asarray(t, dtype=np.float64), np.asarray(c, dtype=np.float64))
@@ -146,6 +150,8 @@ def solve(
     max_iter: int | None = None,
     progress: bool = False,
     plots: bool = True,
+    response: str | Path | None = None,
+    exposure_times: str | Path | None = None,
 ) -> SolveResult:
     """Solve for albedo, exposures and the photometric model's parameters (seed 000 section 7).
 
@@ -154,6 +160,8 @@ def solve(
     ``workers`` local processes (default NUM_PROCESSES capped at the CPU count),
     ``scheduler`` (tcp://host:port) or ``cluster`` ("pbs"/"slurm").  Outputs go to
     ``out`` (default ``albedo_<settings stem>``); nothing is written to input folders.
+    ``response``: None (linear DN), ``"estimate"`` or a ``response.csv`` (seed 002, see
+    :mod:`.response`); ``exposure_times``: a ``key,exposure`` CSV that fixes the exposures.
     """
     settings = settings if isinstance(settings, Settings) else load_settings(settings)
     if method not in METHODS:
@@ -173,7 +181,7 @@ def solve(
         out.mkdir(parents=True, exist_ok=True)
         (out / MARKER).write_text("lunaralbedo solve output folder\n")
         remove_stale_temporaries(out)
-        return _run(scene, out, method, max_iter, tolerance, executor, resume, timings, plots)
+        return _run(scene, out, method, max_iter, tolerance, executor, resume, timings, plots, (response, exposure_times))
     except (Exception, KeyboardInterrupt) as exc:
         typed = typed_error(exc)
         resumable = (out / CHECKPOINT_DIR).exists() and not (typed is not None and typed.exit_code == 2)
@@ -196,14 +204,20 @@ def _load_checkpoint(out: Path, scene: Scene, method: str, resume: bool) -> dict
     return state
 
 
-def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots) -> SolveResult:
+def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, resp=(None, None)) -> SolveResult:
     s = scene.settings
     cache = out / CACHE_DIR
     ck = _load_checkpoint(out, scene, method, resume)
     tiles = list(range(len(scene.tiles)))
     t1 = time.perf_counter()
-    metas = executor.map(prepare_tile, tiles, "prepare", shared=("scene",), scene=scene, cache_root=cache)
-    t_init = _reduce_init(scene, metas, method)
+    # camera response (seed 002): g for the prepare step, fixed exposures (engine/response.py)
+    t_known = known_exposures(resp[1], scene.keys) if resp[1] is not None else None
+    lut, resp_report = resolve_response(resp[0], scene, executor, out / RESPONSE_DIR, t_known, ck, plots)
+    check_resume(ck, lut, t_known)
+    if lut is not None:  # the cached stacks hold g(DN): one cache per response, never a stale one on --resume
+        cache = cache / f"g-{lut_digest(lut)}"
+    metas = executor.map(prepare_tile, tiles, "prepare", shared=("scene",), scene=scene, cache_root=cache, lut=lut)
+    t_init = _reduce_init(scene, metas, method) if t_known is None else t_known
     timings["prepare"] = time.perf_counter() - t1
     if ck is None:
         ck = {
@@ -215,6 +229,8 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots) ->
             "q": [],
             "params_history": [s.initial_params.tolist()],
             "done": False,
+            "response": resp_report,
+            "exposure_fixed": t_known is not None,
         }
         outputs.write_json(out / STATE_FILE, ck)
     state = SolveState(np.array(ck["exposure"]), np.array(ck["params"], dtype=np.float64))
@@ -228,7 +244,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots) ->
         ck["q"].append(sums.q)
         converged = q_prev is not None and abs(q_prev - sums.q) <= tol * max(sums.q, 1e-300)
         if not converged:
-            state = _update(state, sums, method, s.model, t_init)
+            state = _update(state, sums, method, s.model, t_init, fixed=t_known is not None)
             ck["params_history"].append(state.params.tolist())
         ck.update(iteration=ck["iteration"] + 1, exposure=state.exposure.tolist(), params=state.params.tolist(), done=converged)
         outputs.write_json(out / STATE_FILE, ck)
@@ -272,9 +288,12 @@ def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timi
         "images_skipped": scene.skipped,
         "tiles": tile_reports,
         "resumed": resume_info if any(resume_info.values()) else None,
+        **report_parts(ck.get("response")),
+        "exposure_fixed": bool(ck.get("exposure_fixed")),
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
     }
     _move_tiles_into_place(out)
+    move_outputs(out / RESPONSE_DIR, out)
     outputs.write_json(out / "report.json", report)  # last: its presence means the run finished
     shutil.rmtree(out / CHECKPOINT_DIR, ignore_errors=True)
     return SolveResult(

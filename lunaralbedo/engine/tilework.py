@@ -82,8 +82,11 @@ def _saturation(dtype: str) -> float | None:
     return float(np.iinfo(dt).max) if dt.kind in "ui" else None
 
 
-def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
+def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | None = None) -> dict:
     """Read every image over tile ``t`` onto its grid, compute geometry, cache the stack.
+
+    ``lut``: camera response g over 0..255 (seed 002), applied to each DRG's DN before
+    it is resampled onto the tile grid; None keeps the DN (linear response).
 
     Returns the tile's initialisation sums (also stored in the cache's meta, so a
     resumed run does not recompute them): per-image reflectance sums for the seed
@@ -105,7 +108,7 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
     for k in scene.tile_images[t]:
         info = scene.images[k]
         got = read_drg_onto_grid(info, scene.profiles[k], tile.transform, (tile.height, tile.width), scene.crs, thresh,
-                                 saturation=_saturation(info.dtype))
+                                 saturation=_saturation(info.dtype), lut=lut)
         if got is None:
             continue
         val, ok, wt, use = got

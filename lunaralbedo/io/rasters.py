@@ -311,6 +311,8 @@ def read_drg_onto_grid(
     dst_crs: CRS | None,
     lit_threshold: float | None = None,
     saturation: float | None = None,
+    lut: np.ndarray | None = None,
+    resampling: Resampling = Resampling.bilinear,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
     """Resample one DRG onto a target grid: ``(value, valid, weight, lit)`` or None if it misses the grid.
 
@@ -322,10 +324,14 @@ def read_drg_onto_grid(
     threshold ``lit_threshold`` (shadow type 1; always lit when it is None) and, when
     ``saturation`` is given, below it (saturated pixels are left out).  Only the
     covering window (plus a 2-pixel margin) of the source is read.
+
+    ``lut`` (a camera response g over 0..255, NaN where undefined; seed 002) maps the DN
+    to sensor exposure *before* resampling, so the result interpolates exposures (the
+    seed's virtual observations, eq. 15); the lit test still uses the DN.
     """
     got = None
     for t in _grid_shifts(info, dst_transform, dst_shape, dst_crs):
-        part = _read_drg_once(info, profile, t, dst_shape, dst_crs, lit_threshold, saturation)
+        part = _read_drg_once(info, profile, t, dst_shape, dst_crs, lit_threshold, saturation, lut, resampling)
         if got is None or part is None:
             got = got or part
             continue
@@ -334,7 +340,7 @@ def read_drg_onto_grid(
     return got
 
 
-def _read_drg_once(info, profile, dst_transform, dst_shape, dst_crs, lit_threshold, saturation):
+def _read_drg_once(info, profile, dst_transform, dst_shape, dst_crs, lit_threshold, saturation, lut, resampling):
     from ..model import shadows
     from ..model.weights import source_weights
 
@@ -354,10 +360,14 @@ def _read_drg_once(info, profile, dst_transform, dst_shape, dst_crs, lit_thresho
         src_transform = ds.window_transform(win)
         src_crs = ds.crs or dst_crs
     r0, c0 = int(win.row_off), int(win.col_off)
+    dn = value
+    if lut is not None:
+        value = np.asarray(lut, np.float32)[np.clip(np.nan_to_num(value), 0, len(lut) - 1).astype(np.intp)]
+        valid &= np.isfinite(value)
     bands = [np.where(valid, value, 0.0).astype(np.float32), valid.astype(np.float32), source_weights(profile, r0, c0, valid)]
     usable = lit_threshold is not None or saturation is not None
-    if usable:
-        bands.append(shadows.usable_pixels(value, valid, lit_threshold, saturation).astype(np.float32))
+    if usable:  # lit and saturated are decided on the DN
+        bands.append(shadows.usable_pixels(dn, valid, lit_threshold, saturation).astype(np.float32))
     src = np.stack(bands)
     dst = np.zeros((len(bands), h, w), dtype=np.float32)
     reproject(
@@ -367,7 +377,7 @@ def _read_drg_once(info, profile, dst_transform, dst_shape, dst_crs, lit_thresho
         src_crs=src_crs,
         dst_transform=dst_transform,
         dst_crs=dst_crs or src_crs,
-        resampling=Resampling.bilinear,
+        resampling=resampling,
     )
     ok = dst[1] > 0.9999
     if not ok.any():

@@ -1,0 +1,40 @@
+"""``lunaralbedo response IMAGES... -o OUTDIR``: camera response of an aligned image stack (seed 002)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ._common import reports_errors
+
+
+@click.command("response")
+@click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Output folder (response.csv, radiance.tif, exposure.csv, report.json, plots).")
+@click.option("--exposure-times", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="CSV image,exposure (file name as given); without it the exposures are estimated too.")
+@click.option("--min-count", type=int, default=20, show_default=True,
+              help="DN values with fewer observations are interpolated, not fitted.")
+@click.option("--max-pixels", type=int, default=200_000, show_default=True,
+              help="Pixels used for the fit (a fixed random subset); the radiance uses all.")
+@click.option("--no-plots", is_flag=True, help="Skip the PNG plots.")
+@reports_errors
+def command(images, out_dir, exposure_times, min_count, max_pixels, no_plots):
+    """Recover the inverse camera response g, the radiance and the exposure times of co-registered IMAGES."""
+    from ..response.aligned import recover_response
+
+    rep = recover_response(images, out_dir, exposure_times, min_count=min_count, max_pixels=max_pixels,
+                           plots=not no_plots)
+    ident = rep["identifiability"]
+    click.echo(f"lunaralbedo response: {len(images)} images, DN {rep['dn_range'][0]}-{rep['dn_range'][1]} "
+               f"({rep['free_levels']} free levels, {rep['interpolated_levels']} interpolated), {rep['normalisation']}")
+    if ident["exposures_known"]:
+        click.echo("  exposure times given: g, radiance identified up to the one global scale")
+    else:
+        click.echo(f"  exposure times estimated; exponential ambiguity fixed by the prior: {ident['prior']} "
+                   f"(gamma {ident['gamma']:.3f})")
+    r = rep["residuals"]
+    click.echo(f"  fit: chi2/dof {r['chi2_per_dof']:.3g}, log residual RMS {r['rms_log']:.3g}, "
+               f"{r['n_obs']} observations, converged {rep['converged']}")
+    click.echo(f"  results in {out_dir}/")

@@ -1,0 +1,249 @@
+r"""Camera response recovery by continuous-Poisson maximum likelihood (seed 002, eqs. 6-15).
+
+Notation of seed 002 section 3: an observation :math:`n=(i,j)` is pixel (or albedo
+sample) :math:`i` seen in image :math:`j` with digital number :math:`z_n`; the sensor
+exposure is :math:`x_n = g(z_n)` with :math:`g = f^{-1}` the inverse camera response,
+and its mean is :math:`\mu_n = r_i\,t_j\,c_n`.  :math:`c_n` is a known per-observation
+factor: 1 in the aligned case of the seed, the reflectance model :math:`R` of seed 000
+(eq. 2) when the albedo solver uses it (the unaligned case), so :math:`r_i` is then the
+albedo.  Everything here is pure NumPy/SciPy on flat observation arrays (no I/O).
+
+The log-likelihood (eq. 8) is
+
+.. math:: L = \sum_n g(z_n)\ln\mu_n - \mu_n - \ln\Gamma(g(z_n)+1)
+
+subject to :math:`0 \le g(0) \le \dots \le g(255)` (eq. 7).  :math:`r` has the closed form
+of eq. 10 (eq. 15 with virtual observations), :math:`t` that of eq. 11 and :math:`g` that
+of eq. 12 (eq. 13 approximates :math:`\Psi^{-1}` by exp); with the constraint (7), eq. 12
+becomes an isotonic regression of the per-level means of :math:`\ln\mu` followed by
+:math:`\Psi^{-1}` (the separable objective is a Bregman one, so pooling adjacent
+violators in the mean parameter is exact).  Alternating these converges slowly, so
+:func:`~.response_fit.fit_response` maximises the *profile* likelihood :math:`L(g, r^*(g,t), t)` with
+a trust-region Newton method from the alternation's result (eq. 13) as the start
+(:mod:`.response_fit`).
+
+Gauges.  The continuous Poisson "density" (eq. 4) is not normalised in :math:`x`, so
+eq. 8 does not fix the overall scale of :math:`g` (it grows without bound as
+:math:`g \to 0`).  The fit therefore holds the mean of :math:`\ln g(z_n)` over the observations at
+``ln FIT_SCALE`` (1000 counts: the Poisson weighting's Gaussian regime, so the shape hardly
+depends on the choice; see :mod:`.response_fit` for why this pin), and the returned :math:`g` is normalised to
+:math:`g(z_{ref}) = 1` (OpenCV's convention, :math:`z_{ref} = 128`), with :math:`r`
+rescaled so that :math:`g(z) = r\,t\,c` still holds.  With unknown exposure times the
+data also fit :math:`g^\gamma, r^\gamma, t^\gamma` (the exponential ambiguity): see
+:func:`fix_gamma`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import isotonic_regression, newton
+from scipy.special import digamma, gammaln, polygamma
+
+#: DN levels of 8-bit data.
+N_LEVELS = 256
+#: Reference DN of the normalisation g(Z_REF) = 1 (as OpenCV's calibrate* functions).
+Z_REF = 128
+#: Counts of g at the reference level while fitting (eq. 8 does not fix the scale: see module doc).
+FIT_SCALE = 1000.0
+#: DN range assumed linear by the gamma prior when exposure times are unknown.
+MID_RANGE = (64, 192)
+
+
+@dataclass(frozen=True)
+class Observations:
+    """Flat observations: pixel index, image index, DN, optional known factor ``c`` (float64)."""
+
+    pixel: np.ndarray
+    image: np.ndarray
+    dn: np.ndarray
+    n_pixels: int
+    n_images: int
+    factor: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.dn)
+
+    def take(self, keep: np.ndarray) -> "Observations":
+        """The subset ``keep`` (boolean mask), pixel indices renumbered densely."""
+        uniq, pix = np.unique(self.pixel[keep], return_inverse=True)
+        fac = None if self.factor is None else self.factor[keep]
+        return Observations(pix.astype(np.int64), self.image[keep], self.dn[keep], len(uniq), self.n_images, fac), uniq
+
+
+def observations_from_stack(dn: np.ndarray, valid: np.ndarray) -> Observations:
+    """Observations of an aligned stack ``(n_images, ...)`` of DN where ``valid`` (the seed's D_j)."""
+    n_img = dn.shape[0]
+    flat = dn.reshape(n_img, -1)
+    ok = valid.reshape(n_img, -1)
+    img, pix = np.nonzero(ok)
+    return Observations(pix.astype(np.int64), img.astype(np.int32), flat[img, pix].astype(np.int32), flat.shape[1], n_img)
+
+
+# --------------------------------------------------------------------------- closed forms
+def _ct(obs: Observations, t: np.ndarray) -> np.ndarray:
+    ct = np.asarray(t, np.float64)[obs.image]
+    return ct if obs.factor is None else ct * obs.factor
+
+
+def radiance_update(x: np.ndarray, obs: Observations, t: np.ndarray) -> np.ndarray:
+    r"""Eq. 10 (and 15): :math:`r_i = \sum_j g(z_{ij}) / \sum_j t_j c_{ij}`; 0 where a pixel has no observation."""
+    num = np.bincount(obs.pixel, x, obs.n_pixels)
+    den = np.bincount(obs.pixel, _ct(obs, t), obs.n_pixels)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 0, num / den, 0.0)
+
+
+def exposure_update(x: np.ndarray, obs: Observations, r: np.ndarray) -> np.ndarray:
+    r"""Eq. 11: :math:`t_j = \sum_i g(z_{ij}) / \sum_i r_i c_{ij}`."""
+    cr = r[obs.pixel] if obs.factor is None else r[obs.pixel] * obs.factor
+    num = np.bincount(obs.image, x, obs.n_images)
+    den = np.bincount(obs.image, cr, obs.n_images)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 0, num / den, 1.0)
+
+
+def inverse_digamma(y: np.ndarray) -> np.ndarray:
+    r""":math:`\Psi^{-1}(y)` by Newton's method (scipy) from Minka's starting point."""
+    y = np.asarray(y, np.float64)
+    x0 = np.where(y >= -2.22, np.exp(y) + 0.5, -1.0 / (y - digamma(1.0)))
+    return newton(lambda x: digamma(x) - y, x0, fprime=lambda x: polygamma(1, x), tol=1e-12, maxiter=50)
+
+
+def response_closed_form(log_mu: np.ndarray, level: np.ndarray, n_levels: int, exact: bool = True) -> np.ndarray:
+    r"""Eq. 12 (``exact``) or eq. 13 under the constraint (7); NaN at levels without data.
+
+    Per level :math:`k` the mean :math:`m_k` of :math:`\ln\mu` over its observations is made
+    non-decreasing by a count-weighted isotonic regression, then
+    :math:`g(k) = \Psi^{-1}(m_k) - 1` (eq. 12, clipped at 0) or :math:`e^{m_k}` (eq. 13).
+    """
+    cnt = np.bincount(level, minlength=n_levels).astype(np.float64)
+    s = np.bincount(level, log_mu, n_levels)
+    have = cnt > 0
+    m = np.full(n_levels, np.nan)
+    m[have] = isotonic_regression(s[have] / cnt[have], weights=cnt[have]).x
+    if exact:
+        out = np.full(n_levels, np.nan)
+        out[have] = np.maximum(inverse_digamma(m[have]) - 1.0, 0.0)
+        return out
+    return np.exp(m)
+
+
+def log_likelihood(x: np.ndarray, mu: np.ndarray) -> float:
+    """Eq. 8 summed over the observations (float64)."""
+    return float(np.sum(x * np.log(mu) - mu - gammaln(x + 1.0)))
+
+
+# --------------------------------------------------------------------------- sparse levels
+@dataclass(frozen=True)
+class Levels:
+    """The DN range fitted, its free levels (knots) and the interpolation of the others.
+
+    ``lo..hi`` (inclusive) is the fitted range; ``knots`` the levels with at least
+    ``min_count`` observations (free parameters); every level in the range gets
+    :math:`\\ln g` by linear interpolation between neighbouring knots (``matrix``,
+    shape (hi-lo+1, n_knots)), which keeps (7).
+    """
+
+    lo: int
+    hi: int
+    knots: np.ndarray
+    matrix: np.ndarray
+    counts: np.ndarray  # (N_LEVELS,) observations per DN (before exclusions)
+
+    @property
+    def dn(self) -> np.ndarray:
+        return np.arange(self.lo, self.hi + 1)
+
+
+def choose_levels(dn: np.ndarray, min_count: int, exclude=(0, 255), n_levels: int = N_LEVELS) -> Levels:
+    """Free levels: DN with >= ``min_count`` observations, not in ``exclude`` (saturated)."""
+    counts = np.bincount(dn, minlength=n_levels)
+    ok = counts >= min_count
+    ok[list(exclude)] = False
+    knots = np.flatnonzero(ok)
+    if len(knots) < 3:
+        from ..errors import InputError
+
+        raise InputError(f"only {len(knots)} DN levels have >= {min_count} observations; cannot fit a response curve")
+    lo, hi = int(knots[0]), int(knots[-1])
+    dn_range = np.arange(lo, hi + 1)
+    m = np.zeros((len(dn_range), len(knots)))
+    pos = np.searchsorted(knots, dn_range)
+    for row, (z, p) in enumerate(zip(dn_range, pos)):
+        if knots[p] == z:
+            m[row, p] = 1.0
+        else:
+            a, b = knots[p - 1], knots[p]
+            w = (z - a) / (b - a)
+            m[row, p - 1], m[row, p] = 1.0 - w, w
+    return Levels(lo, hi, knots, m, counts)
+
+
+def fix_gamma(dn: np.ndarray, g: np.ndarray, mid=MID_RANGE) -> tuple[float, dict]:
+    r"""The documented prior that fixes the exponential ambiguity when exposures are unknown.
+
+    :math:`g^\gamma, r^\gamma, t^\gamma` fit the data as well as :math:`g, r, t` (every
+    :math:`g(z) = r t` holds for both).  Known exposure times remove it, and so does a
+    reflectance that varies between images (the solver's case: :math:`c` is fixed, so
+    :math:`c^\gamma \ne c`), weakly.  Otherwise the response is assumed linear in the
+    middle of the DN range: :math:`\gamma` makes the least-squares slope of
+    :math:`\ln g` against :math:`\ln z` over ``mid`` equal to 1.
+    """
+    sel = (dn >= mid[0]) & (dn <= mid[1])
+    if sel.sum() < 3:
+        sel = np.ones_like(dn, bool)
+    slope = float(np.polyfit(np.log(dn[sel].astype(np.float64)), np.log(g[sel]), 1)[0])
+    gamma = 1.0 / slope if slope > 0 else 1.0
+    return gamma, {
+        "exposures_known": False,
+        "gamma": gamma,
+        "prior": f"response linear over DN {int(dn[sel].min())}-{int(dn[sel].max())} (log-log slope 1)",
+        "slope_before": slope,
+    }
+
+
+def residual_analysis(x: np.ndarray, mu: np.ndarray, level: np.ndarray, n_levels: int, n_params: int) -> dict:
+    r"""Per-DN residuals, goodness of fit and uncertainty of :math:`\ln g`.
+
+    Per level: count, mean and standard deviation of :math:`\ln(\mu/g)` (the model's
+    exposure against the curve's) and the standard error of :math:`\ln g` (std/√n).
+    Global: Pearson :math:`\chi^2` per degree of freedom, :math:`\sum (x-\mu)^2/\mu / (N-p)`
+    (about 1 when the Poisson noise model holds at the fitted scale), and the RMS of
+    :math:`\ln(\mu/x)`.
+    """
+    d = np.log(mu / x)
+    cnt = np.bincount(level, minlength=n_levels).astype(np.float64)
+    s1 = np.bincount(level, d, n_levels)
+    s2 = np.bincount(level, d * d, n_levels)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = s1 / cnt
+        std = np.sqrt(np.maximum(s2 / cnt - mean**2, 0.0))
+        se = std / np.sqrt(cnt)
+    dof = max(len(x) - n_params, 1)
+    return {
+        "count": cnt, "bias_log": mean, "std_log": std, "se_log_g": se,
+        "chi2_per_dof": float(np.sum((x - mu) ** 2 / mu) / dof),
+        "rms_log": float(np.sqrt(np.mean(d * d))), "n_obs": int(len(x)), "n_params": int(n_params),
+    }
+
+
+def log_rms_error(g_est: np.ndarray, g_true: np.ndarray) -> float:
+    """RMS of :math:`\\ln g_{est} - \\ln g_{true}` after the one global scale (mean log ratio) is removed."""
+    d = np.log(g_est) - np.log(g_true)
+    d = d[np.isfinite(d)]
+    return float(np.sqrt(np.mean((d - d.mean()) ** 2)))
+
+
+def radiance_map(dn: np.ndarray, valid: np.ndarray, lut: np.ndarray, exposure: np.ndarray) -> np.ndarray:
+    r"""Eq. 10 on a whole aligned stack: :math:`r = \sum_j g(z_j) / \sum_j t_j` over valid, fitted DN.
+
+    ``dn`` (n_images, h, w) integers, ``lut`` g over 0..255 (NaN where not fitted), float32
+    result with NaN where no image has a usable value.
+    """
+    x = lut[dn]
+    ok = valid & np.isfinite(x)
+    num = np.sum(np.where(ok, x, 0.0), axis=0, dtype=np.float64)
+    den = np.sum(np.where(ok, np.asarray(exposure, np.float64)[:, None, None], 0.0), axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 0, num / den, np.nan).astype(np.float32)

@@ -1,0 +1,147 @@
+"""``lunaralbedo response``: the aligned case of seed 002 section 3 (a co-registered stack of one scene).
+
+Reads the images (band 1 DN, the GDAL mask as the seed's D_j), fits g, r and (unless
+given) t by :func:`lunaralbedo.model.response_fit.fit_response` on a deterministic
+subsample of pixels, computes the radiance of every pixel by eq. 10, and writes into
+OUTDIR: ``response.csv``, ``radiance.tif``, ``exposure.csv`` (when estimated),
+``report.json`` and the plots ``response.png`` (seed fig. 8), ``exposure.png`` (fig. 9),
+``loglik.png`` and ``residuals.png``.  Nothing is written before the fit succeeded.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import InputError
+from ..io import outputs
+from ..io import response as rio
+from ..io.rasters import write_geotiff
+from ..model.response import observations_from_stack, radiance_map
+from ..model.response_fit import ResponseFit, fit_response
+
+
+@dataclass
+class Stack:
+    """An aligned stack: DN (n, h, w) int16, validity, names, georeferencing of the first image."""
+
+    dn: np.ndarray
+    valid: np.ndarray
+    names: list[str]
+    transform: object
+    crs: object
+
+
+def read_stack(paths: Sequence[str | Path]) -> Stack:
+    """Band 1 of every image (integer DN 0..255) and its mask; all must share one grid."""
+    import rasterio
+
+    if len(paths) < 2:
+        raise InputError("the response needs at least two images of the same scene")
+    dns, masks = [], []
+    transform = crs = shape = None
+    for p in paths:
+        try:
+            with rasterio.open(p) as ds:
+                v = ds.read(1)
+                m = ds.read_masks(1) > 0
+                if shape is None:
+                    shape, transform, crs = v.shape, ds.transform, ds.crs
+                elif v.shape != shape:
+                    raise InputError(f"{p}: {v.shape[1]}x{v.shape[0]} px, but {paths[0]} is {shape[1]}x{shape[0]}; "
+                                     "the aligned case needs co-registered images on one grid")
+        except rasterio.errors.RasterioIOError as exc:
+            raise InputError(f"{p}: cannot read as a raster ({exc})") from None
+        if not np.issubdtype(v.dtype, np.integer) or (m.any() and (v[m].min() < 0 or v[m].max() > 255)):
+            raise InputError(f"{p}: band 1 must hold 8-bit DN (integers 0..255), found {v.dtype}")
+        dns.append(v.astype(np.int16))
+        masks.append(m)
+    return Stack(np.stack(dns), np.stack(masks), [str(p) for p in paths], transform, crs)
+
+
+def exposures_for(names: Sequence[str], table: dict[str, float], source: Path) -> np.ndarray:
+    """Exposure time of each image from a table keyed by the file name as given (or its base name)."""
+    out = []
+    for n in names:
+        t = table.get(n, table.get(Path(n).name))
+        if t is None:
+            raise InputError(f"{source}: no exposure for image {n!r}")
+        out.append(t)
+    return np.array(out, np.float64)
+
+
+def subsample(n_pixels: int, max_pixels: int, seed: int = 0) -> np.ndarray:
+    """A fixed random subset of pixel indices (sorted), all of them when there are few."""
+    if n_pixels <= max_pixels:
+        return np.arange(n_pixels)
+    return np.sort(np.random.default_rng(seed).choice(n_pixels, max_pixels, replace=False))
+
+
+def fit_stack(stack: Stack, exposure: np.ndarray | None, min_count: int = 20, max_pixels: int = 200_000,
+              exclude=(0, 255)) -> ResponseFit:
+    """Fit the response to (a subsample of) the stack's pixels."""
+    n, h, w = stack.dn.shape
+    pick = subsample(h * w, max_pixels)
+    dn = stack.dn.reshape(n, -1)[:, pick]
+    obs = observations_from_stack(dn, stack.valid.reshape(n, -1)[:, pick])
+    return fit_response(obs, exposure, min_count=min_count, exclude=exclude)
+
+
+def recover_response(images: Sequence[str | Path], out_dir: str | Path, exposure_times: str | Path | None = None,
+                     min_count: int = 20, max_pixels: int = 200_000, plots: bool = True) -> dict:
+    """Run the aligned case and write its outputs; returns the report (also in ``report.json``)."""
+    stack = read_stack(images)
+    t_known = None
+    if exposure_times is not None:
+        t_known = exposures_for(stack.names, rio.read_exposure_table(exposure_times), Path(exposure_times))
+    fit = fit_stack(stack, t_known, min_count=min_count, max_pixels=max_pixels)
+    radiance = radiance_map(stack.dn, stack.valid, fit.lut(), fit.exposure)
+    out = Path(out_dir)
+    write_outputs(out, fit, stack.names, plots, exposure_given=t_known is not None)
+    write_geotiff(out / "radiance.tif", radiance, stack.transform, stack.crs, nodata=float("nan"))
+    report = fit_report(fit, stack.names)
+    report["radiance_valid_pixels"] = int(np.isfinite(radiance).sum())
+    outputs.write_json(out / "report.json", report)
+    return report
+
+
+def write_outputs(out: Path, fit: ResponseFit, names: Sequence[str], plots: bool, exposure_given: bool) -> None:
+    """response.csv, exposure.csv (when estimated) and the plots."""
+    lev, res = fit.levels, fit.residuals
+    free = np.isin(lev.dn, lev.knots)
+    rio.write_response_csv(out / "response.csv", lev.dn, fit.g, res["se_log_g"], lev.counts[lev.dn], free)
+    if not exposure_given:
+        rio.write_exposure_table(out / "exposure.csv", names, fit.exposure)
+    if plots:
+        rio.plot_response(out / "response.png", lev.dn, fit.g, fit.g_initial, res["se_log_g"])
+        if not exposure_given:
+            outputs.plot_exposures(out / "exposure.png", [Path(n).stem[-24:] for n in names], fit.exposure,
+                                   np.ones_like(fit.exposure))
+        rio.plot_loglik(out / "loglik.png", fit.loglik, fit.n_juggle)
+        rio.plot_residuals(out / "residuals.png", lev.dn, res)
+
+
+def fit_report(fit: ResponseFit, names: Sequence[str]) -> dict:
+    """The fit as JSON: the curve (``dn``, ``g`` first: the web panel plots the first two
+    equal-length number lists), scalars, and ``residuals`` (summary and per-DN lists over
+    the DN with observations; no NaN, which JSON cannot carry)."""
+    res, dn = fit.residuals, fit.levels.dn
+    seen = np.isfinite(res["bias_log"]) & np.isfinite(res["std_log"])
+    per_dn = {k: np.asarray(res[k])[seen].tolist() for k in ("bias_log", "std_log")}
+    return {
+        "dn": dn.tolist(),
+        "g": np.asarray(fit.g, np.float64).tolist(),
+        "dn_range": [fit.levels.lo, fit.levels.hi],
+        "free_levels": len(fit.levels.knots),
+        "interpolated_levels": int(len(fit.levels.dn) - len(fit.levels.knots)),
+        "normalisation": f"g({fit.z_ref}) = 1",
+        "exposures": dict(zip(names, fit.exposure.tolist())),
+        "identifiability": fit.gamma,
+        "converged": fit.converged,
+        "loglik": fit.loglik,
+        "iterations": {"alternation": fit.n_juggle, "newton": len(fit.loglik) - fit.n_juggle},
+        "residuals": {"dn": dn[seen].tolist(), **per_dn, "count": np.asarray(res["count"])[seen].astype(int).tolist(),
+                      **{k: res[k] for k in ("chi2_per_dof", "rms_log", "n_obs", "n_params")}},
+    }
