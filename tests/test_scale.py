@@ -53,3 +53,25 @@ def test_overlap_exposure_of_a_long_strip_of_20000_images():
     # mu pulls towards x0 a little; along 2*10^4 images that bends the solution by ~4e-3
     np.testing.assert_allclose(x - x.mean(), x_true - x_true.mean(), atol=1e-2)
     assert np.mean(x) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_tile_image_index_equals_the_all_pairs_test():
+    """STRtree overlaps == the strict all-pairs rectangle test, including touching and degenerate cases."""
+    from lunaralbedo.engine.scene import overlaps_per_box
+    from lunaralbedo.io.rasters import intersects
+
+    rng = np.random.default_rng(9)
+    west = rng.uniform(0, 10, 400).round(1)
+    south = rng.uniform(0, 10, 400).round(1)
+    boxes = np.c_[west, south, west + rng.uniform(0.1, 1.5, 400).round(1), south + rng.uniform(0.1, 1.5, 400).round(1)]
+    tiles = np.array([(x, y, x + 1.0, y + 1.0) for x in np.arange(0, 11.0) for y in np.arange(0, 11.0)])
+    got = overlaps_per_box(boxes, tiles)
+    assert len(got) == len(tiles)
+    n = 0
+    for t, hits in zip(tiles, got):
+        want = [k for k, b in enumerate(boxes) if intersects(b, t)]
+        assert hits.tolist() == want
+        n += len(want)
+    assert n > 1000  # the case is not trivial
+    # edges that only touch do not overlap
+    assert overlaps_per_box([(0, 0, 1, 1)], [(1, 0, 2, 1)])[0].size == 0
