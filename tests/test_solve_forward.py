@@ -23,7 +23,8 @@ def scene(request, tmp_path_factory):
 
 def test_default_method_recovers_truth_within_10_iterations(scene, tmp_path):
     res = solve(scene / "settings.txt", out=tmp_path / "out", workers=1, plots=False)
-    assert res.iterations <= 10
+    # the default early stop (Q settled to 1e-5) ends after 2-4 of the 10 allowed passes
+    assert res.report["converged"] and 2 <= res.iterations <= 4, res.cost_history
     sc = score(tmp_path / "out", scene)
     assert sc["coverage"] > 0.95
     assert sc["albedo_rel_rmse"] < ALBEDO_TOL, sc

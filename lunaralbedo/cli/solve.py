@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ..engine.solve import METHODS
+from ..engine.solve import DEFAULT_TOLERANCE, METHODS
 from ._common import reports_errors
 
 
@@ -47,8 +47,8 @@ def _print_summary(result) -> None:
 @click.option("--resume", is_flag=True, help="Continue an interrupted run in OUTDIR (same settings and inputs).")
 @click.option("--skip-missing", is_flag=True, help="Leave out DRGs without a Sun/spacecraft position (listed in the report).")
 @click.option("--max-iter", type=int, default=None, help="Override MAX_NUM_ITER.")
-@click.option("--tolerance", type=float, default=1e-7, show_default=True,
-              help="Stop when the cost Q changes by less than this fraction between iterations.")
+@click.option("--tolerance", type=float, default=DEFAULT_TOLERANCE, show_default=True,
+              help="Stop when the cost Q changes by at most this fraction between iterations (0: run MAX_NUM_ITER).")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @reports_errors
 def command(settings, out, method, legacy, workers, scheduler, cluster, queue, cores, memory, walltime, jobs, account,

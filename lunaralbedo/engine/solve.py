@@ -30,6 +30,8 @@ from .scene import Scene, build_scene
 from .tilework import SolveState, finalize_tile, iterate_tile, prepare_tile
 
 METHODS = ("overlap", "seed")
+#: Early stop: after the first iteration whose Q is within this fraction of the previous Q (docs/solver.md).
+DEFAULT_TOLERANCE = 1e-5
 STATE_FILE = ".state.json"
 MARKER = ".lunaralbedo"  # written first into every OUTDIR: marks it as ours
 CACHE_DIR = ".cache"
@@ -124,7 +126,7 @@ def solve(
     cluster_options: dict | None = None,
     resume: bool = False,
     skip_missing: bool = False,
-    tolerance: float = 1e-7,
+    tolerance: float = DEFAULT_TOLERANCE,
     max_iter: int | None = None,
     progress: bool = False,
     plots: bool = True,
@@ -136,6 +138,7 @@ def solve(
     ``workers`` local processes (default NUM_PROCESSES capped at the CPU count),
     ``scheduler`` (tcp://host:port) or ``cluster`` ("pbs"/"slurm").  Outputs go to
     ``out`` (default ``albedo_<settings stem>``); nothing is written to input folders.
+    Iterations stop early once ``|Q_n - Q_(n-1)| <= tolerance * Q_n`` (0: run them all).
     """
     settings = settings if isinstance(settings, Settings) else load_settings(settings)
     if method not in METHODS:
