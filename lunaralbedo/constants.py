@@ -9,11 +9,6 @@ Frames and units used throughout the package:
 MOON_RADIUS_KM = 1737.4
 MOON_RADIUS_M = MOON_RADIUS_KM * 1000.0
 
-#: Lunar-Lambertian L(alpha) polynomial, alpha in degrees (seed 000, eq. 2).
-LUNAR_LAMBERT_A = -0.019
-LUNAR_LAMBERT_B = 0.000242
-LUNAR_LAMBERT_C = -0.00000146
-
 #: Length of the lookup key taken from the start of a DRG file name.
 KEY_LENGTH = 11
 

@@ -10,6 +10,11 @@ Two spellings of the same settings are accepted:
 Relative paths resolve against the folder of the settings file.  Unknown keys
 and invalid values raise :class:`~lunaralbedo.errors.SettingsError` naming the
 key and the allowed values.
+
+The reflectance model is named by ``REFLECTANCE_TYPE`` (a legacy code) or, in TOML,
+``reflectance = "<name>"`` (see :mod:`lunaralbedo.model.photometry`).  Settings a
+model declares (e.g. PHASE_COEFF_C1/C2 of Lunar-Lambert) are accepted keys whatever
+the model; the chosen model validates them.  This module knows no model by name.
 """
 from __future__ import annotations
 
@@ -20,9 +25,10 @@ from pathlib import Path
 from typing import Any
 
 from .errors import SettingsError
+from .model import photometry
 
-#: (legacy key, type, default, allowed values or None)
-_SPEC: dict[str, tuple[type, Any, tuple | None]] = {
+#: (legacy key, type, default, allowed values or None); model-declared keys follow TR_CONST.
+_CORE: dict[str, tuple[type, Any, tuple | None]] = {
     "DRG_DIR": (Path, None, None),
     "DEM_DIR": (Path, None, None),
     "SUN_POSITION_FILE": (Path, None, None),
@@ -30,18 +36,20 @@ _SPEC: dict[str, tuple[type, Any, tuple | None]] = {
     "NUM_PROCESSES": (int, 1, None),
     "TILE_SIZE": (float, 4.0, None),
     "SIMULATION_BOX": (tuple, (-180.0, 180.0, -90.0, 90.0), None),
-    "REFLECTANCE_TYPE": (int, 2, (0, 1, 2)),
+    "REFLECTANCE_TYPE": (int, photometry.get("lunar-lambert").code, tuple(photometry.codes())),
     "SHADOW_THRESH": (float, 40.0, None),
     "SHADOW_TYPE": (int, 1, (0, 1, 2, 3)),
     "TR_CONST": (float, 1.5, None),
-    "PHASE_COEFF_C1": (float, 1.4, None),
-    "PHASE_COEFF_C2": (float, 0.5, None),
     "MAX_NUM_ITER": (int, 10, None),
     "NO_DEM_DATA_VAL": (float, -32767.0, None),
     "USE_WEIGHTS": (int, 1, (0, 1)),
     "USE_NORMALIZED_COST_FUN": (int, 0, (0, 1)),
     "COMPUTE_ERRORS": (int, 1, (0, 1)),
+    "REFLECTANCE": (str, None, tuple(photometry.names())),  # the model by name (TOML); wins over REFLECTANCE_TYPE
 }
+_MODEL_KEYS = photometry.declared_settings()
+_at = list(_CORE).index("TR_CONST") + 1
+_SPEC = {**dict(list(_CORE.items())[:_at]), **_MODEL_KEYS, **dict(list(_CORE.items())[_at:])}
 
 
 @dataclass(frozen=True)
@@ -59,35 +67,65 @@ class Settings:
     num_processes: int = 1
     tile_size: float = 4.0
     simulation_box: tuple[float, float, float, float] = (-180.0, 180.0, -90.0, 90.0)
-    reflectance_type: int = 2
+    reflectance: str = "lunar-lambert"
     shadow_thresh: float = 40.0
     shadow_type: int = 1
     tr_const: float = 1.5
-    phase_coeff_c1: float = 1.4
-    phase_coeff_c2: float = 0.5
     max_num_iter: int = 10
     no_dem_data_val: float = -32767.0
     use_weights: int = 1
     use_normalized_cost_fun: int = 0
     compute_errors: int = 1
+    #: Values of the model-declared keys, ``((LEGACY_KEY, value), ...)``; read as attributes (``s.phase_coeff_c1``).
+    model_settings: tuple[tuple[str, Any], ...] = ()
     source: Path | None = field(default=None, compare=False)
+
+    def __getattr__(self, name: str) -> Any:
+        key = name.upper()
+        if name.startswith("_") or key not in _MODEL_KEYS:
+            raise AttributeError(name)
+        return dict(self.__dict__.get("model_settings", ())).get(key, _MODEL_KEYS[key][1])
+
+    @property
+    def model(self) -> photometry.PhotometricModel:
+        """The photometric model (:mod:`lunaralbedo.model.photometry`)."""
+        return photometry.get(self.reflectance)
+
+    @property
+    def reflectance_type(self) -> int | None:
+        """The legacy REFLECTANCE_TYPE code of the model (None if it has none)."""
+        return self.model.code
+
+    @property
+    def initial_params(self):
+        """Initial values of the model's fitted parameters (float64 array)."""
+        return self.model.initial({key: getattr(self, key.lower()) for key in _MODEL_KEYS})
 
     @property
     def needs_geometry(self) -> bool:
         """True when a DEM and Sun/spacecraft positions are required."""
-        return self.reflectance_type != 0
+        return self.model.needs_geometry
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-friendly echo (paths as strings)."""
+        """JSON-friendly echo (paths as strings); model-declared keys in snake_case like the others."""
         out = {}
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
+            if f.name == "model_settings":
+                out.update({k.lower(): getattr(self, k.lower()) for k in _MODEL_KEYS})
+                continue
             out[f.name] = str(v) if isinstance(v, Path) else (list(v) if isinstance(v, tuple) else v)
         return out
 
     def to_legacy_text(self) -> str:
         """Render as a legacy settings file (absolute paths)."""
-        return legacy_text({key: getattr(self, key.lower()) for key in _SPEC})
+        values = {key: getattr(self, key.lower()) for key in _SPEC if key not in ("REFLECTANCE_TYPE", "REFLECTANCE")}
+        return legacy_text({**values, **_model_keys(self.model)})
+
+
+def _model_keys(model) -> dict[str, Any]:
+    """REFLECTANCE_TYPE when the model has a legacy code, else REFLECTANCE (its name)."""
+    return {"REFLECTANCE_TYPE": model.code} if model.code is not None else {"REFLECTANCE": model.name}
 
 
 def legacy_text(values: dict[str, Any], comment: str = "") -> str:
@@ -102,6 +140,8 @@ def legacy_text(values: dict[str, Any], comment: str = "") -> str:
         raise SettingsError(f"unknown settings keys: {', '.join(sorted(unknown))}")
     lines = [f"# {c}" for c in comment.splitlines()]
     for key, (_typ, default, _allowed) in _SPEC.items():
+        if key == "REFLECTANCE" and values.get(key) is None:
+            continue  # a model with a legacy code is written as REFLECTANCE_TYPE
         v = values.get(key, default)
         if v is None:
             v = ""
@@ -141,6 +181,10 @@ def _convert(key: str, raw: Any, base: Path, where: str) -> Any:
         if isinstance(raw, (list, tuple)):
             raw = ":".join(str(x) for x in raw)
         return _parse_box(raw, where)
+    if typ is str:
+        if str(raw) not in allowed:
+            raise SettingsError(f"{where}: {key} must be one of {', '.join(allowed)}, got {raw!r}")
+        return str(raw)
     try:
         if typ is int:
             fv = float(raw)
@@ -166,12 +210,16 @@ def _validate(values: dict[str, Any], where: str) -> None:
         raise SettingsError(f"{where}: NUM_PROCESSES must be >= 1, got {values['NUM_PROCESSES']}")
     if values["MAX_NUM_ITER"] < 0:
         raise SettingsError(f"{where}: MAX_NUM_ITER must be >= 0, got {values['MAX_NUM_ITER']}")
-    if values["REFLECTANCE_TYPE"] != 0:
+    model = photometry.get(values["REFLECTANCE"] or values["REFLECTANCE_TYPE"])
+    if model.needs_geometry:
         for key in ("DEM_DIR", "SUN_POSITION_FILE", "SPACECRAFT_POSITION_FILE"):
             if values.get(key) is None:
                 raise SettingsError(
-                    f"{where}: {key} is required when REFLECTANCE_TYPE is 1 or 2 (only 0, mosaic mode, runs without it)"
+                    f"{where}: {key} is required by the {model.name} reflectance model "
+                    "(only REFLECTANCE_TYPE 0, mosaic mode, runs without it)"
                 )
+    if model.validate is not None:
+        model.validate(values, where)
 
 
 def _build(pairs: list[tuple[str, Any, str]], base: Path, source: Path) -> Settings:
@@ -186,7 +234,14 @@ def _build(pairs: list[tuple[str, Any, str]], base: Path, source: Path) -> Setti
         conv = _convert(key, raw, base, where)
         values[key] = conv if (conv is not None or _SPEC[key][0] is Path) else _SPEC[key][1]
     _validate(values, str(source))
-    return Settings(**{k.lower(): v for k, v in values.items()}, source=source)
+    return _settings(values, source)
+
+
+def _settings(values: dict[str, Any], source: Path | None) -> Settings:
+    """A :class:`Settings` from validated values keyed by legacy key."""
+    model = photometry.get(values["REFLECTANCE"] or values["REFLECTANCE_TYPE"])
+    core = {k.lower(): v for k, v in values.items() if k in _CORE and k not in ("REFLECTANCE_TYPE", "REFLECTANCE")}
+    return Settings(**core, reflectance=model.name, model_settings=tuple((k, values[k]) for k in _MODEL_KEYS), source=source)
 
 
 def parse_legacy(text: str, source: Path) -> Settings:
@@ -232,5 +287,15 @@ def load_settings(path: str | Path) -> Settings:
 
 
 def replace(settings: Settings, **changes: Any) -> Settings:
-    """A copy of ``settings`` with some fields changed (no validation: pass valid values)."""
+    """A copy of ``settings`` with some fields changed (no validation: pass valid values).
+
+    Field names as attributes: model-declared keys (``phase_coeff_c1``) and
+    ``reflectance_type`` (a legacy code) are accepted too.
+    """
+    if "reflectance_type" in changes:
+        changes["reflectance"] = photometry.get(changes.pop("reflectance_type")).name
+    model_changes = {k.upper(): changes.pop(k) for k in list(changes) if k.upper() in _MODEL_KEYS}
+    if model_changes:
+        merged = {**dict(settings.model_settings), **model_changes}
+        changes["model_settings"] = tuple((k, merged.get(k, _MODEL_KEYS[k][1])) for k in _MODEL_KEYS)
     return dataclasses.replace(settings, **changes)

@@ -9,7 +9,7 @@ The scene is written in the exact input contract of ``lunaralbedo solve``:
 * ``truth/albedo.tif`` and ``truth/truth.json`` — the truth to compare against.
 
 Images are :math:`I = \\mathrm{round}(A\\,T\\,R + n)` clipped to 0..255 (eq. 1's model),
-with :math:`R` from :func:`lunaralbedo.model.reflectance.reflectance`, Gaussian noise
+with :math:`R` from the photometric model (:mod:`lunaralbedo.model.photometry`), Gaussian noise
 ``n`` and 8-bit quantisation.  Geometry: a strip of images along longitude near
 the equator, each with its own Sun and spacecraft position.
 """
@@ -27,7 +27,7 @@ from .io.atomic import atomic_write_text
 from .io.positions import write_positions
 from .io.rasters import MOON_CRS, write_geotiff
 from .model import geometry
-from .model.reflectance import reflectance
+from .model import photometry
 from .settings import legacy_text
 
 
@@ -169,7 +169,8 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
         pts, lon, lat = pts[1:-1, 1:-1], lon[1:-1, 1:-1], lat[1:-1, 1:-1]
         sun, sc = _sun_and_spacecraft(spec, k, float(lon.mean()), float(lat.mean()), rng)
         ci, ce, al = geometry.illumination(pts, normals, sun, sc)
-        r = reflectance(spec.reflectance_type, ci, ce, al, spec.c1, spec.c2)
+        model = photometry.get(spec.reflectance_type)
+        r = model.reflectance(ci, ce, al, (spec.c1, spec.c2)[: len(model.parameters)])
         r = np.where(ci >= 0.3, r, 0.0)
         signal = gain * albedo_fn(lon, lat) * exposures[k] * r
         dn = np.clip(np.round(signal + rng.normal(0, spec.noise_dn, signal.shape)), 0, 255).astype(np.uint8)

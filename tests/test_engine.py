@@ -189,7 +189,7 @@ def test_ingest_cubes_in_parallel_match_serial(tmp_path):
 )
 def test_batch_cluster_job_scripts(kind, expect):
     """--cluster pbs|slurm: dask-jobqueue job scripts carry the queue, account, walltime and single-threaded workers."""
-    from lunaralbedo.engine.executor import jobqueue_cluster
+    from lunaralbedo.parallel import jobqueue_cluster
 
     opts = dict(queue="normal", cores=4, memory="16GB", walltime="04:00:00", account="lunar", jobs=2)
     cluster = jobqueue_cluster(kind, opts)

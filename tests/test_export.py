@@ -157,7 +157,7 @@ def test_mosaics_are_valid_cogs_with_overviews_and_exact_values(six):
 
 def test_parallel_output_equals_serial(tmp_path):
     outputs = []
-    for i, kw in enumerate([dict(workers=1), dict(workers=2), dict(workers=2, scheduler="processes")]):
+    for i, kw in enumerate([dict(workers=1), dict(workers=2), dict(workers=2, pool="processes")]):
         root = make_result(tmp_path / str(i) / "run", SIX, n=40, errors=True)  # same name: it titles doc.kml
         export_kml(root, tile_size=32, **kw)
         files = all_files(root / "kml") | {"sub4/" + k: v for k, v in all_files(root / "albedo_sub4").items()}

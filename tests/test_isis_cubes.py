@@ -8,7 +8,8 @@ import rasterio
 from lunaralbedo.errors import IsisError
 from lunaralbedo.isis import read_label, read_table
 from lunaralbedo.isis.labels import parse_pvl_file
-from lunaralbedo.isis.pixels import radius_to_height, read_band, read_dem_cube
+from lunaralbedo.isis.pixels import read_band, read_dem_cube
+from lunaralbedo.model.geometry import radius_to_height
 from lunaralbedo.isis.tables import has_table
 from lunaralbedo.isis.write import write_cube
 

@@ -105,7 +105,7 @@ def test_invalid_values_name_key_and_allowed_values(tmp_path, line, words):
 
 
 def test_geometry_required_for_lunar_lambert(tmp_path):
-    with pytest.raises(SettingsError, match="DEM_DIR is required when REFLECTANCE_TYPE is 1 or 2"):
+    with pytest.raises(SettingsError, match="DEM_DIR is required by the lunar-lambert reflectance model"):
         load_settings(write(tmp_path, "DRG_DIR d\nREFLECTANCE_TYPE 2\n"))
 
 
@@ -126,3 +126,26 @@ def test_photk_settings_files_parse(photk_tests):
     s2 = load_settings(photk_tests / "photometry_settings_2.txt")
     assert s1.simulation_box == s2.simulation_box == (6.0, 10.0, -10.0, -9.0)
     assert s1.reflectance_type == 2 and s2.reflectance_type == 0 and s2.dem_dir is None
+
+
+@pytest.mark.parametrize("toml_line, code", [('reflectance = "mosaic"', 0), ('reflectance = "lambert"', 1),
+                                             ('reflectance = "lunar-lambert"', 2), ("reflectance_type = 1", 1)])
+def test_toml_names_the_reflectance_model(tmp_path, toml_line, code):
+    geometry = 'dem_dir = "dem"\nsun_position_file = "s.txt"\nspacecraft_position_file = "c.txt"\n'
+    s = load_settings(write(tmp_path, f'drg_dir = "d"\n{geometry}{toml_line}\n', "s.toml"))
+    assert s.reflectance_type == code and s.model.code == code
+    # the legacy rendering maps the model back onto REFLECTANCE_TYPE, and parses to the same settings
+    again = load_settings(write(tmp_path, s.to_legacy_text(), "again.txt"))
+    assert again.model is s.model and again.initial_params.tolist() == s.initial_params.tolist()
+    assert f"REFLECTANCE_TYPE          {code}\n" in s.to_legacy_text()
+
+
+def test_unknown_reflectance_model_is_named(tmp_path):
+    with pytest.raises(SettingsError, match="REFLECTANCE must be one of mosaic, lambert, lunar-lambert, got 'hapke2'"):
+        load_settings(write(tmp_path, 'drg_dir = "d"\nreflectance = "hapke2"\n', "s.toml"))
+
+
+def test_model_declared_settings_are_read_as_attributes(tmp_path):
+    s = load_settings(write(tmp_path, LEGACY.replace("PHASE_COEFF_C1            1.4", "PHASE_COEFF_C1 1.25")))
+    assert s.phase_coeff_c1 == 1.25 and s.initial_params.tolist() == [1.25, 0.5]
+    assert s.to_dict()["phase_coeff_c1"] == 1.25

@@ -6,6 +6,7 @@ import pytest
 import rasterio
 
 from lunaralbedo.engine.solve import solve
+from lunaralbedo.settings import load_settings
 from lunaralbedo.simulate import SceneSpec, render_scene, score
 
 ALBEDO_TOL = 0.025
@@ -56,14 +57,21 @@ def test_outputs_are_float32_with_nan_nodata_and_documented_files(scene, tmp_pat
         assert (out / "error" / f"{name}.tif").exists() and (out / "DEM" / f"{name}.tif").exists()
     header = (out / "exposure.csv").read_text().splitlines()[0]
     assert header.startswith("key,exposure")
-    assert (out / "phase.csv").read_text().startswith("iteration,c1,c2")
+    model = load_settings(scene / "settings.txt").model
+    names = model.parameters  # the model names its fitted parameters
+    assert names == {"lambert": (), "lunar-lambert": ("c1", "c2")}[model.name]
+    if names:
+        assert (out / "phase.csv").read_text().startswith("iteration,c1,c2\n0,1.4,0.5\n")
+    else:
+        assert not (out / "phase.csv").exists()
     for png in ("exposure.png", "cost.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     import json
 
     rep = json.loads((out / "report.json").read_text())
     assert len(rep["cost_q"]) == res.iterations and rep["cost_q"][-1] <= rep["cost_q"][0]
-    assert rep["settings"]["reflectance_type"] in (1, 2) and "timings_s" in rep
+    assert rep["settings"]["reflectance"] == rep["photometric_model"] in ("lambert", "lunar-lambert") and "timings_s" in rep
+    assert list(rep["parameters"]) == list(names) and all(len(v) == res.iterations + 1 for v in rep["parameters"].values())
     assert not (out / ".cache").exists()
 
 

@@ -36,7 +36,7 @@ def test_settings_1_lunar_lambert_normalised_cost(photk_tests, tmp_path):
             # the same surface as the legacy solve (which froze exposures at their start values)
             assert np.corrcoef(alb[both], gold_dn[both])[0, 1] > 0.7
             # and the same brightness scale (TR_CONST convention; legacy multiplied by 1 + c2 at the end)
-            c2 = json.loads((out / "report.json").read_text())["phase_coefficients"][-1][1]
+            c2 = json.loads((out / "report.json").read_text())["parameters"]["c2"][-1]
             assert 0.85 < np.mean(alb[both]) * (1 + c2) / gold_dn[both].mean() < 1.15
     expo = read_exposure_csv(out / "exposure.csv")
     assert len(expo) == 53 and all(v > 0 for v in expo.values())

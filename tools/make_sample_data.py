@@ -9,7 +9,7 @@ Writes a synthetic mission that `lunaralbedo ingest` reads without ISIS:
     truth/albedo.tif        the true albedo on the DEM grid
     truth/truth.json        true exposures, Sun/spacecraft positions (km, MOON_ME), c1, c2, noise
 
-Images are A * T * R (Lunar-Lambert, lunaralbedo.model.reflectance) with 0.5 % Gaussian noise, Sun
+Images are A * T * R (Lunar-Lambert, lunaralbedo.model.photometry.lunar_lambert) with 0.5 % Gaussian noise, Sun
 elevation 52-66 degrees (incidence < 60 degrees even on slopes).  Usage:
 
     python tools/make_sample_data.py --out sample_data

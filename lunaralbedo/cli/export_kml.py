@@ -6,7 +6,7 @@ import json
 import click
 
 from ..errors import InputError
-from ._common import reports_errors
+from ._common import parallel_options, reports_errors
 
 
 def _pair(text: str | None, what: str):
@@ -21,8 +21,7 @@ def _pair(text: str | None, what: str):
 @click.option("--stretch", "stretch", default=None, metavar="pLO,pHI", help="Percentile stretch, e.g. p2,p98 (default).")
 @click.option("--range", "value_range", default=None, metavar="LO,HI", help="Fixed stretch: albedo LO -> 0, HI -> 255.")
 @click.option("--tile-size", type=int, default=256, show_default=True, help="PNG tile size in pixels.")
-@click.option("--workers", type=int, default=None, help="Parallel workers (default: all cores; 1 = serial).")
-@click.option("--scheduler", type=click.Choice(["threads", "processes"]), default="threads", show_default=True)
+@parallel_options("all cores, as threads: the tasks are GDAL reads and writes")
 @click.option("--sub4-resampling", type=click.Choice(["average", "nearest"]), default="average", show_default=True,
               help="albedo_sub4 resampling; nearest reproduces PhotometryTK's values.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")

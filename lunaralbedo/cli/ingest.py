@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ._common import reports_errors
+from ._common import parallel_options, reports_errors
 
 
 @click.command("ingest")
@@ -26,8 +26,7 @@ from ._common import reports_errors
               help="Whether DEM values are radius (m, converted to height above 1737.4 km) or height.")
 @click.option("--legacy-8bit", is_flag=True, default=False, help="Write 8-bit DRGs (stretch + alpha) as the legacy tools did.")
 @click.option("--tile-size", type=float, default=4.0, show_default=True, help="TILE_SIZE (degrees) for settings.txt.")
-@click.option("--workers", type=int, default=1, show_default=True, help="Cubes processed in parallel (local processes).")
-@click.option("--scheduler", default=None, help="Address of an existing dask.distributed scheduler (tcp://host:port).")
+@parallel_options("1; cubes are processed in parallel")
 @reports_errors
 def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem_values, legacy_8bit, tile_size,
             workers, scheduler):
@@ -43,7 +42,7 @@ def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem
     if mpp is not None and match_dem:
         raise InputError("give either --mpp or --match-dem, not both")
     report = ingest(list(cubes), list(dems), workdir, kernels, isisdata, mpp, source, dem_values,
-                    legacy_8bit, tile_size, workers=workers, scheduler=scheduler, progress=sys.stderr.isatty())
+                    legacy_8bit, tile_size, workers=workers or 1, scheduler=scheduler, progress=sys.stderr.isatty())
     for p in report.dem_radius_converted:
         click.echo(f"DEM {p}: values are radius, converted to height above 1737.4 km")
     for p in report.removed:

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from ..engine.solve import DEFAULT_TOLERANCE, METHODS
-from ._common import reports_errors
+from ._common import parallel_options, reports_errors
 
 
 def _print_summary(result) -> None:
@@ -19,8 +19,8 @@ def _print_summary(result) -> None:
     q = rep["cost_q"]
     click.echo(f"  iterations {rep['iterations']}{' (converged)' if rep['converged'] else ''}"
                + (f", Q {q[0]:.6g} -> {q[-1]:.6g}" if q else ""))
-    c = rep["phase_coefficients"][-1]
-    click.echo(f"  phase coefficients c1={c[0]:.6f} c2={c[1]:.6f}")
+    fitted = " ".join(f"{k}={v:.6f}" for k, v in result.parameters.items())
+    click.echo(f"  photometric model {rep['photometric_model']}{': ' + fitted if fitted else ''}")
     e = result.exposure
     click.echo(f"  exposures: min {e.min():.4g}, median {sorted(e)[len(e) // 2]:.4g}, max {e.max():.4g}")
     click.echo(f"  tiles {len(result.tiles)}: {', '.join(result.tiles[:6])}{' ...' if len(result.tiles) > 6 else ''}")
@@ -35,8 +35,7 @@ def _print_summary(result) -> None:
 @click.option("--method", type=click.Choice(METHODS), default="overlap", show_default=True,
               help="overlap: exposures initialised from image overlaps and damped phase step; seed: the manual's plain updates.")
 @click.option("--legacy", is_flag=True, help="Follow PhotometryTK's conventions exactly (uint8 tiles, legacy output tree).")
-@click.option("--workers", type=int, default=None, help="Local worker processes (default: NUM_PROCESSES capped at the CPU count).")
-@click.option("--scheduler", default=None, help="Address of an existing dask.distributed scheduler (tcp://host:port).")
+@parallel_options("NUM_PROCESSES capped at the CPU count")
 @click.option("--cluster", type=click.Choice(["pbs", "slurm"]), default=None, help="Start workers as batch jobs (dask-jobqueue).")
 @click.option("--queue", default=None, help="Batch queue / partition (with --cluster).")
 @click.option("--cores", type=int, default=None, help="Cores per batch job (with --cluster).")

@@ -23,9 +23,9 @@ import numpy as np
 from ..errors import LunarAlbedoError, ResumeError, SettingsError, SolverError
 from ..io import outputs
 from ..io.atomic import remove_stale_temporaries
-from ..model import exposure_init, reflectance, updates
+from ..model import exposure_init, updates
 from ..settings import Settings, load_settings
-from .executor import make_executor
+from ..parallel import local_workers, make_executor
 from .scene import Scene, build_scene
 from .tilework import SolveState, finalize_tile, iterate_tile, prepare_tile
 
@@ -45,7 +45,7 @@ class SolveResult:
     out_dir: Path
     keys: list[str]
     exposure: np.ndarray
-    phase_coefficients: np.ndarray
+    parameters: dict[str, float]  # the photometric model's fitted parameters by name (none for mosaic/Lambert)
     cost_history: list[float]
     iterations: int
     tiles: list[str]
@@ -95,21 +95,21 @@ def _reduce_init(scene: Scene, metas: list[dict], method: str) -> np.ndarray:
     return exposure_init.overlap_exposure(pairs, np.log(t_seed))
 
 
-def _reduce_iteration(n_images: int, parts) -> updates.PassSums:
-    total = updates.PassSums(n_images)
+def _reduce_iteration(n_images: int, n_params: int, parts) -> updates.PassSums:
+    total = updates.PassSums(n_images, n_params)
     for p in parts:  # fixed tile order: identical sums for any number of workers
         total.add(p)
     return total
 
 
-def _update(state: SolveState, sums: updates.PassSums, method: str, kind: int, t_ref: np.ndarray) -> SolveState:
+def _update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref: np.ndarray) -> SolveState:
     t = updates.exposure_update(state.exposure, sums.exp_num, sums.exp_den)
-    c = state.c
-    if kind == reflectance.LUNAR_LAMBERT and sums.n_obs:
+    c = state.params
+    if model.parameters and sums.n_obs:
         if method == "seed":
-            c = updates.phase_update_seed(state.c, sums.jtj, sums.jtr)
+            c = updates.phase_update_seed(c, sums.jtj, sums.jtr)
         else:
-            c = updates.phase_update_damped(state.c, sums.jtj, sums.jtr, (sums.alpha_min, sums.alpha_max))
+            c = updates.phase_update_damped(c, sums.jtj, sums.jtr, (sums.alpha_min, sums.alpha_max), model.phase_curve)
     if method != "seed":
         # A*T leaves one global scale free: pin the geometric mean of T to the initial one.
         t = t * np.exp(np.mean(np.log(t_ref)) - np.mean(np.log(t)))
@@ -131,7 +131,7 @@ def solve(
     progress: bool = False,
     plots: bool = True,
 ) -> SolveResult:
-    """Solve for albedo, exposures and phase coefficients (seed 000 section 7).
+    """Solve for albedo, exposures and the photometric model's parameters (seed 000 section 7).
 
     ``method="overlap"`` (default) initialises exposures from image overlaps and damps
     the phase step; ``method="seed"`` runs the plain updates of the manual.  Workers:
@@ -145,10 +145,7 @@ def solve(
         raise SettingsError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     out = Path(out).resolve() if out is not None else default_out_dir(settings)
     max_iter = settings.max_num_iter if max_iter is None else max_iter
-    if workers is None:
-        import os
-
-        workers = max(1, min(settings.num_processes, os.cpu_count() or 1))
+    workers = local_workers(workers, settings.num_processes)
     created = _check_out_dir(out, settings, resume)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -197,26 +194,26 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots) ->
             "method": method,
             "iteration": 0,
             "exposure": t_init.tolist(),
-            "c": [s.phase_coeff_c1, s.phase_coeff_c2],
+            "params": s.initial_params.tolist(),
             "q": [],
-            "c_history": [[s.phase_coeff_c1, s.phase_coeff_c2]],
+            "params_history": [s.initial_params.tolist()],
             "done": False,
         }
         outputs.write_json(out / STATE_FILE, ck)
-    state = SolveState(np.array(ck["exposure"]), np.array(ck["c"]))
+    state = SolveState(np.array(ck["exposure"]), np.array(ck["params"], dtype=np.float64))
     resume_info = {"tiles_prepared_before": sum(bool(m.get("reused")) for m in metas), "iterations_done_before": ck["iteration"]}
     t2 = time.perf_counter()
-    want_phase = s.reflectance_type == reflectance.LUNAR_LAMBERT
+    want_phase = bool(s.model.parameters)
     while not ck["done"] and ck["iteration"] < max_iter:
         parts = executor.map(iterate_tile, tiles, f"iteration {ck['iteration'] + 1}", shared=("scene",), scene=scene, cache_root=cache, state=state, want_phase=want_phase)
-        sums = _reduce_iteration(len(scene.images), parts)
+        sums = _reduce_iteration(len(scene.images), len(s.model.parameters), parts)
         q_prev = ck["q"][-1] if ck["q"] else None
         ck["q"].append(sums.q)
         converged = q_prev is not None and abs(q_prev - sums.q) <= tol * max(sums.q, 1e-300)
         if not converged:
-            state = _update(state, sums, method, s.reflectance_type, t_init)
-            ck["c_history"].append(state.c.tolist())
-        ck.update(iteration=ck["iteration"] + 1, exposure=state.exposure.tolist(), c=state.c.tolist(), done=converged)
+            state = _update(state, sums, method, s.model, t_init)
+            ck["params_history"].append(state.params.tolist())
+        ck.update(iteration=ck["iteration"] + 1, exposure=state.exposure.tolist(), params=state.params.tolist(), done=converged)
         outputs.write_json(out / STATE_FILE, ck)
     timings["iterate"] = time.perf_counter() - t2
     t3 = time.perf_counter()
@@ -235,7 +232,9 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots) ->
 def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info):
     keys = scene.keys
     outputs.write_exposure_csv(out / "exposure.csv", keys, state.exposure, t_init)
-    outputs.write_phase_csv(out / "phase.csv", ck["c_history"])
+    names = scene.settings.model.parameters
+    if names:
+        outputs.write_phase_csv(out / "phase.csv", names, ck["params_history"])
     for key, prof in zip(keys, scene.profiles):
         outputs.write_weight_profile(out / "weight" / f"{key}_weight.txt", prof)
     if plots:
@@ -249,7 +248,8 @@ def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timi
         "iterations": ck["iteration"],
         "converged": ck["done"],
         "cost_q": ck["q"],
-        "phase_coefficients": ck["c_history"],
+        "photometric_model": scene.settings.model.name,
+        "parameters": {name: [h[m] for h in ck["params_history"]] for m, name in enumerate(names)},
         "images_used": len(keys),
         "images_skipped": scene.skipped,
         "tiles": tile_reports,
@@ -262,7 +262,7 @@ def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timi
         out_dir=out,
         keys=keys,
         exposure=state.exposure,
-        phase_coefficients=state.c,
+        parameters=dict(zip(names, state.params.tolist())),
         cost_history=ck["q"],
         iterations=ck["iteration"],
         tiles=[r["tile"] for r in tile_reports],

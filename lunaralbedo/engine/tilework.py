@@ -15,32 +15,42 @@ import numpy as np
 
 from ..io.cache import load_stack, save_stack
 from ..io.rasters import read_dem_onto_grid, read_drg_onto_grid, write_geotiff
-from ..model import exposure_init, geometry, reflectance, shadows, updates
 from ..constants import MIN_COS_INCIDENCE
+from ..model import exposure_init, geometry, photometry, shadows, updates
 from .scene import Scene
 
 
 @dataclass
 class SolveState:
-    """The global unknowns besides the albedo: exposures and phase coefficients."""
+    """The global unknowns besides the albedo: exposures and the model's fitted parameters."""
 
     exposure: np.ndarray  # (K,) per image
-    c: np.ndarray  # (2,) phase coefficients (c1, c2)
+    params: np.ndarray  # (P,) fitted parameters of the photometric model (Lunar-Lambert: c1, c2)
 
 
 @dataclass
 class TileSums:
-    """One tile's contribution to an iteration (float64, per local image where indexed)."""
+    """One tile's contribution to an iteration (float64, per local image where indexed).
+
+    ``jtj``/``jtr`` are the normal equations of the P fitted parameters plus the global scale.
+    """
 
     index: np.ndarray
+    n_params: int = 0
     q: float = 0.0
     exp_num: np.ndarray | None = None
     exp_den: np.ndarray | None = None
-    jtj: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
-    jtr: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    jtj: np.ndarray | None = None
+    jtr: np.ndarray | None = None
     alpha_min: float = np.inf
     alpha_max: float = -np.inf
     n_obs: int = 0
+
+    def __post_init__(self):
+        if self.jtj is None:
+            self.jtj = np.zeros((self.n_params + 1, self.n_params + 1))
+        if self.jtr is None:
+            self.jtr = np.zeros(self.n_params + 1)
 
 
 def _cache_dir(cache_root: Path, scene: Scene, t: int) -> Path:
@@ -76,10 +86,11 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
     if cached is not None:
         return {**cached[1], "reused": True}
     s = scene.settings
+    model = s.model
     tile = scene.tiles[t]
-    geo = _geometry_stack(scene, tile) if s.needs_geometry else None
+    geo = _geometry_stack(scene, tile) if model.needs_geometry else None
     thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
-    per_image: dict[str, list] = {name: [] for name in ("image", "wblend", "usable", "geometric", "alpha", "cos_i")}
+    per_image: dict[str, list] = {name: [] for name in ("image", "wblend", "usable")}
     keep = []
     for k in scene.tile_images[t]:
         got = read_drg_onto_grid(scene.images[k], scene.profiles[k], tile.transform, (tile.height, tile.width), scene.crs, thresh)
@@ -92,11 +103,7 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
             dem, pts, normals, bad = geo
             ci, ce, al = geometry.illumination(pts, normals, scene.sun[k], scene.spacecraft[k])
             use &= ~bad & (ci >= MIN_COS_INCIDENCE) & (ce > 0)
-            if s.reflectance_type == reflectance.LUNAR_LAMBERT:
-                layers["geometric"] = reflectance.lunar_lambert_geometric(ci, ce, al)
-            else:
-                layers["geometric"] = np.where(ci > 0, ci, 0.0)
-            layers["alpha"] = al
+            layers = model.layers(ci, ce, al)
             if s.shadow_type == shadows.LAMBERT_RATIO:
                 layers["cos_i"] = ci
         if not use.any():
@@ -104,7 +111,7 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
         keep.append(int(k))
         layers.update(image=val, wblend=wt if s.use_weights else ok, usable=use)
         for name, arr in layers.items():
-            per_image[name].append(arr)
+            per_image.setdefault(name, []).append(arr)
     h, w = tile.height, tile.width
     arrays: dict[str, np.ndarray] = {"index": np.array(keep, np.int32)}
     for name, dtype in (("image", np.float32), ("wblend", np.float32), ("usable", bool)):
@@ -117,9 +124,9 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
     arrays["weight"] = np.where(arrays["usable"], arrays["wblend"], 0.0).astype(np.float32)
     if geo is not None:
         arrays["dem"] = geo[0]
-        for name in ("geometric", "alpha", "cos_i"):
-            if per_image[name] or name != "cos_i" or s.shadow_type == shadows.LAMBERT_RATIO:
-                arrays[name] = np.array(per_image[name], np.float32).reshape(-1, h, w)
+        names = model.layer_names + (("cos_i",) if s.shadow_type == shadows.LAMBERT_RATIO else ())
+        for name in names:  # the model's layers (float32), also for a tile without usable image
+            arrays[name] = np.array(per_image.get(name, []), np.float32).reshape(-1, h, w)
     meta = _init_sums(scene, arrays)
     meta["tile"] = tile.name
     del arrays["usable"]  # folded into "weight"; only the initialisation needed it
@@ -127,23 +134,14 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path) -> dict:
     return {**meta, "reused": False}
 
 
-def _reflectance(arrays, kind, c):
-    """Full reflectance R of the stack (eq. 2) and the phase pieces ``(P, alpha, exp(-c1 alpha))`` (float32)."""
-    if kind == reflectance.MOSAIC:
-        return np.ones_like(arrays["image"]), None, None, None
-    g = np.asarray(arrays["geometric"])
-    if kind == reflectance.LAMBERT:
-        return g, None, None, None
-    a = np.asarray(arrays["alpha"])
-    e = np.exp(np.float32(-c[0]) * a)
-    p = e + np.float32(c[1])
-    return p * g, p, a, e
+def _layers(arrays) -> dict:
+    """The cached stack as in-memory arrays (the model's functions see plain ndarrays)."""
+    return {k: np.asarray(v) for k, v in arrays.items()}
 
 
 def _init_sums(scene: Scene, arrays) -> dict:
     s = scene.settings
-    c0 = (s.phase_coeff_c1, s.phase_coeff_c2)
-    r = _reflectance(arrays, s.reflectance_type, c0)[0]
+    r = s.model.reflectance_from(_layers(arrays), s.initial_params)
     use = arrays["usable"] & (arrays["wblend"] > 0) & (r > 0)
     rs, n = exposure_init.mean_reflectance_sums(r, use)
     pairs = exposure_init.log_ratio_sums(arrays["image"], r, use, arrays["index"])
@@ -156,9 +154,9 @@ def _init_sums(scene: Scene, arrays) -> dict:
 
 
 # --------------------------------------------------------------------------- iterate
-def _weights(arrays, kind, shadow_type, thresh, t_local, r):
+def _weights(arrays, model, shadow_type, thresh, t_local, r):
     w = np.asarray(arrays["weight"])
-    if shadow_type in (shadows.LAMBERT_RATIO, shadows.LUNAR_LAMBERT_RATIO) and kind != reflectance.MOSAIC:
+    if shadow_type in (shadows.LAMBERT_RATIO, shadows.LUNAR_LAMBERT_RATIO) and model.needs_geometry:
         rr = arrays["cos_i"] if (shadow_type == shadows.LAMBERT_RATIO and "cos_i" in arrays) else r
         lit = shadows.dynamic_lit(arrays["image"], rr, t_local[:, None, None], thresh)
         w = np.where(lit, w, 0.0).astype(np.float32)
@@ -166,15 +164,18 @@ def _weights(arrays, kind, shadow_type, thresh, t_local, r):
 
 
 def tile_model(scene: Scene, arrays, state: SolveState):
-    """Albedo of a cached tile stack for the given exposures and phase coefficients (eq. 3)."""
+    """Albedo of a cached tile stack for the given exposures and model parameters (eq. 3).
+
+    Returns ``(albedo, R, w, T R, T)`` with ``arrays`` as plain ndarrays.
+    """
     s = scene.settings
-    idx = arrays["index"]
-    t_local = state.exposure[idx].astype(np.float32)
-    r, p, a, e = _reflectance(arrays, s.reflectance_type, state.c)
-    w = _weights(arrays, s.reflectance_type, s.shadow_type, s.shadow_thresh, t_local, r)
+    layers = _layers(arrays)
+    t_local = state.exposure[layers["index"]].astype(np.float32)
+    r = s.model.reflectance_from(layers, state.params)
+    w = _weights(layers, s.model, s.shadow_type, s.shadow_thresh, t_local, r)
     tr = t_local[:, None, None] * r
-    alb = updates.albedo(arrays["image"], tr, w)
-    return alb, r, p, a, e, w, tr, t_local
+    alb = updates.albedo(layers["image"], tr, w)
+    return alb, r, w, tr, t_local
 
 
 def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> TileSums:
@@ -182,19 +183,21 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
     loaded = load_stack(_cache_dir(cache_root, scene, t))
     arrays = loaded[0]
     idx = np.asarray(arrays["index"])
-    out = TileSums(index=idx, exp_num=np.zeros(len(idx)), exp_den=np.zeros(len(idx)))
+    model = scene.settings.model
+    out = TileSums(index=idx, n_params=len(model.parameters), exp_num=np.zeros(len(idx)), exp_den=np.zeros(len(idx)))
     if len(idx) == 0:
         return out
-    alb, r, p, a, e, w, tr, t_local = tile_model(scene, arrays, state)
+    alb, r, w, tr, t_local = tile_model(scene, arrays, state)
     image = arrays["image"]
     res = updates.residuals(image, alb, tr, w)
     out.q = updates.cost(res, w)
     out.exp_num, out.exp_den = updates.exposure_sums(image, alb, r, w)
     out.n_obs = int(np.count_nonzero(w))
-    if want_phase and p is not None:
-        dp1 = -a * e  # dP/dc1 = -alpha exp(-c1 alpha)
-        out.jtj, out.jtr = updates.phase_sums(res, alb, t_local, arrays["geometric"], dp1, p, w)
-        used = a[w > 0]
+    if want_phase and model.parameters:
+        layers = _layers(arrays)
+        dr = model.derivatives_from(layers, state.params)
+        out.jtj, out.jtr = updates.phase_sums(res, alb, t_local, dr, r, w)
+        used = layers["alpha"][w > 0]
         if used.size:
             out.alpha_min, out.alpha_max = float(used.min()), float(used.max())
     return out
@@ -230,7 +233,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
             valid = int(np.count_nonzero(np.isfinite(ds.read(1))))
         return {**_tile_images(scene, t, idx), "valid_pixels": valid, "reused": True}
     if len(idx):
-        alb, r, p, a, e, w, tr, _ = tile_model(scene, arrays, state)
+        alb, r, w, tr, _ = tile_model(scene, arrays, state)
     else:
         alb = np.full((h, w_), np.nan, np.float32)
     write_geotiff(out_dir / "albedo" / name, alb, tile.transform, scene.crs, nodata=float("nan"))

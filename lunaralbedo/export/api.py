@@ -33,6 +33,7 @@ from rasterio.errors import NotGeoreferencedWarning
 
 from ..errors import InputError
 from ..io.atomic import TMP_PREFIX, atomic_write_text, make_readable
+from ..parallel import local_workers, make_executor
 from .kml import ROOT_NAME, pyramid_children, render_leaf, render_parent
 from .mosaic import assemble_cog, block_grids, write_mosaic_block, write_sub4
 from .pyramid import Pyramid, plan_pyramid, present_nodes
@@ -78,18 +79,12 @@ def remove_stale_staging(results_dir: Path) -> int:
     return len(stale)
 
 
-def _compute(tasks: list, client=None, workers: int | None = None, scheduler: str = "threads") -> list:
-    if not tasks:
-        return []
+def _compute(tasks: list, executor) -> list:
     with warnings.catch_warnings():
         # rasterio silences this warning for its in-memory arrays with catch_warnings,
         # which is not thread-safe: with threads it leaks out.
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        if client is not None:
-            return list(client.gather(client.compute(tasks)))
-        if workers == 1:
-            scheduler = "synchronous"
-        return list(dask.compute(*tasks, scheduler=scheduler, num_workers=workers or os.cpu_count() or 1))
+        return executor.compute(tasks)
 
 
 def _covering(sources: Sequence[Source], bounds) -> list[Source]:
@@ -147,7 +142,8 @@ def export_kml(
     tile_size: int = 256,
     client=None,
     workers: int | None = None,
-    scheduler: str = "threads",
+    scheduler: str | None = None,
+    pool: str = "threads",
     name: str | None = None,
     sub4_resampling: str = "average",
 ) -> dict:
@@ -155,8 +151,10 @@ def export_kml(
 
     ``stretch`` are the low/high percentiles of the 8-bit stretch, unless
     ``value_range=(lo, hi)`` is given.  ``levels`` None means as many as the data
-    needs.  ``client`` (a ``distributed.Client``) wins over ``workers``/``scheduler``
-    (``"threads"`` or ``"processes"``; ``workers=1`` runs serially).  Returns a
+    needs.  Where tasks run (:func:`lunaralbedo.parallel.make_executor`): ``client``
+    (a ``distributed.Client``), else ``scheduler`` (address of a Dask scheduler),
+    else ``workers`` local workers (default: all cores; 1 = serial) of kind
+    ``pool`` (``"threads"`` or ``"processes"``).  Returns a
     summary dict (also the content of the printed summary).  ``sub4_resampling``
     is ``"average"`` (default) or ``"nearest"`` (PhotometryTK's values).
     """
@@ -176,31 +174,30 @@ def export_kml(
     pyr = plan_pyramid(grid.bounds, grid.shape, tile_size, levels)
     present = present_nodes(pyr, [s.bounds for s in sources])
     children = pyramid_children(pyr, present)
-    run = dict(client=client, workers=workers, scheduler=scheduler)
     task = dask.delayed(pure=False)
+    with contextlib.closing(make_executor(local_workers(workers), scheduler, client=client, local=pool)) as executor:
+        if value_range is not None:
+            st = stretch_from_range(*value_range)
+        else:
+            budget = max(10_000, SAMPLE_BUDGET // len(sources))  # values per tile for the percentiles
+            samples = _compute([task(sample_values)(s, budget) for s in sources], executor)
+            if not any(len(v) for v in samples):
+                raise InputError(f"{albedo_dir}: the albedo tiles hold no valid pixel (all no-data); nothing to export")
+            st = stretch_from_values(np.concatenate(samples), tuple(stretch))
 
-    if value_range is not None:
-        st = stretch_from_range(*value_range)
-    else:
-        budget = max(10_000, SAMPLE_BUDGET // len(sources))  # values per tile for the percentiles
-        samples = _compute([task(sample_values)(s, budget) for s in sources], **run)
-        if not any(len(v) for v in samples):
-            raise InputError(f"{albedo_dir}: the albedo tiles hold no valid pixel (all no-data); nothing to export")
-        st = stretch_from_values(np.concatenate(samples), tuple(stretch))
-
-    label = name or results_dir.name
-    with (
-        staged_dir(results_dir / "kml") as kml_dir,
-        staged_dir(results_dir / "albedo_sub4") as sub4_dir,
-        tempfile.TemporaryDirectory(prefix=f"{TMP_PREFIX}mosaic-", dir=results_dir) as scratch,
-    ):
-        pyramid = _pyramid_tasks(kml_dir, pyr, present, children, sources, st, label, _level_resampling(pyr, pyr.levels - 1, grid))
-        sub4 = [task(write_sub4)(s, sub4_dir / s.path.name, sub4_rs) for s in sources]
-        mosaics = [_mosaic_task(sources, grid, results_dir / "albedo_mosaic.tif", scratch)]
-        if errors:
-            mosaics.append(_mosaic_task(errors, native_grid(errors), results_dir / "error_mosaic.tif", scratch))
-        mosaics = _compute(pyramid + sub4 + mosaics, **run)[len(pyramid) + len(sub4):]
-        atomic_write_text(kml_dir / STRETCH_FILE, st.to_json())
+        label = name or results_dir.name
+        with (
+            staged_dir(results_dir / "kml") as kml_dir,
+            staged_dir(results_dir / "albedo_sub4") as sub4_dir,
+            tempfile.TemporaryDirectory(prefix=f"{TMP_PREFIX}mosaic-", dir=results_dir) as scratch,
+        ):
+            pyramid = _pyramid_tasks(kml_dir, pyr, present, children, sources, st, label, _level_resampling(pyr, pyr.levels - 1, grid))
+            sub4 = [task(write_sub4)(s, sub4_dir / s.path.name, sub4_rs) for s in sources]
+            mosaics = [_mosaic_task(sources, grid, results_dir / "albedo_mosaic.tif", scratch)]
+            if errors:
+                mosaics.append(_mosaic_task(errors, native_grid(errors), results_dir / "error_mosaic.tif", scratch))
+            mosaics = _compute(pyramid + sub4 + mosaics, executor)[len(pyramid) + len(sub4):]
+            atomic_write_text(kml_dir / STRETCH_FILE, st.to_json())
     for mosaic in mosaics:
         make_readable(Path(mosaic["path"]))
     if not errors:

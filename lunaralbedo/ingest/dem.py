@@ -20,7 +20,8 @@ from rasterio.warp import transform as warp_transform
 
 from ..errors import InputError
 from ..io.rasters import MOON_CRS
-from ..isis.pixels import radius_to_height, read_dem_cube
+from ..isis.pixels import read_dem_cube
+from ..model.geometry import radius_to_height
 from .grid import Grid, aligned_grid, bilinear
 
 DEM_SUFFIXES = (".tif", ".tiff", ".cub", ".vrt", ".img")

@@ -135,7 +135,7 @@ def ingest(cubes: Sequence[str | Path], dems: Sequence[str | Path], workdir: str
     SPICE kernel pool).  ``on_cube`` is called for each result, in the cubes' order.
     Raises :class:`InputError` when no cube could be ingested.
     """
-    from ..engine.executor import make_executor
+    from ..parallel import make_executor
 
     workdir = Path(workdir)
     if not cubes:

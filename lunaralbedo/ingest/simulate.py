@@ -22,7 +22,7 @@ from ..io.atomic import atomic_write_text
 from ..io.rasters import MOON_CRS, write_geotiff
 from ..isis.write import Quantity, write_cube
 from ..model.geometry import body_fixed, dem_normals, illumination, lonlat_height
-from ..model.reflectance import reflectance
+from ..model.photometry import lunar_lambert
 from ..spice.kernels import KernelPool
 from ..spice.writers import write_ck, write_spk, write_text_kernel
 from ..camera.intersect import ray_dem
@@ -232,7 +232,7 @@ def render(scene: Scene, shot: Shot, p0, vel, m, sun_km, rng, noise: float) -> n
     # Photometry with the single per-image spacecraft position (p0) that the solver assumes;
     # only the ray geometry of a line scanner follows the moving spacecraft.
     cos_i, cos_e, alpha = illumination(pts, n, sun_km, p0)
-    img = bilinear(scene.albedo, col, row) * shot.exposure * reflectance(2, cos_i, cos_e, alpha, C1, C2)
+    img = bilinear(scene.albedo, col, row) * shot.exposure * lunar_lambert.reflectance(cos_i, cos_e, alpha, (C1, C2))
     return img * (1.0 + noise * rng.standard_normal(img.shape))
 
 
@@ -240,7 +240,7 @@ def truth_on_grid(scene: Scene, exposure: float, sun_km, sc_km) -> np.ndarray:
     """A * T * R at the DEM pixel centres (what an ideal DRG holds), for round-trip checks."""
     pts = body_fixed(*scene.grid.lonlat(), scene.heights)
     cos_i, cos_e, alpha = illumination(pts, dem_normals(pts), sun_km, sc_km)
-    return scene.albedo * exposure * reflectance(2, cos_i, cos_e, alpha, C1, C2)
+    return scene.albedo * exposure * lunar_lambert.reflectance(cos_i, cos_e, alpha, (C1, C2))
 
 
 def default_shots(rng, n_frames: int = 5, with_line: bool = False) -> list[Shot]:

@@ -1,4 +1,4 @@
-"""Run-level outputs: exposure table, phase coefficients, report, plots, weight profiles.
+"""Run-level outputs: exposure table, fitted model parameters, report, plots, weight profiles.
 
 All writes are atomic.  Plots use matplotlib's non-interactive Agg backend.
 """
@@ -26,9 +26,9 @@ def read_exposure_csv(path: Path) -> dict[str, float]:
     return {r.split(",")[0]: float(r.split(",")[1]) for r in rows if r.strip()}
 
 
-def write_phase_csv(path: Path, history: Sequence[Sequence[float]]) -> None:
-    """``iteration,c1,c2`` (iteration 0 is the initial value)."""
-    lines = ["iteration,c1,c2"] + [f"{i},{c[0]:.9g},{c[1]:.9g}" for i, c in enumerate(history)]
+def write_phase_csv(path: Path, names: Sequence[str], history: Sequence[Sequence[float]]) -> None:
+    """``iteration,<name>,...``: the fitted parameters per iteration (iteration 0 is the initial value)."""
+    lines = [",".join(["iteration", *names])] + [",".join([str(i), *(f"{v:.9g}" for v in c)]) for i, c in enumerate(history)]
     atomic_write_text(path, "\n".join(lines) + "\n")
 
 

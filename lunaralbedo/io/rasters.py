@@ -327,7 +327,7 @@ def read_dem_onto_grid(
     Base/Multiplier) are applied, and a tile holding radius (e.g. LOLA or GLD100 cubes,
     ~1.737e6 m) is converted to height above the 1737.4 km sphere.
     """
-    from ..isis.pixels import radius_to_height
+    from ..model.geometry import radius_to_height
 
     h, w = dst_shape
     west, north = dst_transform @ (0, 0)

@@ -17,8 +17,8 @@ import numpy as np
 import rasterio
 from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 
-from ..constants import MOON_RADIUS_M
 from ..errors import IsisError
+from ..model.geometry import radius_to_height
 from .labels import IsisLabel, read_label
 
 #: Special-pixel ranges (inclusive) of each ISIS pixel type, as stored values.
@@ -30,8 +30,6 @@ _SPECIAL = {
 }
 _SPECIAL_HIGH = {"UnsignedWord": 65534, "UnsignedByte": 255}
 
-#: Radius values (metres) above this are taken as radius, not height.
-RADIUS_THRESHOLD_M = 1.0e6
 
 
 def special_mask(stored: np.ndarray, pixel_type: str) -> np.ndarray:
@@ -74,19 +72,6 @@ def cube_georeference(path: str | Path):
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
         with rasterio.open(path) as ds:
             return ds.transform, ds.crs
-
-
-def radius_to_height(values_m: np.ndarray, mode: str = "auto") -> tuple[np.ndarray, bool]:
-    """Heights (metres above 1737.4 km) from DEM values; ``mode`` is auto, radius or height.
-
-    Returns ``(heights, was_radius)``.  In ``auto`` mode the values are radius when
-    their median exceeds :data:`RADIUS_THRESHOLD_M` (1000 km).
-    """
-    if mode not in ("auto", "radius", "height"):
-        raise ValueError(f"mode must be auto, radius or height, got {mode!r}")
-    finite = values_m[np.isfinite(values_m)]
-    is_radius = mode == "radius" or (mode == "auto" and finite.size and float(np.median(finite)) > RADIUS_THRESHOLD_M)
-    return (values_m - MOON_RADIUS_M if is_radius else values_m), bool(is_radius)
 
 
 def read_dem_cube(path: str | Path, mode: str = "auto"):

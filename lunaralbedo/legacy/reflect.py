@@ -6,9 +6,9 @@ Conventions (SOURCES.md and the legacy numerics):
   in metres (R = 1737400 m), lon/lat of the pixel centre;
 * the normal at ``(x, y)`` is ``-normalize((p - p_left) x (p - p_up))``; pixels
   of the first row/column, or next to a nodata height, have none;
-* Lunar-Lambertian reflectance stored as float32 (as the legacy images were), zero
-  where ``cos i < 0.3``; ``L(alpha)`` with alpha in degrees, the phase factor
-  ``exp(-c1 alpha) + c2`` with alpha in radians;
+* Lunar-Lambertian reflectance (eq. 2, :mod:`lunaralbedo.model.photometry.lunar_lambert`)
+  stored as float32 (as the legacy images were), zero where ``cos i < 0.3``; ``c1``,
+  ``c2`` rounded to float32 as the legacy parser stored them;
 * Sun and spacecraft positions are given in km and used in metres.
 """
 from __future__ import annotations
@@ -16,11 +16,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..constants import MIN_COS_INCIDENCE, MOON_RADIUS_M
+from ..model.photometry import lunar_lambert
 from .vwgeo import Geo
 
-MOSAIC, LAMBERT, LUNAR_LAMBERT = 0, 1, 2
-
-_A, _B, _C = -0.019, 0.000242, -0.00000146
+MOSAIC, LAMBERT, LUNAR_LAMBERT = 0, 1, 2  # REFLECTANCE_TYPE codes (see model.photometry)
 
 
 def surface(dem: np.ndarray, geo: Geo, nodata: float) -> tuple[np.ndarray, np.ndarray]:
@@ -66,11 +65,9 @@ def reflectance(kind: int, points, normals, sun_km, sc_km, c1: float, c2: float)
     v = _unit(np.asarray(sc_km, dtype=np.float64) * 1000.0 - points)
     mu = np.maximum(np.sum(v * nrm, axis=-1), 0.0)
     alpha = np.arccos(np.clip(np.sum(s * v, axis=-1), -1.0, 1.0))
-    deg = alpha * 180.0 / np.pi
-    L = 1.0 + _A * deg + _B * deg * deg + _C * deg * deg * deg
+    L = lunar_lambert.weight(alpha * 180.0 / np.pi)  # the legacy degrees conversion
     den = mu0 + mu
     with np.errstate(divide="ignore", invalid="ignore"):
-        r = 2 * L * mu0 / den + (1 - L) * mu0
-        r = r * (np.exp(-float(np.float32(c1)) * alpha) + float(np.float32(c2)))
+        r = lunar_lambert.bracket(mu0, mu, L) * lunar_lambert.phase_factor(alpha, float(np.float32(c1)), float(np.float32(c2)))
     lit = have & (mu0 >= MIN_COS_INCIDENCE) & (den != 0) & (r > 0)
     return np.where(lit, r, 0.0).astype(np.float32), np.where(lit, alpha, np.nan).astype(np.float32)

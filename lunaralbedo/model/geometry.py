@@ -15,7 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..constants import MOON_RADIUS_KM
+from ..constants import MOON_RADIUS_KM, MOON_RADIUS_M
+
+#: Radius values (metres) above this are taken as radius, not height.
+RADIUS_THRESHOLD_M = 1.0e6
 
 
 def lonlat_grid(transform, shape):
@@ -92,3 +95,16 @@ def illumination(points_km, normals, sun_km, spacecraft_km):
     l = _unit(np.asarray(sun_km, dtype=np.float64) - points_km)
     v = _unit(np.asarray(spacecraft_km, dtype=np.float64) - points_km)
     return _dot(normals, l), _dot(normals, v), np.arccos(np.clip(_dot(l, v), -1.0, 1.0))
+
+
+def radius_to_height(values_m: np.ndarray, mode: str = "auto") -> tuple[np.ndarray, bool]:
+    """Heights (metres above 1737.4 km) from DEM values; ``mode`` is auto, radius or height.
+
+    Returns ``(heights, was_radius)``.  In ``auto`` mode the values are radius when
+    their median exceeds :data:`RADIUS_THRESHOLD_M` (1000 km).
+    """
+    if mode not in ("auto", "radius", "height"):
+        raise ValueError(f"mode must be auto, radius or height, got {mode!r}")
+    finite = values_m[np.isfinite(values_m)]
+    is_radius = mode == "radius" or (mode == "auto" and finite.size and float(np.median(finite)) > RADIUS_THRESHOLD_M)
+    return (values_m - MOON_RADIUS_M if is_radius else values_m), bool(is_radius)

@@ -72,62 +72,64 @@ def exposure_update(t, num, den):
         return np.where(den > 0, num / den, t)
 
 
-def phase_sums(res, a, t, geometric, dp_dc1, p, w):
-    r"""Normal equations of the phase-coefficient update (eq. 5) over a tile.
+def phase_sums(res, a, t, dr, r, w):
+    r"""Normal equations of the update of the model's fitted parameters (eq. 5) over a tile.
 
-    Columns of the Jacobian of the prediction :math:`A T R` with
-    :math:`R = P(\alpha; c_1, c_2)\,G`:
+    Columns of the Jacobian of the prediction :math:`A T R` (``dr`` holds
+    :math:`\partial R/\partial p_m` from the photometric model, e.g. for eq. 2
+    :math:`\partial R/\partial c_1 = -\alpha e^{-c_1\alpha} G` and :math:`\partial R/\partial c_2 = G`):
 
-    * :math:`J_1 = A T G\,\partial P/\partial c_1` (with :math:`\partial P/\partial c_1 = -\alpha e^{-c_1\alpha}`),
-    * :math:`J_2 = A T G` (:math:`\partial P/\partial c_2 = 1`),
-    * :math:`J_0 = A T G P` — the prediction itself, i.e. a global brightness scale.
+    * :math:`J_m = A T\,\partial R/\partial p_m` for each fitted parameter,
+    * :math:`J_0 = A T R` -- the prediction itself, i.e. a global brightness scale (last).
 
-    Returns ``(JtWJ, JtWr)`` of shapes ``(3, 3)`` and ``(3,)`` (float64), order
-    ``(J1, J2, J0)``.  Eq. 5 uses the diagonal entries of the first two columns.
+    Returns ``(JtWJ, JtWr)`` of shapes ``(P+1, P+1)`` and ``(P+1,)`` (float64).  Eq. 5
+    uses the diagonal entries of the first P columns.
     """
-    atg = (np.nan_to_num(a)[None] * geometric) * np.asarray(t, np.float32)[:, None, None]
-    cols = (atg * dp_dc1, atg, atg * p)
-    jtj = np.empty((3, 3))
-    jtr = np.empty(3)
+    at = np.nan_to_num(a)[None] * np.asarray(t, np.float32)[:, None, None]
+    cols = [at * d for d in dr] + [at * r]
+    n = len(cols)
+    jtj = np.empty((n, n))
+    jtr = np.empty(n)
     for m, jm in enumerate(cols):
         jmw = jm * w
         jtr[m] = _f64sum(jmw * res)
-        for n in range(m, 3):
-            jtj[m, n] = jtj[n, m] = _f64sum(jmw * cols[n])
+        for k in range(m, n):
+            jtj[m, k] = jtj[k, m] = _f64sum(jmw * cols[k])
     return jtj, jtr
 
 
 def phase_update_seed(c, jtj, jtr):
-    r"""The seed's update (eq. 5): independent Gauss-Newton steps for :math:`c_1` and :math:`c_2`."""
+    r"""The seed's update (eq. 5): an independent Gauss-Newton step for each fitted parameter."""
     c = np.asarray(c, dtype=np.float64).copy()
-    for m in range(2):
+    for m in range(len(c)):
         if jtj[m, m] > 0:
             c[m] += jtr[m] / jtj[m, m]
     return c
 
 
-def phase_update_damped(c, jtj, jtr, alpha_range, damping=0.1, max_rel_change=0.02):
-    r"""Damped joint update of :math:`(c_1, c_2)` with the global scale projected out.
+def phase_update_damped(c, jtj, jtr, alpha_range, curve, damping=0.1, max_rel_change=0.02):
+    r"""Damped joint update of the fitted parameters with the global scale projected out.
 
-    Solves the 3-parameter Levenberg-Marquardt system for :math:`(\delta c_1,
-    \delta c_2, \delta s)` — :math:`s` absorbs any change that a global brightness
-    scale (free between :math:`A` and :math:`T`) explains equally well — and keeps
-    only :math:`\delta c`.  The step is then shortened so that the phase factor
-    :math:`P(\alpha)` changes by at most ``max_rel_change`` anywhere in the observed
-    phase-angle range ``alpha_range`` (radians).  A poorly conditioned
-    :math:`(c_1, c_2)` therefore moves slowly instead of wrecking the albedo.
+    Solves the (P+1)-parameter Levenberg-Marquardt system for :math:`(\delta p, \delta s)`
+    -- :math:`s` absorbs any change that a global brightness scale (free between
+    :math:`A` and :math:`T`) explains equally well -- and keeps only :math:`\delta p`.
+    The step is then shortened so that ``curve(alpha, params)`` (the model's
+    reflectance against phase angle) changes by at most ``max_rel_change`` anywhere in
+    the observed phase-angle range ``alpha_range`` (radians).  A poorly conditioned
+    parameter set therefore moves slowly instead of wrecking the albedo.
     """
     c = np.asarray(c, dtype=np.float64)
-    if not np.all(np.isfinite(jtj)) or jtj[2, 2] <= 0:
+    n = len(c)
+    if not np.all(np.isfinite(jtj)) or jtj[n, n] <= 0:
         return c.copy()
     m = jtj + damping * np.diag(np.diag(jtj))
     try:
-        step = np.linalg.solve(m, jtr)[:2]
+        step = np.linalg.solve(m, jtr)[:n]
     except np.linalg.LinAlgError:
         return c.copy()
     alphas = np.linspace(alpha_range[0], alpha_range[1], 9)
-    p0 = np.exp(-c[0] * alphas) + c[1]
-    p1 = np.exp(-(c[0] + step[0]) * alphas) + c[1] + step[1]
+    p0 = curve(alphas, c)
+    p1 = curve(alphas, c + step)
     rel = float(np.max(np.abs(p1 / p0 - 1.0))) if np.all(p0 > 0) else np.inf
     if rel > max_rel_change:
         step = step * (max_rel_change / rel)
@@ -155,11 +157,12 @@ class PassSums:
     """Global sums one iteration needs, accumulated tile by tile (float64)."""
 
     n_images: int
+    n_params: int = 0
     q: float = 0.0
     exp_num: np.ndarray = field(default=None)
     exp_den: np.ndarray = field(default=None)
-    jtj: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
-    jtr: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    jtj: np.ndarray = field(default=None)
+    jtr: np.ndarray = field(default=None)
     alpha_min: float = np.inf
     alpha_max: float = -np.inf
     n_obs: int = 0
@@ -169,6 +172,10 @@ class PassSums:
             self.exp_num = np.zeros(self.n_images)
         if self.exp_den is None:
             self.exp_den = np.zeros(self.n_images)
+        if self.jtj is None:
+            self.jtj = np.zeros((self.n_params + 1, self.n_params + 1))
+        if self.jtr is None:
+            self.jtr = np.zeros(self.n_params + 1)
 
     def add(self, part) -> None:
         """Accumulate one tile's sums (``part.index`` maps its images to global ones).

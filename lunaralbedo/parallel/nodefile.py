@@ -15,11 +15,25 @@ import shlex
 import socket
 import subprocess
 import sys
+from pathlib import Path
 
 from ..errors import LunarAlbedoError
+from .workers import WORKER_ENV
 
 REMOTE_SHELL_ENV = "LUNARALBEDO_REMOTE_SHELL"
 _LOCAL_NAMES = {"localhost", "127.0.0.1", socket.gethostname(), socket.getfqdn()}
+
+
+def pbs_nodes(nodefile: str | os.PathLike | None = None) -> list[str]:
+    """Unique host names of ``$PBS_NODEFILE`` (one per line, as PBS writes it), in order."""
+    path = nodefile or os.environ.get("PBS_NODEFILE")
+    if not path:
+        return []
+    try:
+        lines = Path(path).read_text().split()
+    except OSError as exc:
+        raise LunarAlbedoError(f"{path}: cannot read PBS_NODEFILE: {exc}") from None
+    return list(dict.fromkeys(h.strip() for h in lines if h.strip()))
 
 
 class _WorkerProcesses:
@@ -47,8 +61,6 @@ def nodefile_client(hosts: list[str], processes_per_node: int, timeout: float = 
     port = cluster.scheduler_address.rsplit(":", 1)[1]
     address = f"tcp://{socket.getfqdn()}:{port}"
     shell = shlex.split(os.environ.get(REMOTE_SHELL_ENV, "ssh -o BatchMode=yes"))
-    from .executor import WORKER_ENV
-
     worker = [
         "env", *(f"{k}={v}" for k, v in WORKER_ENV.items()),
         sys.executable, "-m", "distributed.cli.dask_worker", address,

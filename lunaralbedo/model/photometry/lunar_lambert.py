@@ -1,0 +1,103 @@
+r"""Lunar-Lambertian model (REFLECTANCE_TYPE 2; seed 000 section 7, eq. 2).
+
+.. math::
+
+    R = \left(e^{-c_1 \alpha} + c_2\right)
+        \left[(1 - L(\alpha)) \cos i + 2 L(\alpha) \frac{\cos i}{\cos i + \cos e}\right]
+
+with :math:`L(\alpha) = 1 + A\alpha + B\alpha^2 + C\alpha^3`, :math:`\alpha` in
+**degrees** inside :math:`L` (A = -0.019, B = 0.000242, C = -0.00000146) and in
+**radians** inside the phase factor :math:`P = e^{-c_1\alpha} + c_2`.  Fitted
+parameters: :math:`c_1, c_2` (settings PHASE_COEFF_C1, PHASE_COEFF_C2).
+
+The bracket (``geometric``) does not depend on :math:`c_1, c_2`, so the solver
+caches it with :math:`\alpha` and multiplies by :math:`P` each iteration.  All
+functions are pure NumPy and broadcast over arrays.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .base import PhotometricModel
+
+#: :math:`L(\alpha)` polynomial, alpha in degrees (eq. 2).
+A, B, C = -0.019, 0.000242, -0.00000146
+
+
+def weight(alpha_deg):
+    r""":math:`L(\alpha) = 1 + A\alpha + B\alpha^2 + C\alpha^3`, alpha in degrees (eq. 2); keeps float32 input float32."""
+    a = np.asarray(alpha_deg)
+    if a.dtype != np.float32:
+        a = a.astype(np.float64)
+    return 1.0 + a * (A + a * (B + a * C))
+
+
+def bracket(cos_i, cos_e, L):
+    r"""The bracket of eq. 2, :math:`(1-L)\cos i + 2L\cos i/(\cos i + \cos e)`, as is (no masking)."""
+    return (1.0 - L) * cos_i + 2.0 * L * cos_i / (cos_i + cos_e)
+
+
+def geometric(cos_i, cos_e, alpha_rad):
+    r"""The bracket of eq. 2 with :math:`L(\alpha)` (float64); zero where :math:`\cos i \le 0` or :math:`\cos e \le 0`."""
+    cos_i = np.asarray(cos_i, dtype=np.float64)
+    cos_e = np.asarray(cos_e, dtype=np.float64)
+    L = weight(np.degrees(np.asarray(alpha_rad, dtype=np.float64)))
+    lit = (cos_i > 0) & (cos_e > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = bracket(cos_i, cos_e, L)
+    return np.where(lit, r, 0.0)
+
+
+def _exp_term(alpha, c1):
+    a = np.asarray(alpha)
+    return np.exp(a.dtype.type(-c1) * a) if a.dtype == np.float32 else np.exp(-c1 * a.astype(np.float64))
+
+
+def phase_factor(alpha_rad, c1, c2):
+    r"""Phase factor :math:`P = e^{-c_1\alpha} + c_2`, alpha in radians (eq. 2); float32 stays float32."""
+    e = _exp_term(alpha_rad, c1)
+    return e + e.dtype.type(c2)
+
+
+def phase_factor_derivatives(alpha_rad, c1):
+    r""":math:`(\partial P/\partial c_1, \partial P/\partial c_2) = (-\alpha e^{-c_1\alpha}, 1)` (for eq. 5)."""
+    a = np.asarray(alpha_rad)
+    return -a * _exp_term(a, c1), np.ones_like(a)
+
+
+def layers(cos_i, cos_e, alpha):
+    """Cached per observation: the bracket of eq. 2 (``geometric``) and the phase angle (``alpha``, radians)."""
+    return {"geometric": geometric(cos_i, cos_e, alpha), "alpha": alpha}
+
+
+def reflectance_from(arrays, params):
+    """:math:`R = P(\\alpha)\\,G` from the cached layers (dtype of the layers)."""
+    return phase_factor(arrays["alpha"], params[0], params[1]) * arrays["geometric"]
+
+
+def derivatives_from(arrays, params):
+    r""":math:`(\partial R/\partial c_1, \partial R/\partial c_2) = (-\alpha e^{-c_1\alpha} G,\; G)`."""
+    g = arrays["geometric"]
+    d1, _ = phase_factor_derivatives(arrays["alpha"], params[0])
+    return d1 * g, g
+
+
+def reflectance(cos_i, cos_e, alpha, params=(1.4, 0.5)):
+    """Eq. 2 (float64); 0 where unlit or unseen."""
+    return reflectance_from(layers(cos_i, cos_e, np.asarray(alpha, dtype=np.float64)), params)
+
+
+MODEL = PhotometricModel(
+    name="lunar-lambert",
+    code=2,
+    description="Lunar-Lambertian (McEwen), seed 000 eq. 2; fits c1, c2 of the phase factor",
+    layers=layers,
+    layer_names=("geometric", "alpha"),
+    reflectance_from=reflectance_from,
+    reflectance=reflectance,
+    parameters=("c1", "c2"),
+    derivatives_from=derivatives_from,
+    settings={"PHASE_COEFF_C1": (float, 1.4, None), "PHASE_COEFF_C2": (float, 0.5, None)},
+    initial_keys=("PHASE_COEFF_C1", "PHASE_COEFF_C2"),
+    curve=lambda alpha, params: phase_factor(alpha, params[0], params[1]),  # R / G: the phase factor
+)

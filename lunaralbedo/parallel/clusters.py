@@ -1,0 +1,62 @@
+"""Clusters to run workers on: local processes, an existing scheduler, PBS/Slurm batch jobs (dask-jobqueue).
+
+Each function returns ``(client, [objects to close with it])``.
+"""
+from __future__ import annotations
+
+from ..errors import LunarAlbedoError
+from .workers import WORKER_ENV, worker_config
+
+
+def connect(address: str):
+    """A client of an existing ``dask.distributed`` scheduler at ``address`` (tcp://host:port)."""
+    from distributed import Client
+
+    try:
+        return Client(address, timeout="20s"), []
+    except OSError as exc:
+        raise LunarAlbedoError(f"cannot connect to Dask scheduler {address}: {exc}") from None
+
+
+def local_cluster(workers: int, memory_limit: str | None):
+    from distributed import Client, LocalCluster
+
+    with worker_config():
+        cluster = LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            memory_limit=memory_limit or "auto",
+            silence_logs=40,
+        )
+    return Client(cluster), [cluster]
+
+
+def jobqueue_cluster(kind: str, opts: dict):
+    """A dask-jobqueue PBS or Slurm cluster (no job submitted yet).
+
+    ``opts``: queue, cores, memory, walltime, account and any other keyword of
+    ``dask_jobqueue.PBSCluster``/``SLURMCluster``.  Each job runs ``cores``
+    single-threaded worker processes (tile tasks are single-threaded NumPy).
+    """
+    try:
+        import dask_jobqueue
+    except ImportError as exc:  # pragma: no cover - dask-jobqueue is a dependency
+        raise LunarAlbedoError(f"--cluster {kind} needs dask-jobqueue: {exc}") from None
+    cls = {"pbs": dask_jobqueue.PBSCluster, "slurm": dask_jobqueue.SLURMCluster}[kind]
+    kwargs = {k: v for k, v in opts.items() if v is not None and k != "jobs"}
+    kwargs.setdefault("cores", 1)
+    kwargs.setdefault("memory", "4GB")
+    kwargs.setdefault("processes", kwargs["cores"])
+    kwargs.setdefault("scheduler_options", {"dashboard_address": None})
+    kwargs.setdefault("job_script_prologue", [f"export {k}={v}" for k, v in WORKER_ENV.items()])
+    return cls(**kwargs)
+
+
+def jobqueue_client(kind: str, opts: dict):
+    from distributed import Client
+
+    cluster = jobqueue_cluster(kind, opts)
+    cluster.scale(jobs=int(opts.get("jobs") or 1))
+    return Client(cluster), [cluster]

@@ -1,0 +1,155 @@
+"""Where tasks run: in-process, on local workers, an existing scheduler, PBS_NODEFILE nodes or PBS/Slurm jobs.
+
+Every executor offers ``map(fn, items, desc)`` that returns results **in the order
+of the items**, whatever order workers finish in (the solver reduces them in
+that order, so results are identical for any number of workers), and
+``compute(tasks)`` for a graph of ``dask.delayed`` tasks (the export's).
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, Iterable
+
+from tqdm.auto import tqdm
+
+from ..errors import LunarAlbedoError
+from . import clusters
+from .nodefile import nodefile_client, pbs_nodes
+
+
+class SerialExecutor:
+    """Runs tasks one after another in this process (1 worker; no Dask overhead)."""
+
+    workers = 1
+    description = "in-process (1 worker)"
+
+    def __init__(self, progress: bool = False):
+        self.progress = progress
+
+    def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), **kwargs: Any) -> list:
+        items = list(items)
+        return [fn(x, **kwargs) for x in tqdm(items, desc=desc, disable=not self.progress, leave=False)]
+
+    def compute(self, tasks: list) -> list:
+        """Compute a list of ``dask.delayed`` objects, in order."""
+        import dask
+
+        return list(dask.compute(*tasks, scheduler="synchronous")) if tasks else []
+
+    def close(self) -> None:
+        pass
+
+
+class LocalPoolExecutor(SerialExecutor):
+    """Runs tasks on ``workers`` threads of this process (GIL-releasing work: GDAL reads and writes)."""
+
+    def __init__(self, workers: int, progress: bool = False):
+        super().__init__(progress)
+        self.workers = workers
+        self.description = f"thread pool ({workers} threads)"
+
+    def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), **kwargs: Any) -> list:
+        from concurrent.futures import ThreadPoolExecutor
+
+        items = list(items)
+        with ThreadPoolExecutor(self.workers) as pool:
+            it = pool.map(lambda x: fn(x, **kwargs), items)
+            return list(tqdm(it, total=len(items), desc=desc, disable=not self.progress, leave=False))
+
+    def compute(self, tasks: list) -> list:
+        import dask
+
+        return list(dask.compute(*tasks, scheduler="threads", num_workers=self.workers)) if tasks else []
+
+
+class DaskExecutor:
+    """Runs tasks on a ``distributed.Client`` (local processes, a remote scheduler, or a job-queue cluster)."""
+
+    def __init__(self, client, description: str, progress: bool = False, owned=(), own_client: bool = True):
+        self.client = client
+        self._own_client = own_client
+        self.description = description
+        self.progress = progress
+        self._owned = owned
+        self._scattered: dict[int, tuple[Any, Any]] = {}
+        info = client.scheduler_info() or {}
+        self.workers = max(1, len(info.get("workers", {})))
+
+    def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), **kwargs: Any) -> list:
+        """Run ``fn(item, **kwargs)`` for every item; ``shared`` names large kwargs sent to each worker once."""
+        from distributed import as_completed
+
+        items = list(items)
+        if not items:
+            return []
+        args = {k: (self._scatter(v) if k in shared else v) for k, v in kwargs.items()}
+        futures = [self.client.submit(fn, x, pure=False, **args) for x in items]
+        with tqdm(total=len(futures), desc=desc, disable=not self.progress, leave=False) as bar:
+            for fut in as_completed(futures):
+                if fut.status == "error":
+                    for f in futures:
+                        f.cancel()
+                    fut.result()  # re-raises the task's exception here
+                bar.update(1)
+        return self.client.gather(futures)
+
+    def compute(self, tasks: list) -> list:
+        """Compute a list of ``dask.delayed`` objects on the cluster, in order."""
+        return list(self.client.gather(self.client.compute(tasks))) if tasks else []
+
+    def _scatter(self, value):
+        """Send a large shared argument (the scene) to every worker once and keep the future alive."""
+        if id(value) not in self._scattered:
+            self._scattered[id(value)] = (value, self.client.scatter(value, broadcast=True, hash=False))
+        return self._scattered[id(value)][1]
+
+    def close(self) -> None:
+        self._scattered.clear()
+        for obj in ((self.client,) if self._own_client else ()) + tuple(self._owned):
+            try:
+                obj.close()
+            except Exception:  # noqa: BLE001 - closing is best effort
+                pass
+
+
+def make_executor(
+    workers: int = 1,
+    scheduler: str | None = None,
+    cluster: str | None = None,
+    cluster_options: dict | None = None,
+    progress: bool = False,
+    memory_limit: str | None = None,
+    client=None,
+    local: str = "processes",
+):
+    """Choose an executor; the same rules for ``ingest``, ``solve`` and ``export-kml``.
+
+    * ``client``: a ``distributed.Client`` the caller owns (Python API; not closed here);
+    * ``scheduler="tcp://host:port"``: connect to an existing ``dask.distributed`` scheduler;
+    * ``cluster="pbs"|"slurm"``: start workers as batch jobs with dask-jobqueue
+      (``cluster_options``: queue, cores, memory, walltime, jobs, account, ...);
+    * ``$PBS_NODEFILE`` set (inside a PBS job, as the legacy program used it):
+      ``workers`` processes on every node it lists (see :mod:`.nodefile`);
+    * otherwise ``workers`` local workers (1: in-process, no Dask): processes of a
+      local Dask cluster, or with ``local="threads"`` a thread pool of this process
+      (for GDAL-bound tasks that release the GIL, such as the export's).
+    """
+    if client is not None:
+        return DaskExecutor(client, "Dask client", progress, own_client=False)
+    if scheduler:
+        client, owned = clusters.connect(scheduler)
+        return DaskExecutor(client, f"scheduler {scheduler}", progress, owned=owned)
+    if cluster:
+        client, owned = clusters.jobqueue_client(cluster, dict(cluster_options or {}))
+        return DaskExecutor(client, f"{cluster} cluster", progress, owned=owned)
+    hosts = pbs_nodes()
+    if hosts:
+        client, owned = nodefile_client(hosts, max(1, workers))
+        return DaskExecutor(client, f"PBS_NODEFILE ({len(hosts)} nodes x {max(1, workers)} processes)", progress, owned=owned)
+    if workers <= 1:
+        return SerialExecutor(progress)
+    if local == "processes":
+        client, owned = clusters.local_cluster(workers, memory_limit)
+        return DaskExecutor(client, f"local cluster ({workers} processes)", progress, owned=owned)
+    if local == "threads":
+        return LocalPoolExecutor(workers, progress)
+    raise ValueError(f"local workers must be 'processes' or 'threads', got {local!r}")
