@@ -40,25 +40,47 @@ def seed_exposure(tr_const, r_sum, r_count):
 
 
 def log_ratio_sums(image, r, usable, index):
-    """Pairwise ``{(j, k): (n, sum d_jk)}`` of one tile, with global image indices ``index``.
+    """Pairwise ``{(j, k): (n, sum d_jk)}`` of one tile's image stacks ``(K, H, W)``, global image ids ``index``.
 
     ``usable`` marks pixels with positive image value and reflectance that are
     valid, lit and weighted.  Only pairs with ``j < k`` (global order) are returned.
+    The stacks are reduced to compact observations and passed to :func:`pair_sums`.
+    """
+    image, r, usable = np.asarray(image), np.asarray(r), np.asarray(usable)
+    parts = [np.flatnonzero(u) for u in usable]
+    pix = np.concatenate(parts) if parts else np.zeros(0, np.int64)
+    start = np.concatenate([[0], np.cumsum([len(p) for p in parts])])
+    flat = usable.reshape(len(usable), -1)
+    return pair_sums(pix, start, image.reshape(flat.shape)[flat], r.reshape(flat.shape)[flat], index)
+
+
+def pair_sums(pix, start, image, r, index):
+    """Pairwise ``{(j, k): (n, sum d_jk)}`` from compact usable observations.
+
+    Image ``a`` owns observations ``start[a]:start[a+1]`` with increasing pixel numbers
+    ``pix``; ``index`` maps ``a`` to the global image id.  Shared pixels are found by a
+    sorted search; the differences are summed in pixel order (float32 terms, float64 sum).
     """
     with np.errstate(divide="ignore", invalid="ignore"):
-        logq = np.where(usable, np.log(image) - np.log(r), np.nan).astype(np.float32)
+        logq = (np.log(image) - np.log(r)).astype(np.float32)
     out = {}
-    k_count = logq.shape[0]
+    k_count = len(start) - 1
+    seg = [(int(start[a]), int(start[a + 1])) for a in range(k_count)]
+    lo = [pix[s0] if s1 > s0 else 0 for s0, s1 in seg]
+    hi = [pix[s1 - 1] if s1 > s0 else -1 for s0, s1 in seg]
     for a in range(k_count):
-        ua = usable[a]
-        if not ua.any():
-            continue
+        pa = pix[seg[a][0]:seg[a][1]]
         for b in range(a + 1, k_count):
-            both = ua & usable[b]
+            if hi[b] < lo[a] or hi[a] < lo[b] or not len(pa):
+                continue
+            pb = pix[seg[b][0]:seg[b][1]]
+            ib = np.minimum(np.searchsorted(pb, pa), len(pb) - 1)
+            both = pb[ib] == pa
             n = int(np.count_nonzero(both))
             if n == 0:
                 continue
-            d = float(np.sum(logq[a][both] - logq[b][both], dtype=np.float64))
+            ia = np.flatnonzero(both)
+            d = float(np.sum(logq[seg[a][0] + ia] - logq[seg[b][0] + ib[both]], dtype=np.float64))
             j, k = int(index[a]), int(index[b])
             out[(j, k) if j < k else (k, j)] = (n, d if j < k else -d)
     return out
