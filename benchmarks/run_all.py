@@ -57,22 +57,27 @@ def plain_read_seconds(d: Path) -> float:
 
 
 SOLVE_CHILD = """
-import json, sys, time
+import json, os, sys, time
 from lunaralbedo.engine.solve import solve
 t0 = time.perf_counter()
 r = solve(sys.argv[1], out=sys.argv[2], workers=int(sys.argv[3]), plots=False, method=sys.argv[4], max_iter=int(sys.argv[5]), tolerance=0.0)
 dt = time.perf_counter() - t0
 hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM')][0]
-print(json.dumps({"seconds": dt, "peak_mb": int(hwm.split()[1]) / 1024, "iterations": r.iterations, "timings": r.report["timings_s"]}))
+cpu = os.times()
+print(json.dumps({"seconds": dt, "cpu_s": cpu.user + cpu.system, "user_s": cpu.user, "sys_s": cpu.system,
+                  "peak_mb": int(hwm.split()[1]) / 1024, "iterations": r.iterations, "timings": r.report["timings_s"]}))
 """
 
 
-def solve_child(d: Path, out: Path, workers: int = 1, method: str = "overlap", max_iter: int = 10) -> dict:
-    """Solve in a fresh process (clean memory figures); returns seconds, peak MB, timings."""
+def solve_child(d: Path, out: Path, workers: int = 1, method: str = "overlap", max_iter: int = 10, src: Path | None = None) -> dict:
+    """Solve in a fresh process (clean memory figures); returns seconds, CPU seconds, peak MB, timings.
+
+    ``src``: run another checkout's ``lunaralbedo`` (e.g. the previous implementation) instead of this one.
+    """
     shutil.rmtree(out, ignore_errors=True)
     res = subprocess.run(
         [sys.executable, "-c", SOLVE_CHILD, str(d / "settings.txt"), str(out), str(workers), method, str(max_iter)],
-        capture_output=True, text=True, cwd=REPO,
+        capture_output=True, text=True, cwd=src or REPO,
     )
     if res.returncode:
         raise RuntimeError(res.stderr[-3000:])
@@ -121,7 +126,8 @@ def main() -> int:
     ap.add_argument("--out", default="bench_out")
     ap.add_argument("--quick", action="store_true", help="small scenes (smoke run)")
     ap.add_argument("--json", default=None, help="also write the figures as JSON here")
-    ap.add_argument("--only", default="1,2,3,4", help="comma-separated items to run (3 comes with 1)")
+    ap.add_argument("--only", default="1,2,3,4,5,6,7,8", help="comma-separated items to run (3 comes with 1)")
+    ap.add_argument("--before", default=None, help="source tree of a previous implementation to measure too (items 5, 7)")
     args = ap.parse_args()
     root = (REPO / args.out).resolve()
     root.mkdir(exist_ok=True)
@@ -138,6 +144,9 @@ def main() -> int:
         memory(root, figures, mem_px, res_deg)
     if 4 in only:
         convergence(root, q, figures)
+    from scale_bench import run_scale_items  # noqa: E402  (items 5-8: issue 15)
+
+    run_scale_items(root, q, figures, only, Path(args.before).resolve() if args.before else None)
     if args.json:
         Path(args.json).write_text(json.dumps(figures, indent=2))
     return 0
