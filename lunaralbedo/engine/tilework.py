@@ -86,10 +86,8 @@ def _init_sums(scene: Scene, obs) -> dict:
     s = scene.settings
     r = s.model.reflectance_from(obs, s.initial_params)
     use = r > 0  # observations already have positive weight, value and geometry
-    start = obs["start"]
-    seg = np.repeat(np.arange(len(start) - 1), np.diff(start))
-    rs = np.bincount(seg[use], weights=r[use].astype(np.float64), minlength=len(start) - 1)
-    n = np.bincount(seg[use], minlength=len(start) - 1).astype(np.float64)
+    k = len(obs["index"])
+    rs, n = exposure_init.mean_reflectance_sums(r, use, observations.image_of_observation(obs), k)
     ustart = np.concatenate([[0], np.cumsum(n)]).astype(np.int64)
     pairs = exposure_init.pair_sums(obs["pix"][use], ustart, obs["image"][use], r[use], obs["index"])
     return {

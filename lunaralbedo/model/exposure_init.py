@@ -25,11 +25,14 @@ from __future__ import annotations
 import numpy as np
 
 
-def mean_reflectance_sums(r, usable):
-    """Per-image ``(sum R, count)`` over usable pixels of a tile (float64, shape ``(K,)``)."""
-    rs = np.sum(np.where(usable, r, 0.0), axis=(1, 2), dtype=np.float64)
-    n = np.count_nonzero(usable, axis=(1, 2)).astype(np.float64)
-    return rs, n
+def mean_reflectance_sums(r, usable, image_of_obs, k):
+    """Per-image ``(sum R, count)`` over a tile's usable observations (float64, shape ``(k,)``).
+
+    ``image_of_obs`` is the local image number (0..k-1) of every observation.
+    """
+    seg = np.asarray(image_of_obs)[usable]
+    rs = np.bincount(seg, weights=np.asarray(r)[usable].astype(np.float64), minlength=k)
+    return rs, np.bincount(seg, minlength=k).astype(np.float64)
 
 
 def seed_exposure(tr_const, r_sum, r_count):
