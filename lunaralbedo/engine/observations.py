@@ -73,7 +73,7 @@ def gather(scene: Scene, t: int) -> tuple[dict[str, np.ndarray], dict[str, np.nd
     geo = _Geometry(scene, tile) if model.needs_geometry else None
     thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
     with_cos_i = geo is not None and s.shadow_type == shadows.LAMBERT_RATIO
-    kept = []  # (k, window, value, wblend, usable, layers)
+    kept = []  # (k, window, window blending weights, then the observations: pix, value, weight, layers)
     weights_sum = np.zeros((h, w))
     for k in scene.tile_images[t]:
         win = image_window(tile, scene.images[k].lonlat_bounds)
@@ -94,33 +94,33 @@ def gather(scene: Scene, t: int) -> tuple[dict[str, np.ndarray], dict[str, np.nd
             layers = model.layers(ci, ce, al)
             if with_cos_i:
                 layers["cos_i"] = ci
+        wb = (wt if s.use_weights else ok).astype(np.float32)
+        sel = np.nonzero(use & (wb > 0))
         if not use.any():
             continue
-        wb = (wt if s.use_weights else ok).astype(np.float32)
         weights_sum[r0:r1, c0:c1] += wb  # float64, images in tile order
-        kept.append((int(k), win, val, wb, use, layers))
+        pix = ((sel[0] + r0) * w + (sel[1] + c0)).astype(np.int32)
+        # compact at once: only the window's blending weights stay (for eq. 7's denominator)
+        kept.append((int(k), win, wb, pix, val[sel], wb[sel], {n: np.asarray(layers[n])[sel].astype(np.float32) for n in layers}))
     weights_sum32 = weights_sum.astype(np.float32)
     wblend_sum = np.zeros((h, w))
     names = model.layer_names + (("cos_i",) if with_cos_i else ())
     parts: dict[str, list] = {n: [] for n in ("pix", "image", "weight", *names)}
-    counts = []
-    for k, (r0, r1, c0, c1), val, wb, use, layers in kept:
+    for k, (r0, r1, c0, c1), wb, pix, val, weight, layers in kept:
         if s.use_normalized_cost_fun:
             with np.errstate(invalid="ignore", divide="ignore"):
                 wb = np.where(wb > 0, wb / weights_sum32[r0:r1, c0:c1], 0.0).astype(np.float32)
+                weight = (weight / weights_sum32.ravel()[pix]).astype(np.float32)
         wblend_sum[r0:r1, c0:c1] += wb
-        weight = np.where(use, wb, np.float32(0.0))
-        sel = np.nonzero(weight > 0)
-        counts.append(len(sel[0]))
-        parts["pix"].append(((sel[0] + r0) * w + (sel[1] + c0)).astype(np.int32))
-        parts["image"].append(val[sel])
-        parts["weight"].append(weight[sel])
+        parts["pix"].append(pix)
+        parts["image"].append(val)
+        parts["weight"].append(weight)
         for n in names:
-            parts[n].append(np.asarray(layers[n])[sel].astype(np.float32))
+            parts[n].append(layers[n])
     obs = {n: (np.concatenate(v) if v else np.zeros(0, np.int32 if n == "pix" else np.float32)) for n, v in parts.items()}
     obs["image"] = obs["image"].astype(np.float32)
     obs["index"] = np.array([k for k, *_ in kept], np.int32)
-    obs["start"] = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    obs["start"] = np.concatenate([[0], np.cumsum([len(p) for p in parts["pix"]])]).astype(np.int64)
     per_pixel = {"weights_sum": weights_sum32, "wblend_sum": wblend_sum}
     if geo is not None:
         per_pixel["dem"] = geo.inner_dem(tile)
