@@ -29,14 +29,79 @@ def albedo(pix, image, tr, w, npix):
     return out
 
 
-@njit(cache=True)
 def iteration_sums(pix, start, image, r, w, t_obs, alb, dr, jtj, jtr, exp_num, exp_den):
     r"""Cost (eq. 1), exposure sums (eq. 4) and the parameters' normal equations (eq. 5) in one pass.
 
     ``dr`` is ``(P, n)`` float32 (:math:`\partial R/\partial p_m`; P may be 0); the Jacobian
-    columns are :math:`A T\,\partial R/\partial p_m` and :math:`A T R` (last).  ``jtj``,
-    ``jtr``, ``exp_num``, ``exp_den`` (float64) are filled in place.  Returns ``(Q, n_obs)``.
+    columns are :math:`A T\,\partial R/\partial p_m` and :math:`A T R` (last); ``jtj``
+    ``(P+1, P+1)`` and ``jtr`` may be empty (no parameter sums wanted).  ``jtj``, ``jtr``,
+    ``exp_num``, ``exp_den`` (float64) are filled in place.  Returns ``(Q, n_obs)``.
+    Up to two parameters run a kernel with the sums in registers; more, a generic loop.
     """
+    if jtj.shape[0] == 0:
+        return _sums2(pix, start, image, r, w, t_obs, alb, dr, 0, jtj, jtr, exp_num, exp_den)
+    if dr.shape[0] <= 2:
+        return _sums2(pix, start, image, r, w, t_obs, alb, dr, dr.shape[0] + 1, jtj, jtr, exp_num, exp_den)
+    return _sums_generic(pix, start, image, r, w, t_obs, alb, dr, jtj, jtr, exp_num, exp_den)
+
+
+@njit(cache=True)
+def _sums2(pix, start, image, r, w, t_obs, alb, dr, n_cols, jtj, jtr, exp_num, exp_den):
+    """:func:`iteration_sums` for at most 3 Jacobian columns, accumulated in local scalars."""
+    n_par = n_cols - 1 if n_cols > 0 else 0
+    q = 0.0
+    n_obs = 0
+    zero = np.float32(0.0)
+    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
+    b0 = b1 = b2 = 0.0
+    for k in range(start.shape[0] - 1):
+        en = 0.0
+        ed = 0.0
+        for o in range(start[k], start[k + 1]):
+            a = alb[pix[o]]
+            if a != a:
+                a = zero
+            wo = w[o]
+            if wo > 0:
+                n_obs += 1
+            ro = r[o]
+            res = image[o] - a * (t_obs[o] * ro)
+            q += res * res * wo
+            ar = a * ro
+            arw = ar * wo
+            en += image[o] * arw
+            ed += ar * arw
+            if n_cols:
+                at = a * t_obs[o]
+                # columns in order: dR/dp_0, dR/dp_1 (when present), then R
+                c0 = at * dr[0, o] if n_par > 0 else at * ro
+                c1 = (at * dr[1, o] if n_par > 1 else at * ro) if n_par > 0 else zero
+                c2 = at * ro if n_par > 1 else zero
+                j0, j1, j2 = c0 * wo, c1 * wo, c2 * wo
+                b0 += j0 * res
+                b1 += j1 * res
+                b2 += j2 * res
+                a00 += j0 * c0
+                a01 += j0 * c1
+                a02 += j0 * c2
+                a11 += j1 * c1
+                a12 += j1 * c2
+                a22 += j2 * c2
+        exp_num[k] = en
+        exp_den[k] = ed
+    if n_cols:
+        acc = np.array([[a00, a01, a02], [a01, a11, a12], [a02, a12, a22]])
+        vec = np.array([b0, b1, b2])
+        for m in range(n_cols):
+            jtr[m] = vec[m]
+            for j in range(n_cols):
+                jtj[m, j] = acc[m, j]
+    return q, n_obs
+
+
+@njit(cache=True)
+def _sums_generic(pix, start, image, r, w, t_obs, alb, dr, jtj, jtr, exp_num, exp_den):
+    """:func:`iteration_sums` for any number of parameters."""
     n_par = dr.shape[0]
     cols = np.empty(n_par + 1, np.float32)
     q = 0.0
@@ -59,16 +124,15 @@ def iteration_sums(pix, start, image, r, w, t_obs, alb, dr, jtj, jtr, exp_num, e
             arw = ar * wo
             en += image[o] * arw
             ed += ar * arw
-            if jtj.shape[0]:
-                at = a * t_obs[o]
-                for m in range(n_par):
-                    cols[m] = at * dr[m, o]
-                cols[n_par] = at * r[o]
-                for m in range(n_par + 1):
-                    jmw = cols[m] * wo
-                    jtr[m] += jmw * res
-                    for j in range(m, n_par + 1):
-                        jtj[m, j] += jmw * cols[j]
+            at = a * t_obs[o]
+            for m in range(n_par):
+                cols[m] = at * dr[m, o]
+            cols[n_par] = at * r[o]
+            for m in range(n_par + 1):
+                jmw = cols[m] * wo
+                jtr[m] += jmw * res
+                for j in range(m, n_par + 1):
+                    jtj[m, j] += jmw * cols[j]
         exp_num[k] = en
         exp_den[k] = ed
     for m in range(jtj.shape[0]):
