@@ -15,7 +15,6 @@ The machine may be shared: CPU times are the honest figure, wall times are print
 """
 from __future__ import annotations
 
-import json
 import resource
 import sys
 import time
