@@ -39,22 +39,29 @@ def image_window(tile, bounds) -> tuple[int, int, int, int] | None:
 
 
 class _Geometry:
-    """The tile's DEM on the padded grid; body-fixed points and normals computed per window."""
+    """The tile's DEM on the padded grid, and its body-fixed points and normals (computed once per tile).
+
+    Each image asks for its window; the points and normals of the whole tile are computed
+    on first use (as many images cover most of a tile, per-window geometry would repeat it).
+    """
 
     def __init__(self, scene: Scene, tile):
         s = scene.settings
-        self.pad = tile.pad
+        self.tile = tile
         self.dem = read_dem_onto_grid(scene.dems, tile.padded_transform, tile.padded_shape, scene.crs, s.no_dem_data_val)
-        self.lon, self.lat = geometry.lonlat_grid(tile.padded_transform, tile.padded_shape)
+        self._pts = self._normals = None
 
     def window(self, r0, r1, c0, c1):
-        """Points, normals and no-DEM mask of unpadded window rows r0:r1, cols c0:c1 (one halo pixel for normals)."""
-        p = self.pad
-        rs, cs = slice(r0 + p - 1, r1 + p + 1), slice(c0 + p - 1, c1 + p + 1)
-        pts = geometry.body_fixed(self.lon[rs, cs], self.lat[rs, cs], np.nan_to_num(self.dem[rs, cs], nan=0.0))
-        normals = geometry.dem_normals(pts)[1:-1, 1:-1]
+        """Points (km), normals and no-DEM mask of unpadded window rows r0:r1, cols c0:c1."""
+        if self._pts is None:
+            lon, lat = geometry.lonlat_grid(self.tile.padded_transform, self.tile.padded_shape)
+            pts = geometry.body_fixed(lon, lat, np.nan_to_num(self.dem, nan=0.0))
+            inner = self.tile.inner
+            self._normals = geometry.dem_normals(pts)[inner]
+            self._pts = pts[inner]
+        p = self.tile.pad
         bad = ~np.isfinite(self.dem[r0 + p:r1 + p, c0 + p:c1 + p])
-        return pts[1:-1, 1:-1], normals, bad
+        return self._pts[r0:r1, c0:c1], self._normals[r0:r1, c0:c1], bad
 
     def inner_dem(self, tile):
         return self.dem[tile.inner]
