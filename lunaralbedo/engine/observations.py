@@ -38,30 +38,41 @@ def image_window(tile, bounds) -> tuple[int, int, int, int] | None:
     return (r0, r1, c0, c1) if (r1 > r0 and c1 > c0) else None
 
 
-class _Geometry:
-    """The tile's DEM on the padded grid, and its body-fixed points and normals (computed once per tile).
+#: Points and normals of a whole tile (48 bytes per padded pixel) are computed once when they fit
+#: this budget; bigger tiles compute them per image window (more work, bounded memory).
+TILE_GEOMETRY_BYTES = 128 * 2**20
 
-    Each image asks for its window; the points and normals of the whole tile are computed
-    on first use (as many images cover most of a tile, per-window geometry would repeat it).
+
+class _Geometry:
+    """The tile's DEM on the padded grid, and body-fixed points and normals per image window.
+
+    Both ways give the same bytes (normals use the same neighbours, one halo pixel
+    around a window); whole-tile geometry is computed once when it fits
+    :data:`TILE_GEOMETRY_BYTES`, since images that cover most of a tile would repeat it.
     """
 
     def __init__(self, scene: Scene, tile):
         s = scene.settings
         self.tile = tile
         self.dem = read_dem_onto_grid(scene.dems, tile.padded_transform, tile.padded_shape, scene.crs, s.no_dem_data_val)
-        self._pts = self._normals = None
+        self.lon, self.lat = geometry.lonlat_grid(tile.padded_transform, tile.padded_shape)
+        self.whole = None
+        if 48 * self.dem.size <= TILE_GEOMETRY_BYTES:
+            pts = self._points(slice(None), slice(None))
+            self.whole = (pts, geometry.dem_normals(pts))
+
+    def _points(self, rs, cs):
+        return geometry.body_fixed(self.lon[rs, cs], self.lat[rs, cs], np.nan_to_num(self.dem[rs, cs], nan=0.0))
 
     def window(self, r0, r1, c0, c1):
         """Points (km), normals and no-DEM mask of unpadded window rows r0:r1, cols c0:c1."""
-        if self._pts is None:
-            lon, lat = geometry.lonlat_grid(self.tile.padded_transform, self.tile.padded_shape)
-            pts = geometry.body_fixed(lon, lat, np.nan_to_num(self.dem, nan=0.0))
-            inner = self.tile.inner
-            self._normals = geometry.dem_normals(pts)[inner]
-            self._pts = pts[inner]
         p = self.tile.pad
-        bad = ~np.isfinite(self.dem[r0 + p:r1 + p, c0 + p:c1 + p])
-        return self._pts[r0:r1, c0:c1], self._normals[r0:r1, c0:c1], bad
+        rs, cs = slice(r0 + p, r1 + p), slice(c0 + p, c1 + p)
+        bad = ~np.isfinite(self.dem[rs, cs])
+        if self.whole is not None:
+            return self.whole[0][rs, cs], self.whole[1][rs, cs], bad
+        pts = self._points(slice(r0 + p - 1, r1 + p + 1), slice(c0 + p - 1, c1 + p + 1))
+        return pts[1:-1, 1:-1], geometry.dem_normals(pts)[1:-1, 1:-1], bad
 
     def inner_dem(self, tile):
         return self.dem[tile.inner]
