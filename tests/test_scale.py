@@ -75,3 +75,19 @@ def test_tile_image_index_equals_the_all_pairs_test():
     assert n > 1000  # the case is not trivial
     # edges that only touch do not overlap
     assert overlaps_per_box([(0, 0, 1, 1)], [(1, 0, 2, 1)])[0].size == 0
+
+
+def test_per_window_geometry_gives_the_bytes_of_whole_tile_geometry(tmp_path, monkeypatch):
+    """Big tiles compute points and normals per image window (bounded memory): same outputs."""
+    from lunaralbedo.engine import observations
+    from lunaralbedo.engine.solve import solve
+    from lunaralbedo.simulate import SceneSpec, render_scene
+
+    render_scene(tmp_path / "s", SceneSpec(n_images=4, image_px=60, seed=3, max_num_iter=2))
+    outs = {}
+    for name, budget in (("whole", 2**40), ("window", 0)):
+        monkeypatch.setattr(observations, "TILE_GEOMETRY_BYTES", budget)
+        res = solve(tmp_path / "s" / "settings.txt", out=tmp_path / name, workers=1, plots=False)
+        outs[name] = (res.exposure.tobytes(), sorted((p.name, p.read_bytes()) for p in (tmp_path / name / "albedo").iterdir()))
+    assert len(outs["whole"][1]) >= 2
+    assert outs["whole"] == outs["window"]
