@@ -74,3 +74,18 @@ def test_sums_do_not_depend_on_anything_but_the_data():
         q, _ = kernels.iteration_sums(pix, start, ci, cr, cw, t_obs, alb, cd1[None], jtj, jtr, en, ed)
         outs.append((alb.tobytes(), q, jtj.tobytes(), jtr.tobytes(), en.tobytes(), ed.tobytes()))
     assert outs[0] == outs[1]
+
+
+def test_three_parameters_take_the_numpy_normal_equations():
+    image, r, _, wt, t = _stacks(seed=8)
+    dr = np.random.default_rng(1).normal(size=(3, *image.shape)).astype(np.float32)
+    tr = t[:, None, None] * r
+    alb = updates.albedo(image, tr, wt)
+    jtj, jtr = updates.phase_sums(updates.residuals(image, alb, tr, wt), alb, t, list(dr), r, wt)
+    pix, start, (ci, cr, cw, d0, d1, d2) = _compact(wt, image, r, wt, *dr)
+    t_obs = np.repeat(t, np.diff(start))
+    c_alb = kernels.albedo(pix, ci, t_obs * cr, cw, wt[0].size)
+    c_jtj, c_jtr = np.zeros((4, 4)), np.zeros(4)
+    kernels.iteration_sums(pix, start, ci, cr, cw, t_obs, c_alb, np.stack([d0, d1, d2]), c_jtj, c_jtr, np.zeros(len(t)), np.zeros(len(t)))
+    np.testing.assert_allclose(c_jtj, jtj, rtol=1e-6)
+    np.testing.assert_allclose(c_jtr, jtr, rtol=1e-5, atol=1e-6 * np.abs(jtr).max())

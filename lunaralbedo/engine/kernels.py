@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..model import updates
+
 
 @njit(cache=True)
 def albedo(pix, image, tr, w, npix):
@@ -29,6 +31,20 @@ def albedo(pix, image, tr, w, npix):
     return out
 
 
+@njit(cache=True, inline="always")
+def _terms(o, pix, image, r, w, t_obs, alb):
+    """Float32 terms of observation ``o``: albedo (0 where none), weight, R, residual, and the
+    eq. 1 and eq. 4 products ``res^2 w``, ``I A R w``, ``(A R)^2 w``."""
+    a = alb[pix[o]]
+    if a != a:
+        a = np.float32(0.0)
+    wo = w[o]
+    ro = r[o]
+    res = image[o] - a * (t_obs[o] * ro)
+    arw = (a * ro) * wo
+    return a, wo, ro, res, res * res * wo, image[o] * arw, (a * ro) * arw
+
+
 def iteration_sums(pix, start, image, r, w, t_obs, alb, dr, jtj, jtr, exp_num, exp_den):
     r"""Cost (eq. 1), exposure sums (eq. 4) and the parameters' normal equations (eq. 5) in one pass.
 
@@ -36,13 +52,18 @@ def iteration_sums(pix, start, image, r, w, t_obs, alb, dr, jtj, jtr, exp_num, e
     columns are :math:`A T\,\partial R/\partial p_m` and :math:`A T R` (last); ``jtj``
     ``(P+1, P+1)`` and ``jtr`` may be empty (no parameter sums wanted).  ``jtj``, ``jtr``,
     ``exp_num``, ``exp_den`` (float64) are filled in place.  Returns ``(Q, n_obs)``.
-    Up to two parameters run a kernel with the sums in registers; more, a generic loop.
+    Up to two parameters run a kernel with the sums in registers.
     """
     if jtj.shape[0] == 0:
         return _sums2(pix, start, image, r, w, t_obs, alb, dr, 0, jtj, jtr, exp_num, exp_den)
     if dr.shape[0] <= 2:
         return _sums2(pix, start, image, r, w, t_obs, alb, dr, dr.shape[0] + 1, jtj, jtr, exp_num, exp_den)
-    return _sums_generic(pix, start, image, r, w, t_obs, alb, dr, jtj, jtr, exp_num, exp_den)
+    # more parameters (no such model yet): Q and exposures fused, normal equations in NumPy
+    q, n_obs = _sums2(pix, start, image, r, w, t_obs, alb, dr, 0, jtj, jtr, exp_num, exp_den)
+    a = np.nan_to_num(alb)[pix]
+    res = image - a * (t_obs * r)
+    jtj[:], jtr[:] = updates.phase_sums(res, (a * t_obs)[None], np.ones(1, np.float32), list(dr), r, w)
+    return q, n_obs
 
 
 @njit(cache=True)
@@ -58,19 +79,11 @@ def _sums2(pix, start, image, r, w, t_obs, alb, dr, n_cols, jtj, jtr, exp_num, e
         en = 0.0
         ed = 0.0
         for o in range(start[k], start[k + 1]):
-            a = alb[pix[o]]
-            if a != a:
-                a = zero
-            wo = w[o]
-            if wo > 0:
-                n_obs += 1
-            ro = r[o]
-            res = image[o] - a * (t_obs[o] * ro)
-            q += res * res * wo
-            ar = a * ro
-            arw = ar * wo
-            en += image[o] * arw
-            ed += ar * arw
+            a, wo, ro, res, dq, dn, dd = _terms(o, pix, image, r, w, t_obs, alb)
+            n_obs += wo > 0
+            q += dq
+            en += dn
+            ed += dd
             if n_cols:
                 at = a * t_obs[o]
                 # columns in order: dR/dp_0, dR/dp_1 (when present), then R
@@ -96,48 +109,6 @@ def _sums2(pix, start, image, r, w, t_obs, alb, dr, n_cols, jtj, jtr, exp_num, e
             jtr[m] = vec[m]
             for j in range(n_cols):
                 jtj[m, j] = acc[m, j]
-    return q, n_obs
-
-
-@njit(cache=True)
-def _sums_generic(pix, start, image, r, w, t_obs, alb, dr, jtj, jtr, exp_num, exp_den):
-    """:func:`iteration_sums` for any number of parameters."""
-    n_par = dr.shape[0]
-    cols = np.empty(n_par + 1, np.float32)
-    q = 0.0
-    n_obs = 0
-    zero = np.float32(0.0)
-    for k in range(start.shape[0] - 1):
-        en = 0.0
-        ed = 0.0
-        for o in range(start[k], start[k + 1]):
-            a = alb[pix[o]]
-            if a != a:
-                a = zero
-            wo = w[o]
-            if wo > 0:
-                n_obs += 1
-            tr = t_obs[o] * r[o]
-            res = image[o] - a * tr
-            q += res * res * wo
-            ar = a * r[o]
-            arw = ar * wo
-            en += image[o] * arw
-            ed += ar * arw
-            at = a * t_obs[o]
-            for m in range(n_par):
-                cols[m] = at * dr[m, o]
-            cols[n_par] = at * r[o]
-            for m in range(n_par + 1):
-                jmw = cols[m] * wo
-                jtr[m] += jmw * res
-                for j in range(m, n_par + 1):
-                    jtj[m, j] += jmw * cols[j]
-        exp_num[k] = en
-        exp_den[k] = ed
-    for m in range(jtj.shape[0]):
-        for j in range(m):
-            jtj[m, j] = jtj[j, m]
     return q, n_obs
 
 
