@@ -60,22 +60,27 @@ def plain_read_seconds(d: Path) -> float:
 
 
 SOLVE_CHILD = """
-import json, sys, time
+import json, os, sys, time
 from lunaralbedo.engine.solve import solve
 t0 = time.perf_counter()
 r = solve(sys.argv[1], out=sys.argv[2], workers=int(sys.argv[3]), plots=False, method=sys.argv[4], max_iter=int(sys.argv[5]), tolerance=0.0)
 dt = time.perf_counter() - t0
 hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM')][0]
-print(json.dumps({"seconds": dt, "peak_mb": int(hwm.split()[1]) / 1024, "iterations": r.iterations, "timings": r.report["timings_s"]}))
+cpu = os.times()
+print(json.dumps({"seconds": dt, "cpu_s": cpu.user + cpu.system, "user_s": cpu.user, "sys_s": cpu.system,
+                  "peak_mb": int(hwm.split()[1]) / 1024, "iterations": r.iterations, "timings": r.report["timings_s"]}))
 """
 
 
-def solve_child(d: Path, out: Path, workers: int = 1, method: str = "overlap", max_iter: int = 10) -> dict:
-    """Solve in a fresh process (clean memory figures); returns seconds, peak MB, timings."""
+def solve_child(d: Path, out: Path, workers: int = 1, method: str = "overlap", max_iter: int = 10, src: Path | None = None) -> dict:
+    """Solve in a fresh process (clean memory figures); returns seconds, CPU seconds, peak MB, timings.
+
+    ``src``: run another checkout's ``lunaralbedo`` (e.g. the previous implementation) instead of this one.
+    """
     shutil.rmtree(out, ignore_errors=True)
     res = subprocess.run(
         [sys.executable, "-c", SOLVE_CHILD, str(d / "settings.txt"), str(out), str(workers), method, str(max_iter)],
-        capture_output=True, text=True, cwd=REPO,
+        capture_output=True, text=True, cwd=src or REPO,
     )
     if res.returncode:
         raise RuntimeError(res.stderr[-3000:])
@@ -124,7 +129,8 @@ def main() -> int:
     ap.add_argument("--out", default="bench_out")
     ap.add_argument("--quick", action="store_true", help="small scenes (smoke run)")
     ap.add_argument("--json", default=None, help="also write the figures as JSON here")
-    ap.add_argument("--only", default="1,2,3,4,5", help="comma-separated items to run (3 comes with 1)")
+    ap.add_argument("--only", default="1,2,3,4,5,6,7,8,9", help="comma-separated items to run (3 comes with 1)")
+    ap.add_argument("--before", default=None, help="source tree of a previous implementation to measure too (items 6, 8)")
     args = ap.parse_args()
     root = (REPO / args.out).resolve()
     root.mkdir(exist_ok=True)
@@ -143,6 +149,9 @@ def main() -> int:
         convergence(root, q, figures)
     if 5 in only:
         response_fit(q, figures)
+    from scale_bench import run_scale_items  # noqa: E402  (items 6-9: issue 15)
+
+    run_scale_items(root, q, figures, only, Path(args.before).resolve() if args.before else None)
     if args.json:
         Path(args.json).write_text(json.dumps(figures, indent=2))
     return 0
@@ -159,6 +168,7 @@ def throughput(root: Path, q: bool, figures: dict, big_px: int, res_deg: float) 
         "images": spec.n_images, "image_px": big_px, "iterations": 10, "pixel_observations": obs,
         "plain_read_s": read_s,
         **{f"solve_s_{w}w": r["seconds"] for w, r in runs.items()},
+        **{f"cpu_s_{w}w": r["cpu_s"] for w, r in runs.items()},  # the solving process only (not Dask workers)
         **{f"timings_{w}w": r["timings"] for w, r in runs.items()},
         "obs_per_s_1w": obs / runs[1]["seconds"], "obs_per_s_2w": obs / runs[2]["seconds"],
         "ratio_solve_over_read_1w": runs[1]["seconds"] / read_s, "ratio_solve_over_read_2w": runs[2]["seconds"] / read_s,
@@ -167,7 +177,8 @@ def throughput(root: Path, q: bool, figures: dict, big_px: int, res_deg: float) 
     t = figures["throughput"]
     print(f"1. throughput: {obs:,} pixel-observations; plain read {read_s:.2f} s", flush=True)
     for w in (1, 2):
-        print(f"   {w} worker(s): solve {runs[w]['seconds']:.1f} s = {obs / runs[w]['seconds'] / 1e6:.1f} M obs/s, "
+        print(f"   {w} worker(s): solve {runs[w]['seconds']:.1f} s wall ({runs[w]['cpu_s']:.1f} s CPU of the solving process) "
+              f"= {obs / runs[w]['seconds'] / 1e6:.1f} M obs/s, "
               f"solve/read = {runs[w]['seconds'] / read_s:.1f}  (stages: {runs[w]['timings']})", flush=True)
 
     print(f"3. speed-up 1 -> 2 workers: {t['speedup_1_to_2']:.2f}x", flush=True)

@@ -43,7 +43,8 @@ class SceneSpec:
     """Parameters of a synthetic strip (degrees, pixels, metres, km)."""
 
     n_images: int = 6
-    image_px: int = 120  # square images, pixels
+    image_px: int = 120  # image width (and height unless image_rows is set), pixels
+    image_rows: int = 0  # image height, pixels (0: square images)
     res_deg: float = 0.01  # pixel size, degrees
     overlap: float = 0.5  # fraction of an image shared with the next
     lon0: float = 10.0  # west edge of the strip, degrees (continuous: may pass 180)
@@ -95,6 +96,10 @@ class SceneSpec:
     @property
     def step_px(self) -> int:
         return max(1, int(round(self.image_px * (1 - self.overlap))))
+
+    @property
+    def rows_px(self) -> int:
+        return self.image_rows or self.image_px
 
     @property
     def width_px(self) -> int:
@@ -242,7 +247,7 @@ def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
 def _render(out: Path, spec: SceneSpec) -> dict:
     rng = np.random.default_rng(spec.seed)
     res = spec.res_deg
-    width, height = spec.width_px, spec.image_px
+    width, height = spec.width_px, spec.rows_px
     # Global truth grid, with a margin for the DEM (8 px, or the longest cast shadow); evaluated window by window.
     m = 8
     if spec.cast_shadows:

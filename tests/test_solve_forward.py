@@ -24,7 +24,8 @@ def scene(request, tmp_path_factory):
 
 def test_default_method_recovers_truth_within_10_iterations(scene, tmp_path):
     res = solve(scene / "settings.txt", out=tmp_path / "out", workers=1, plots=False)
-    assert res.iterations <= 10
+    # the default early stop (Q settled to 1e-5) ends after 2-4 of the 10 allowed passes
+    assert res.report["converged"] and 2 <= res.iterations <= 4, res.cost_history
     sc = score(tmp_path / "out", scene)
     assert sc["coverage"] > 0.95
     assert sc["albedo_rel_rmse"] < ALBEDO_TOL, sc
@@ -70,7 +71,9 @@ def test_outputs_are_float32_with_nan_nodata_and_documented_files(scene, tmp_pat
     rep = json.loads((out / "report.json").read_text())
     assert len(rep["cost_q"]) == res.iterations and rep["cost_q"][-1] <= rep["cost_q"][0]
     assert rep["settings"]["reflectance"] == rep["photometric_model"] in ("lambert", "lunar-lambert") and "timings_s" in rep
-    assert list(rep["parameters"]) == list(names) and all(len(v) == res.iterations + 1 for v in rep["parameters"].values())
+    # initial values + one update per iteration, except the last one of a run that stopped early (Q settled)
+    n_hist = res.iterations + (0 if rep["converged"] else 1)
+    assert list(rep["parameters"]) == list(names) and all(len(v) == n_hist for v in rep["parameters"].values())
     assert not (out / "checkpoint").exists()
 
 

@@ -140,8 +140,12 @@ class CameraModel:
         v = np.einsum("...ji,...j->...i", rot, points - pos)  # body -> camera (transpose)
         return self.focal.project(v)
 
-    def ground_to_image(self, points, iterations: int = 12):
-        """Cube ``(sample, line)`` (1-based) of body-fixed points ``(..., 3)`` km; NaN when not imaged."""
+    def ground_to_image(self, points, iterations: int = 12, clip: bool = True):
+        """Cube ``(sample, line)`` (1-based) of body-fixed points ``(..., 3)`` km; NaN when not imaged.
+
+        With ``clip=False`` points just outside the cube keep their coordinates (NaN only
+        behind the camera, or for a line scanner beyond its padded time range).
+        """
         points = np.asarray(points, dtype=np.float64)
         if self.timing is None:
             ds, dl = self._project_at(points, np.zeros(points.shape[:-1]))
@@ -152,6 +156,8 @@ class CameraModel:
             ds, _ = self._project_at(points, a_l)
             a_s = self.detector.alpha_sample(ds + self.focal.origin_sample)
         s, l = self.detector.beta(a_s, a_l)
+        if not clip:
+            return s, l
         inside = (s >= 0.5) & (s <= self.samples + 0.5) & (l >= 0.5) & (l <= self.lines + 0.5)
         return np.where(inside, s, np.nan), np.where(inside, l, np.nan)
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ..engine.solve import METHODS
+from ..engine.solve import DEFAULT_TOLERANCE, METHODS
 from ._common import parallel_options, reports_errors
 
 
@@ -50,8 +50,8 @@ def _print_summary(result) -> None:
 @click.option("--resume", is_flag=True, help="Continue an interrupted run in OUTDIR (same settings and inputs).")
 @click.option("--skip-missing", is_flag=True, help="Leave out DRGs without a Sun/spacecraft position (listed in the report).")
 @click.option("--max-iter", type=int, default=None, help="Override MAX_NUM_ITER.")
-@click.option("--tolerance", type=float, default=1e-7, show_default=True,
-              help="Stop when the cost Q changes by less than this fraction between iterations.")
+@click.option("--tolerance", type=float, default=DEFAULT_TOLERANCE, show_default=True,
+              help="Stop when the cost Q changes by at most this fraction between iterations (0: run MAX_NUM_ITER).")
 @click.option("--response", default=None, metavar="estimate|FILE",
               help="Camera response (seed 002): 'estimate' fits g with the albedo; FILE reuses a response.csv. Default: linear DN.")
 @click.option("--exposure-times", type=click.Path(dir_okay=False, path_type=Path), default=None,

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from rasterio.enums import Resampling
 
-from ..constants import MIN_COS_INCIDENCE
+from ..constants import MIN_COS_INCIDENCE_MODEL
 from ..errors import InputError, ResumeError
 from ..io import response as rio
 from ..io.rasters import read_drg_onto_grid
@@ -32,7 +32,7 @@ from ..model import geometry, shadows
 from ..model.response import Observations
 from ..model.response_fit import fit_response
 from .scene import Scene
-from .tilework import _geometry_stack
+from .observations import tile_geometry
 
 #: Observations per tile handed to the response fit (a fixed stride over pixels beyond it).
 MAX_PIXELS_PER_TILE = 40_000
@@ -53,7 +53,7 @@ def response_tile(t: int, *, scene: Scene, max_pixels: int = MAX_PIXELS_PER_TILE
     s = scene.settings
     tile = scene.tiles[t]
     shape = (tile.height, tile.width)
-    geo = _geometry_stack(scene, tile) if s.needs_geometry else None
+    geo = tile_geometry(scene, tile) if s.needs_geometry else None
     thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
     step = max(1, int(np.ceil(tile.height * tile.width / max_pixels)))
     pick = np.arange(0, tile.height * tile.width, step)
@@ -69,7 +69,7 @@ def response_tile(t: int, *, scene: Scene, max_pixels: int = MAX_PIXELS_PER_TILE
         if geo is not None:
             _, pts, normals, bad = geo
             ci, ce, al = geometry.illumination(pts, normals, scene.sun[k], scene.spacecraft[k])
-            use &= ~bad & (ci >= MIN_COS_INCIDENCE) & (ce > 0)
+            use &= ~bad & (ci >= MIN_COS_INCIDENCE_MODEL) & (ce > 0)
             r = s.model.reflectance(ci, ce, al, s.initial_params)
             use &= r > 0
         sel = pick[use.ravel()[pick]]

@@ -18,7 +18,7 @@ from rasterio.windows import Window
 from ..errors import InputError, SolverError
 from ..io.guard import raster_errors
 from ..io.positions import read_positions
-from ..io.rasters import RasterInfo, catalog_drgs, geographic_crs, intersects_lon, list_rasters, raster_info
+from ..io.rasters import RasterInfo, catalog_drgs, geographic_crs, list_rasters, raster_info
 from ..model.weights import WeightProfile, merge_profiles, profile_from_mask
 from ..settings import Settings
 from .photometry import solver_model
@@ -64,6 +64,31 @@ class Scene:
             h.update(f"{d.path}|{st.st_size}|{st.st_mtime_ns}".encode())
         h.update(np.ascontiguousarray(self.sun).tobytes() + np.ascontiguousarray(self.spacecraft).tobytes())
         return h.hexdigest()[:16]
+
+
+def overlaps_per_box(boxes, queries) -> list[np.ndarray]:
+    """Per query rectangle, the sorted indices of ``boxes`` overlapping it with positive area.
+
+    Rectangles are ``(west, south, east, north)``, longitudes modulo 360° (a DRG at
+    -180..-170 meets a tile at 180..190, as :func:`~lunaralbedo.io.rasters.intersects_lon`).
+    A shapely STRtree finds the candidates in O((Q + B) log B) instead of testing every
+    pair; the strict test of :func:`~lunaralbedo.io.rasters.intersects` (touching edges do
+    not count) then filters them, so the answer is the same as the all-pairs loop.
+    """
+    import shapely
+
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    q0 = np.asarray(queries, dtype=np.float64).reshape(-1, 4)
+    if len(b) == 0 or len(q0) == 0:
+        return [np.zeros(0, np.int32) for _ in range(len(q0))]
+    shifts = np.array([0.0, -360.0, 360.0])
+    q = np.concatenate([q0 + [s, 0.0, s, 0.0] for s in shifts])  # each query, also one turn west and east
+    tree = shapely.STRtree(shapely.box(b[:, 0], b[:, 1], b[:, 2], b[:, 3]))
+    qi, bi = tree.query(shapely.box(q[:, 0], q[:, 1], q[:, 2], q[:, 3]))
+    keep = (b[bi, 0] < q[qi, 2]) & (q[qi, 0] < b[bi, 2]) & (b[bi, 1] < q[qi, 3]) & (q[qi, 1] < b[bi, 3])
+    pairs = np.unique(np.stack([qi[keep] % len(q0), bi[keep]], axis=1), axis=0).reshape(-1, 2)
+    qi, bi = pairs[:, 0], pairs[:, 1].astype(np.int32)
+    return np.split(bi, np.searchsorted(qi, np.arange(1, len(q0))))
 
 
 def weight_profile(info: RasterInfo) -> WeightProfile:
@@ -119,8 +144,9 @@ def build_scene(settings: Settings, skip_missing: bool = False, map_fn=map) -> S
     skipped: dict[str, str] = {}
     # Legacy convention: the tile grid takes its pixel spacing from the first DRG.
     tiles = make_tiles(settings.simulation_box, settings.tile_size, images[0].lonlat_res, pad=PAD, exact=True)
-    for im in images:
-        if not any(intersects_lon(im.lonlat_bounds, t.padded_bounds) for t in tiles):
+    padded = [t.padded_bounds for t in tiles]
+    for im, hits in zip(images, overlaps_per_box(padded, [im.lonlat_bounds for im in images])):
+        if len(hits) == 0:
             skipped[im.key] = "overlaps no tile of SIMULATION_BOX"
     images = [im for im in images if im.key not in skipped]
     if not images:
@@ -135,10 +161,7 @@ def build_scene(settings: Settings, skip_missing: bool = False, map_fn=map) -> S
     dems: list[RasterInfo] = []
     if settings.needs_geometry:
         dems = [raster_info(p) for p in list_rasters(settings.dem_dir, "DEM")]
-    tile_images = []
-    for t in tiles:
-        idx = [k for k, im in enumerate(images) if intersects_lon(im.lonlat_bounds, t.padded_bounds)]
-        tile_images.append(np.array(idx, dtype=np.int32))
+    tile_images = overlaps_per_box([im.lonlat_bounds for im in images], padded)
     used = set(np.concatenate(tile_images).tolist()) if tile_images else set()
     for k, im in enumerate(images):
         if k not in used:

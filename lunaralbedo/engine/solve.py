@@ -37,6 +37,8 @@ from .scene import Scene, build_scene
 from .tilework import SolveState, finalize_tile, iterate_tile, prepare_tile
 
 METHODS = ("overlap", "seed")
+#: Early stop: after the first iteration whose Q is within this fraction of the previous Q (docs/solver.md).
+DEFAULT_TOLERANCE = 1e-5
 CHECKPOINT_DIR = "checkpoint"  # everything --resume needs; removed when the run succeeds
 STATE_FILE = f"{CHECKPOINT_DIR}/state.json"
 CACHE_DIR = f"{CHECKPOINT_DIR}/cache"
@@ -146,7 +148,7 @@ def solve(
     cluster_options: dict | None = None,
     resume: bool = False,
     skip_missing: bool = False,
-    tolerance: float = 1e-7,
+    tolerance: float = DEFAULT_TOLERANCE,
     max_iter: int | None = None,
     progress: bool = False,
     plots: bool = True,
@@ -162,6 +164,7 @@ def solve(
     ``out`` (default ``albedo_<settings stem>``); nothing is written to input folders.
     ``response``: None (linear DN), ``"estimate"`` or a ``response.csv`` (seed 002, see
     :mod:`.response`); ``exposure_times``: a ``key,exposure`` CSV that fixes the exposures.
+    Iterations stop early once ``|Q_n - Q_(n-1)| <= tolerance * Q_n`` (0: run them all).
     """
     settings = settings if isinstance(settings, Settings) else load_settings(settings)
     if method not in METHODS:

@@ -2,8 +2,8 @@
 
 Each task is a plain function of (scene, tile index, small state) that a Dask worker
 (or a plain loop) runs.  ``prepare`` reads the inputs once and caches the tile's
-observation stack inside OUTDIR; ``iterate`` computes one iteration's partial sums
-from the cached stack; ``finalise`` writes the tile's outputs.  Global couplings
+compact observations (:mod:`.observations`) inside OUTDIR; ``iterate`` computes one
+iteration's partial sums from them in one fused pass (:mod:`.kernels`); ``finalise`` writes the tile's outputs.  Global couplings
 (exposures, phase coefficients, Q) leave a task only as small float64 sums.
 """
 from __future__ import annotations
@@ -14,12 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from ..io.cache import load_stack, save_stack
-from ..io.rasters import read_dem_onto_grid, read_drg_onto_grid, write_geotiff
-from ..constants import MIN_COS_INCIDENCE_MODEL
-from ..model import exposure_init, geometry, shadows, updates
+from ..io.rasters import write_geotiff
+from ..model import exposure_init, shadows
+from . import kernels, observations
 from .scene import Scene
-from .photometry import solver_model
-from .terrain import cast_shadow_masks
 
 
 @dataclass
@@ -60,30 +58,8 @@ def _cache_dir(cache_root: Path, scene: Scene, t: int) -> Path:
 
 
 # --------------------------------------------------------------------------- prepare
-def _geometry_stack(scene: Scene, tile):
-    """DEM, body-fixed points, normals and the no-DEM mask of the unpadded tile.
-
-    The DEM is read on the padded grid so that normals at the tile's edge see their
-    neighbours, then everything is cropped to the tile.
-    """
-    s = scene.settings
-    shape, transform = tile.padded_shape, tile.padded_transform
-    dem = read_dem_onto_grid(scene.dems, transform, shape, scene.crs, s.no_dem_data_val)
-    lon, lat = geometry.lonlat_grid(transform, shape)
-    pts = geometry.body_fixed(lon, lat, np.nan_to_num(dem, nan=0.0))
-    normals = geometry.dem_normals(pts)
-    inner = tile.inner
-    return dem[inner], pts[inner], normals[inner], ~np.isfinite(dem[inner])
-
-
-def _saturation(dtype: str) -> float | None:
-    """The saturated value of an integer DRG (its type's maximum, e.g. 255); None for float DRGs."""
-    dt = np.dtype(dtype)
-    return float(np.iinfo(dt).max) if dt.kind in "ui" else None
-
-
 def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | None = None) -> dict:
-    """Read every image over tile ``t`` onto its grid, compute geometry, cache the stack.
+    """Read every image over tile ``t`` (its footprint window only), compute geometry, cache the observations.
 
     ``lut``: camera response g over 0..255 (seed 002), applied to each DRG's DN before
     it is resampled onto the tile grid; None keeps the DN (linear response).
@@ -96,74 +72,29 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | No
     cached = load_stack(folder)
     if cached is not None:
         return {**cached[1], "reused": True}
-    s = scene.settings
-    model = solver_model(s)
-    tile = scene.tiles[t]
-    geo = _geometry_stack(scene, tile) if model.needs_geometry else None
-    lon, lat = geometry.lonlat_grid(tile.transform, (tile.height, tile.width)) if geo is not None else (None, None)
-    thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
-    per_image: dict[str, list] = {name: [] for name in ("image", "wblend", "usable")}
-    keep = []
-    cast = cast_shadow_masks(scene, tile, scene.tile_images[t]) if geo is not None and s.uses_cast_shadows else {}
-    for k in scene.tile_images[t]:
-        info = scene.images[k]
-        got = read_drg_onto_grid(info, scene.profiles[k], tile.transform, (tile.height, tile.width), scene.crs, thresh,
-                                 saturation=_saturation(info.dtype), lut=lut)
-        if got is None:
-            continue
-        val, ok, wt, use = got
-        use &= val > 0
-        if int(k) in cast:
-            use &= ~cast[int(k)]
-        layers = {}
-        if geo is not None:
-            dem, pts, normals, bad = geo
-            ci, ce, al = geometry.illumination(pts, normals, scene.sun[k], scene.spacecraft[k])
-            use &= ~bad & (ci >= MIN_COS_INCIDENCE_MODEL) & (ce > 0)
-            layers = model.layers(ci, ce, al, lon=lon, lat=lat)
-            if s.shadow_type == shadows.LAMBERT_RATIO:
-                layers["cos_i"] = ci
-        if not use.any():
-            continue
-        keep.append(int(k))
-        layers.update(image=val, wblend=wt if s.use_weights else ok, usable=use)
-        for name, arr in layers.items():
-            per_image.setdefault(name, []).append(arr)
-    h, w = tile.height, tile.width
-    arrays: dict[str, np.ndarray] = {"index": np.array(keep, np.int32)}
-    for name, dtype in (("image", np.float32), ("wblend", np.float32), ("usable", bool)):
-        arrays[name] = np.array(per_image[name], dtype).reshape(-1, h, w)
-    arrays["weights_sum"] = arrays["wblend"].sum(axis=0, dtype=np.float64).astype(np.float32)
-    if s.use_normalized_cost_fun:
-        with np.errstate(invalid="ignore", divide="ignore"):
-            wb = arrays["wblend"]
-            arrays["wblend"] = np.where(wb > 0, wb / arrays["weights_sum"][None], 0.0).astype(np.float32)
-    arrays["weight"] = np.where(arrays["usable"], arrays["wblend"], 0.0).astype(np.float32)
-    if geo is not None:
-        arrays["dem"] = geo[0]
-        names = model.layer_names + (("cos_i",) if s.shadow_type == shadows.LAMBERT_RATIO else ())
-        for name in names:  # the model's layers (float32), also for a tile without usable image
-            arrays[name] = np.array(per_image.get(name, []), np.float32).reshape(-1, h, w)
-    meta = _init_sums(scene, arrays)
-    meta["tile"] = tile.name
-    del arrays["usable"]  # folded into "weight"; only the initialisation needed it
-    save_stack(folder, arrays, meta)
+    obs, per_pixel = observations.gather(scene, t, lut)
+    meta = _init_sums(scene, obs)
+    meta["tile"] = scene.tiles[t].name
+    save_stack(folder, {**obs, **{f"tile_{k}": v for k, v in per_pixel.items()}}, meta)
     return {**meta, "reused": False}
 
 
-def _layers(arrays) -> dict:
-    """The cached stack as in-memory arrays (the model's functions see plain ndarrays)."""
-    return {k: np.asarray(v) for k, v in arrays.items()}
+def _split(arrays) -> tuple[dict, dict]:
+    """Cached arrays as in-memory ``(observations, per-pixel arrays)``."""
+    obs = {k: np.asarray(v) for k, v in arrays.items() if not k.startswith("tile_")}
+    return obs, {k[5:]: v for k, v in arrays.items() if k.startswith("tile_")}
 
 
-def _init_sums(scene: Scene, arrays) -> dict:
+def _init_sums(scene: Scene, obs) -> dict:
     s = scene.settings
-    r = s.model.reflectance_from(_layers(arrays), s.initial_params)
-    use = arrays["usable"] & (arrays["wblend"] > 0) & (r > 0)
-    rs, n = exposure_init.mean_reflectance_sums(r, use)
-    pairs = exposure_init.log_ratio_sums(arrays["image"], r, use, arrays["index"])
+    r = s.model.reflectance_from(obs, s.initial_params)
+    use = r > 0  # observations already have positive weight, value and geometry
+    k = len(obs["index"])
+    rs, n = exposure_init.mean_reflectance_sums(r, use, observations.image_of_observation(obs), k)
+    ustart = np.concatenate([[0], np.cumsum(n)]).astype(np.int64)
+    pairs = exposure_init.pair_sums(obs["pix"][use], ustart, obs["image"][use], r[use], obs["index"])
     return {
-        "index": arrays["index"].tolist(),
+        "index": obs["index"].tolist(),
         "r_sum": rs.tolist(),
         "r_count": n.tolist(),
         "pairs": [[j, k, n_, d] for (j, k), (n_, d) in sorted(pairs.items())],
@@ -171,50 +102,43 @@ def _init_sums(scene: Scene, arrays) -> dict:
 
 
 # --------------------------------------------------------------------------- iterate
-def _weights(arrays, model, shadow_type, thresh, t_local, r):
-    w = np.asarray(arrays["weight"])
-    if shadow_type in (shadows.LAMBERT_RATIO, shadows.LUNAR_LAMBERT_RATIO) and model.needs_geometry:
-        rr = arrays["cos_i"] if (shadow_type == shadows.LAMBERT_RATIO and "cos_i" in arrays) else r
-        lit = shadows.dynamic_lit(arrays["image"], rr, t_local[:, None, None], thresh)
-        w = np.where(lit, w, 0.0).astype(np.float32)
-    return w
+def tile_model(scene: Scene, obs, state: SolveState, npix: int):
+    """Albedo of a tile's observations for the given exposures and model parameters (eq. 3).
 
-
-def tile_model(scene: Scene, arrays, state: SolveState):
-    """Albedo of a cached tile stack for the given exposures and model parameters (eq. 3).
-
-    Returns ``(albedo, R, w, T R, T)`` with ``arrays`` as plain ndarrays.
+    Returns ``(albedo (npix,), R, w, T per observation)``; ``w`` includes the dynamic shadow mask.
     """
     s = scene.settings
-    layers = _layers(arrays)
-    t_local = state.exposure[layers["index"]].astype(np.float32)
-    r = s.model.reflectance_from(layers, state.params)
-    w = _weights(layers, s.model, s.shadow_type, s.shadow_thresh, t_local, r)
-    tr = t_local[:, None, None] * r
-    alb = updates.albedo(layers["image"], tr, w)
-    return alb, r, w, tr, t_local
+    t_obs = np.repeat(state.exposure[obs["index"]].astype(np.float32), np.diff(obs["start"]))
+    r = np.asarray(s.model.reflectance_from(obs, state.params), dtype=np.float32)
+    w = obs["weight"]
+    if s.shadow_type in (shadows.LAMBERT_RATIO, shadows.LUNAR_LAMBERT_RATIO) and s.model.needs_geometry:
+        rr = obs["cos_i"] if (s.shadow_type == shadows.LAMBERT_RATIO and "cos_i" in obs) else r
+        w = np.where(shadows.dynamic_lit(obs["image"], rr, t_obs, s.shadow_thresh), w, 0.0).astype(np.float32)
+    alb = kernels.albedo(obs["pix"], obs["image"], t_obs * r, w, npix)
+    return alb, r, w, t_obs
 
 
 def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> TileSums:
-    """Partial sums of one iteration over tile ``t`` (eqs. 1, 3, 4, 5)."""
-    loaded = load_stack(_cache_dir(cache_root, scene, t))
-    arrays = loaded[0]
-    idx = np.asarray(arrays["index"])
+    """Partial sums of one iteration over tile ``t`` (eqs. 1, 3, 4, 5) in one fused pass."""
+    obs, _ = _split(load_stack(_cache_dir(cache_root, scene, t))[0])
+    idx = obs["index"]
     model = scene.settings.model
     out = TileSums(index=idx, n_params=len(model.parameters), exp_num=np.zeros(len(idx)), exp_den=np.zeros(len(idx)))
     if len(idx) == 0:
         return out
-    alb, r, w, tr, t_local = tile_model(scene, arrays, state)
-    image = arrays["image"]
-    res = updates.residuals(image, alb, tr, w)
-    out.q = updates.cost(res, w)
-    out.exp_num, out.exp_den = updates.exposure_sums(image, alb, r, w)
-    out.n_obs = int(np.count_nonzero(w))
-    if want_phase and model.parameters:
-        layers = _layers(arrays)
-        dr = model.derivatives_from(layers, state.params)
-        out.jtj, out.jtr = updates.phase_sums(res, alb, t_local, dr, r, w)
-        used = layers["alpha"][w > 0]
+    tile = scene.tiles[t]
+    alb, r, w, t_obs = tile_model(scene, obs, state, tile.height * tile.width)
+    phase = want_phase and bool(model.parameters)
+    dr = np.stack([np.asarray(d, np.float32) for d in model.derivatives_from(obs, state.params)]) if phase else np.zeros((0, len(r)), np.float32)
+    if not phase:
+        out.jtj, out.jtr = np.zeros((0, 0)), np.zeros(0)
+    q, out.n_obs = kernels.iteration_sums(obs["pix"], obs["start"], obs["image"], r, w, t_obs, alb, dr,
+                                          out.jtj, out.jtr, out.exp_num, out.exp_den)
+    out.q = float(q)
+    if not phase:
+        out.jtj, out.jtr = np.zeros((out.n_params + 1,) * 2), np.zeros(out.n_params + 1)
+    elif "alpha" in obs:
+        used = obs["alpha"][w > 0]
         if used.size:
             out.alpha_min, out.alpha_max = float(used.min()), float(used.max())
     return out
@@ -239,8 +163,8 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     """
     s = scene.settings
     tile = scene.tiles[t]
-    arrays, _ = load_stack(_cache_dir(cache_root, scene, t))
-    idx = np.asarray(arrays["index"])
+    obs, per_pixel = _split(load_stack(_cache_dir(cache_root, scene, t))[0])
+    idx = obs["index"]
     h, w_ = tile.height, tile.width
     name = f"{tile.name}.tif"
     if skip_done and (out_dir / "weightsSum" / name).exists():
@@ -250,16 +174,19 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
             valid = int(np.count_nonzero(np.isfinite(ds.read(1))))
         return {**_tile_images(scene, t, idx), "valid_pixels": valid, "reused": True}
     if len(idx):
-        alb, r, w, tr, _ = tile_model(scene, arrays, state)
+        alb, r, w, t_obs = tile_model(scene, obs, state, h * w_)
     else:
-        alb = np.full((h, w_), np.nan, np.float32)
-    write_geotiff(out_dir / "albedo" / name, alb, tile.transform, scene.crs, nodata=float("nan"))
+        alb = np.full(h * w_, np.nan, np.float32)
+    write_geotiff(out_dir / "albedo" / name, alb.reshape(h, w_), tile.transform, scene.crs, nodata=float("nan"))
     if s.compute_errors and len(idx):
-        err = updates.error_map(arrays["image"], alb, tr, w, np.asarray(arrays["wblend"]))
-        write_geotiff(out_dir / "error" / name, err, tile.transform, scene.crs, nodata=float("nan"))
-    if "dem" in arrays:
-        write_geotiff(out_dir / "DEM" / name, np.asarray(arrays["dem"]), tile.transform, scene.crs, nodata=float("nan"))
-    write_geotiff(out_dir / "weightsSum" / name, np.asarray(arrays["weights_sum"]), tile.transform, scene.crs)
+        num = kernels.error_numerator(obs["pix"], obs["image"], t_obs * r, w, alb, h * w_)
+        den = per_pixel["wblend_sum"].ravel()
+        with np.errstate(divide="ignore", invalid="ignore"):
+            err = np.where(den > 0, num / den, np.nan).astype(np.float32)
+        write_geotiff(out_dir / "error" / name, err.reshape(h, w_), tile.transform, scene.crs, nodata=float("nan"))
+    if "dem" in per_pixel:
+        write_geotiff(out_dir / "DEM" / name, np.asarray(per_pixel["dem"]), tile.transform, scene.crs, nodata=float("nan"))
+    write_geotiff(out_dir / "weightsSum" / name, np.asarray(per_pixel["weights_sum"]), tile.transform, scene.crs)
     return {
         **_tile_images(scene, t, idx),
         "valid_pixels": int(np.count_nonzero(np.isfinite(alb))),

@@ -109,6 +109,37 @@ def shot_geometry(scene: Scene, shot: Shot):
     return p0, vel, m, sun
 
 
+class LinearEphemeris:
+    """Spacecraft on a straight line ``p0 + vel (et - et_c)`` (km, km/s) with a fixed camera->body matrix ``m``."""
+
+    def __init__(self, p0, vel, m, et_c: float):
+        self.p0, self.vel, self.m, self.et_c = np.asarray(p0), np.asarray(vel), np.asarray(m), float(et_c)
+
+    def spacecraft(self, et):
+        et = np.asarray(et, dtype=np.float64)
+        return self.p0 + self.vel * (et - self.et_c)[..., None]
+
+    def camera_to_body(self, et):
+        return np.broadcast_to(self.m, np.shape(et) + (3, 3))
+
+
+def shot_camera(scene: Scene, shot: Shot, focal_mm: float = FOCAL_MM, pitch_mm: float = PITCH_MM, distortion=None):
+    """The ingest camera model of ``shot`` without kernels (for benchmarks and orthoprojection tests)."""
+    from ..camera.model import CameraModel, DetectorMap, LineTiming
+    from ..camera.optics import FocalPlane, NoDistortion
+
+    p0, vel, m, _sun = shot_geometry(scene, shot)
+    line = shot.kind == "line"
+    focal = FocalPlane(focal_mm, (0.0, pitch_mm, 0.0), (0.0, 0.0, pitch_mm), (0.0, 1 / pitch_mm, 0.0),
+                       (0.0, 0.0, 1 / pitch_mm), (shot.samples + 1) / 2.0, 0.0 if line else (shot.lines + 1) / 2.0,
+                       distortion or NoDistortion())
+    eph = LinearEphemeris(p0, vel if line else np.zeros(3), m, shot.et)
+    if line:
+        timing = LineTiming(shot.et - shot.lines * shot.line_rate / 2.0, shot.line_rate)
+        return CameraModel(focal, DetectorMap(), (shot.lines, shot.samples), eph, timing=timing)
+    return CameraModel(focal, DetectorMap(), (shot.lines, shot.samples), eph, frame_et=shot.et)
+
+
 def _text_kernels(kdir: Path, shots) -> None:
     shutil.copyfile(packaged_lsk(), kdir / "sim.tls")
     write_text_kernel(kdir / "sim.tpc", "PCK", {

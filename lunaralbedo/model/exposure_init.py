@@ -25,11 +25,14 @@ from __future__ import annotations
 import numpy as np
 
 
-def mean_reflectance_sums(r, usable):
-    """Per-image ``(sum R, count)`` over usable pixels of a tile (float64, shape ``(K,)``)."""
-    rs = np.sum(np.where(usable, r, 0.0), axis=(1, 2), dtype=np.float64)
-    n = np.count_nonzero(usable, axis=(1, 2)).astype(np.float64)
-    return rs, n
+def mean_reflectance_sums(r, usable, image_of_obs, k):
+    """Per-image ``(sum R, count)`` over a tile's usable observations (float64, shape ``(k,)``).
+
+    ``image_of_obs`` is the local image number (0..k-1) of every observation.
+    """
+    seg = np.asarray(image_of_obs)[usable]
+    rs = np.bincount(seg, weights=np.asarray(r)[usable].astype(np.float64), minlength=k)
+    return rs, np.bincount(seg, minlength=k).astype(np.float64)
 
 
 def seed_exposure(tr_const, r_sum, r_count, dtype=np.float64):
@@ -46,25 +49,47 @@ def seed_exposure(tr_const, r_sum, r_count, dtype=np.float64):
 
 
 def log_ratio_sums(image, r, usable, index):
-    """Pairwise ``{(j, k): (n, sum d_jk)}`` of one tile, with global image indices ``index``.
+    """Pairwise ``{(j, k): (n, sum d_jk)}`` of one tile's image stacks ``(K, H, W)``, global image ids ``index``.
 
     ``usable`` marks pixels with positive image value and reflectance that are
     valid, lit and weighted.  Only pairs with ``j < k`` (global order) are returned.
+    The stacks are reduced to compact observations and passed to :func:`pair_sums`.
+    """
+    image, r, usable = np.asarray(image), np.asarray(r), np.asarray(usable)
+    parts = [np.flatnonzero(u) for u in usable]
+    pix = np.concatenate(parts) if parts else np.zeros(0, np.int64)
+    start = np.concatenate([[0], np.cumsum([len(p) for p in parts])])
+    flat = usable.reshape(len(usable), -1)
+    return pair_sums(pix, start, image.reshape(flat.shape)[flat], r.reshape(flat.shape)[flat], index)
+
+
+def pair_sums(pix, start, image, r, index):
+    """Pairwise ``{(j, k): (n, sum d_jk)}`` from compact usable observations.
+
+    Image ``a`` owns observations ``start[a]:start[a+1]`` with increasing pixel numbers
+    ``pix``; ``index`` maps ``a`` to the global image id.  Shared pixels are found by a
+    sorted search; the differences are summed in pixel order (float32 terms, float64 sum).
     """
     with np.errstate(divide="ignore", invalid="ignore"):
-        logq = np.where(usable, np.log(image) - np.log(r), np.nan).astype(np.float32)
+        logq = (np.log(image) - np.log(r)).astype(np.float32)
     out = {}
-    k_count = logq.shape[0]
+    k_count = len(start) - 1
+    seg = [(int(start[a]), int(start[a + 1])) for a in range(k_count)]
+    lo = [pix[s0] if s1 > s0 else 0 for s0, s1 in seg]
+    hi = [pix[s1 - 1] if s1 > s0 else -1 for s0, s1 in seg]
     for a in range(k_count):
-        ua = usable[a]
-        if not ua.any():
-            continue
+        pa = pix[seg[a][0]:seg[a][1]]
         for b in range(a + 1, k_count):
-            both = ua & usable[b]
+            if hi[b] < lo[a] or hi[a] < lo[b] or not len(pa):
+                continue
+            pb = pix[seg[b][0]:seg[b][1]]
+            ib = np.minimum(np.searchsorted(pb, pa), len(pb) - 1)
+            both = pb[ib] == pa
             n = int(np.count_nonzero(both))
             if n == 0:
                 continue
-            d = float(np.sum(logq[a][both] - logq[b][both], dtype=np.float64))
+            ia = np.flatnonzero(both)
+            d = float(np.sum(logq[seg[a][0] + ia] - logq[seg[b][0] + ib[both]], dtype=np.float64))
             j, k = int(index[a]), int(index[b])
             out[(j, k) if j < k else (k, j)] = (n, d if j < k else -d)
     return out
@@ -83,24 +108,39 @@ def overlap_exposure(pairs, x0, mu=1e-6):
 
     ``pairs`` is ``{(j, k): (n, sum d)}``, ``x0`` the log of the seed exposures.
     ``mu`` is relative to the mean pair count.
+
+    The normal matrix :math:`\lambda I + \sum n_{jk}(e_j - e_k)(e_j - e_k)^T` is a
+    weighted graph Laplacian with one non-zero per image and per overlapping pair,
+    so it is assembled sparse (CSC) and factorised by SuperLU: memory and time grow
+    with the number of pairs, not with :math:`K^2` (10^5 images: see
+    docs/performance.md).  A direct factorisation rather than LSQR/LSMR: the tiny
+    :math:`\mu` makes the system ill-conditioned (condition ~ 1/mu for a long strip),
+    where Krylov solvers need thousands of iterations to reach the same answer.
     """
+    from scipy.sparse import csc_matrix
+    from scipy.sparse.linalg import spsolve
+
     x0 = np.asarray(x0, dtype=np.float64)
     k = len(x0)
     if not pairs:
         return np.exp(x0)
-    nmean = np.mean([n for n, _ in pairs.values()])
-    lam = mu * nmean
-    m = lam * np.eye(k)
+    keys = sorted(pairs)
+    jj = np.array([a for a, _ in keys], dtype=np.int64)
+    ii = np.array([b for _, b in keys], dtype=np.int64)
+    n = np.array([pairs[key][0] for key in keys], dtype=np.float64)
+    dsum = np.array([pairs[key][1] for key in keys], dtype=np.float64)
+    lam = mu * float(np.mean(n))
+    diag = np.full(k, lam)
+    np.add.at(diag, jj, n)
+    np.add.at(diag, ii, n)
+    rows = np.concatenate([np.arange(k), jj, ii])
+    cols = np.concatenate([np.arange(k), ii, jj])
+    vals = np.concatenate([diag, -n, -n])
+    m = csc_matrix((vals, (rows, cols)), shape=(k, k))  # duplicates are summed
     rhs = lam * x0.copy()
-    for (j, i), (n, dsum) in sorted(pairs.items()):
-        dbar = dsum / n
-        m[j, j] += n
-        m[i, i] += n
-        m[j, i] -= n
-        m[i, j] -= n
-        rhs[j] += n * dbar
-        rhs[i] -= n * dbar
-    x = np.linalg.solve(m, rhs)
+    np.add.at(rhs, jj, dsum)  # n * dbar = sum d
+    np.add.at(rhs, ii, -dsum)
+    x = np.asarray(spsolve(m, rhs), dtype=np.float64)
     # Fix the free scale exactly: same mean log exposure as the seed initialisation.
     x += np.mean(x0) - np.mean(x)
     return np.exp(x)

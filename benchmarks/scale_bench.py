@@ -1,0 +1,171 @@
+"""Items 5-8 of ``make bench`` (issue 15): real tile sizes, 10^5 images, orthoprojection, memory bandwidth.
+
+5. the narrow-strip scene of issue 15: 24 DRGs of 320 x 2000 px, TILE_SIZE 4 at 0.002 deg/px
+   (tiles of 2000 x 2000 px), Lunar-Lambert, 10 iterations, 1 worker: wall and CPU time (user +
+   sys of the solving process), peak RSS, ns per observation to prepare and per observation and
+   iteration to iterate, ratio to one plain read of the DRGs; ``--before SRC`` runs another
+   checkout's solver on the same scene too;
+6. overlap exposure initialisation and tile x image search for synthetic catalogues of
+   10^3 .. 10^5 footprints (sparse solve; the former dense solve up to 4000 images);
+7. orthoprojection output px/s (CPU time) of a NAC-like line scanner (5064 samples x 10000
+   lines at 0.5 m/px) and frame camera, and the former exact per-pixel projection on a part;
+8. the machine's memory bandwidth: one plain NumPy pass (sum) over 1 GB of float32.
+
+The machine may be shared: CPU times are the honest figure, wall times are printed too.
+"""
+from __future__ import annotations
+
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from run_all import plain_read_seconds, scene, solve_child  # noqa: E402
+
+from lunaralbedo.simulate import SceneSpec  # noqa: E402
+
+
+def cpu() -> float:
+    t = resource.getrusage(resource.RUSAGE_SELF)
+    return t.ru_utime + t.ru_stime
+
+
+def narrow_strip(root: Path, q: bool, figures: dict, before: Path | None) -> None:
+    rows, res, tile = (400, 0.01, 4.0) if q else (2000, 0.002, 4.0)
+    spec = SceneSpec(n_images=24, image_px=320 if not q else 64, image_rows=rows, res_deg=res, tile_size=tile,
+                     max_num_iter=10, seed=15)
+    d = scene(root, f"strip_{rows}", spec)
+    n_obs = spec.n_images * spec.image_px * rows
+    read_s = min(plain_read_seconds(d) for _ in range(2))
+    out = {"images": spec.n_images, "image": f"{spec.image_px} x {rows} px", "observations": n_obs, "plain_read_s": read_s}
+    runs = {"after": None, "before": None}
+    for name, src in (("before", before), ("after", None)):
+        if name == "before" and src is None:
+            continue
+        r = solve_child(d, root / f"out_strip_{name}", src=src)
+        tm = r["timings"]
+        r["prepare_ns_per_obs"] = 1e9 * tm["prepare"] / n_obs
+        r["iterate_ns_per_obs_iter"] = 1e9 * tm["iterate"] / (n_obs * r["iterations"])
+        r["ratio_solve_over_read"] = r["seconds"] / read_s
+        runs[name] = r
+        print(f"6. strip ({name}): solve {r['seconds']:.1f} s wall, {r['cpu_s']:.1f} s CPU (user {r['user_s']:.1f}, "
+              f"sys {r['sys_s']:.1f}), peak {r['peak_mb']:.0f} MB, solve/read {r['ratio_solve_over_read']:.0f}; "
+              f"prepare {r['prepare_ns_per_obs']:.0f} ns/obs, iterate {r['iterate_ns_per_obs_iter']:.1f} ns/obs/iter "
+              f"(stages {tm})", flush=True)
+    out.update({k: v for k, v in runs.items() if v})
+    figures["strip"] = out
+
+
+def catalogue(n: int, rng):
+    """``n`` footprints (lon/lat boxes) in strips of overlapping images, like an orbital campaign."""
+    per_strip = 200
+    k = np.arange(n)
+    strip, pos = k // per_strip, k % per_strip
+    west = 0.3 * strip + rng.uniform(-0.02, 0.02, n)
+    south = -60 + 0.6 * pos + rng.uniform(-0.05, 0.05, n)
+    return np.c_[west, south, west + 0.5, south + 1.0]
+
+
+def exposure_scaling(q: bool, figures: dict) -> None:
+    from lunaralbedo.engine.scene import overlaps_per_box
+    from lunaralbedo.model import exposure_init
+
+    rng = np.random.default_rng(6)
+    figures["exposure_init"] = {}
+    for n in ((1000, 4000) if q else (1000, 4000, 10000, 100000)):
+        boxes = catalogue(n, rng)
+        t0, c0 = time.perf_counter(), cpu()
+        hits = overlaps_per_box(boxes, boxes)  # every image against every other: the pair graph
+        t_index = cpu() - c0
+        x_true = rng.normal(size=n) * 0.3
+        pairs = {}
+        for j, hs in enumerate(hits):
+            for i in hs[hs > j]:
+                m = int(rng.integers(100, 10000))
+                pairs[(j, int(i))] = (m, m * (x_true[j] - x_true[i]) + rng.normal() * np.sqrt(m) * 0.01)
+        c1 = cpu()
+        x = np.log(exposure_init.overlap_exposure(pairs, np.zeros(n)))
+        t_solve = cpu() - c1
+        err = float(np.max(np.abs(x - x.mean() - (x_true - x_true.mean()))))
+        row = {"pairs": len(pairs), "index_cpu_s": t_index, "solve_cpu_s": t_solve, "max_log_error": err,
+               "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "wall_s": time.perf_counter() - t0}
+        if n <= 4000:  # the former dense K x K solve, for comparison
+            c2 = cpu()
+            keys = sorted(pairs)
+            mat = 1e-6 * np.mean([pairs[k][0] for k in keys]) * np.eye(n)
+            rhs = np.zeros(n)
+            for (j, i) in keys:
+                m, dsum = pairs[(j, i)]
+                mat[j, j] += m; mat[i, i] += m; mat[j, i] -= m; mat[i, j] -= m
+                rhs[j] += dsum; rhs[i] -= dsum
+            np.linalg.solve(mat, rhs)
+            row["dense_solve_cpu_s"] = cpu() - c2
+        figures["exposure_init"][n] = row
+        print(f"7. exposure init, {n} images, {len(pairs)} pairs: STRtree pairs {t_index:.2f} s, sparse solve "
+              f"{t_solve:.2f} s CPU" + (f", dense {row['dense_solve_cpu_s']:.2f} s" if "dense_solve_cpu_s" in row else "")
+              + f"; max log error {err:.1e}; peak RSS {row['peak_rss_mb']:.0f} MB", flush=True)
+
+
+def ortho(q: bool, figures: dict) -> None:
+    from lunaralbedo.camera.optics import LroNacDistortion
+    from lunaralbedo.ingest import simulate as sim
+    from lunaralbedo.ingest.grid import Grid, aligned_grid, mpp_to_degrees
+    from lunaralbedo.ingest.orthoproject import footprint, orthoproject
+
+    rng = np.random.default_rng(1)
+    world = sim.make_scene(rng, shape=(300, 300), west=4.5, north=-4.5, res=0.01)
+    lines = 1000 if q else 10000
+    figures["ortho"] = {}
+    for kind in ("line", "frame"):
+        shot = sim.Shot(key="N", kind=kind, et=sim.ET_BASE, exposure=1.0, aim_lon=6.0, aim_lat=-6.0, sun_azimuth=90,
+                        sun_elevation=30, view_azimuth=30, view_zenith=10, altitude_km=50, lines=lines, samples=5064,
+                        line_rate=3.125e-4)
+        cam = sim.shot_camera(world, shot, focal_mm=699.6, pitch_mm=0.007, distortion=LroNacDistortion(1.8e-5))
+        lon, lat = footprint(cam, world.height)
+        g = aligned_grid((mpp_to_degrees(0.5),) * 2, (lon.min(), lat.min(), lon.max(), lat.max()))
+        lo, la = g.lonlat()
+        h = world.height(lo, la)
+        image = rng.uniform(0, 1, (lines, 5064)).astype(np.float32)
+        orthoproject(cam, image, Grid(g.transform, (8, 64)), h[:8, :64])  # numba compile/load outside the timing
+        t0, c0 = time.perf_counter(), cpu()
+        out = orthoproject(cam, image, g, h)
+        c, w = cpu() - c0, time.perf_counter() - t0
+        n_ex = 64 if kind == "line" else 256
+        c1 = cpu()
+        ex = orthoproject(cam, image, Grid(g.transform, (n_ex, g.shape[1])), h[:n_ex + 1], exact=True)
+        c_ex = cpu() - c1
+        both = np.isfinite(ex) & np.isfinite(out[:n_ex])
+        row = {"grid": list(g.shape), "px_per_s_cpu": out.size / c, "px_per_s_wall": out.size / w,
+               "exact_px_per_s_cpu": ex.size / c_ex, "max_value_diff_vs_exact": float(np.max(np.abs(ex[both] - out[:n_ex][both])))}
+        figures["ortho"][kind] = row
+        print(f"8. orthoprojection {kind}: {g.shape[1]} x {g.shape[0]} px in {c:.1f} s CPU ({w:.1f} s wall): "
+              f"{row['px_per_s_cpu'] / 1e6:.2f} M px/s per core; exact per pixel {row['exact_px_per_s_cpu'] / 1e6:.3f} M px/s; "
+              f"max |value diff| {row['max_value_diff_vs_exact']:.1e} (values 0-1)", flush=True)
+
+
+def bandwidth(figures: dict) -> None:
+    a = np.ones(256 * 1024 * 1024, np.float32)  # 1 GiB
+    a.sum()
+    c0 = cpu()
+    for _ in range(3):
+        a.sum(dtype=np.float64)
+    gbs = 3 * a.nbytes / (cpu() - c0) / 1e9
+    figures["bandwidth_gb_s"] = gbs
+    print(f"9. plain NumPy pass (float32 -> float64 sum over 1 GiB): {gbs:.1f} GB/s = {4 / gbs:.2f} ns per float32", flush=True)
+
+
+def run_scale_items(root: Path, q: bool, figures: dict, only: set, before: Path | None) -> None:
+    if 6 in only:
+        narrow_strip(root, q, figures, before)
+    if 7 in only:
+        exposure_scaling(q, figures)
+    if 8 in only:
+        ortho(q, figures)
+    if 9 in only:
+        bandwidth(figures)
+
+
+if __name__ == "__main__":
+    sys.exit("run through benchmarks/run_all.py --only 6,7,8,9")

@@ -1,0 +1,93 @@
+"""Structures that scale to 10^5 images: sparse overlap exposures and the tile x image index."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lunaralbedo.model import exposure_init
+
+
+def _random_pairs(rng, k, per_image=4):
+    pairs = {}
+    for j in range(k):
+        for i in rng.choice(k, per_image):
+            if j < i:
+                pairs[(j, int(i))] = (int(rng.integers(1, 1000)), float(rng.normal() * 50))
+    return pairs
+
+
+def test_sparse_overlap_exposure_equals_the_dense_least_squares():
+    """Same minimiser as the stacked least-squares rows solved densely (independent formulation)."""
+    rng = np.random.default_rng(3)
+    k, mu = 120, 1e-6
+    pairs = _random_pairs(rng, k)
+    x0 = rng.normal(size=k) * 0.2
+    lam = mu * np.mean([n for n, _ in pairs.values()])
+    rows, rhs = [], []
+    for (j, i), (n, d) in pairs.items():
+        row = np.zeros(k)
+        row[j], row[i] = np.sqrt(n), -np.sqrt(n)
+        rows.append(row)
+        rhs.append(np.sqrt(n) * d / n)
+    a = np.vstack([np.array(rows), np.sqrt(lam) * np.eye(k)])
+    b = np.concatenate([rhs, np.sqrt(lam) * x0])
+    x = np.linalg.lstsq(a, b, rcond=None)[0]
+    x += x0.mean() - x.mean()
+    np.testing.assert_allclose(exposure_init.overlap_exposure(pairs, x0, mu=mu), np.exp(x), rtol=1e-7)
+
+
+def test_overlap_exposure_of_a_long_strip_of_20000_images():
+    """A chain of 2*10^4 images (each overlapping the next two): exposures recovered up to the free scale."""
+    rng = np.random.default_rng(4)
+    k = 20000
+    x_true = rng.normal(size=k) * 0.3
+    pairs = {}
+    for j in range(k):
+        for i in (j + 1, j + 2):
+            if i < k:
+                n = int(rng.integers(100, 5000))
+                pairs[(j, i)] = (n, n * (x_true[j] - x_true[i]))
+    x0 = np.zeros(k)
+    t = exposure_init.overlap_exposure(pairs, x0)
+    x = np.log(t)
+    # mu pulls towards x0 a little; along 2*10^4 images that bends the solution by ~4e-3
+    np.testing.assert_allclose(x - x.mean(), x_true - x_true.mean(), atol=1e-2)
+    assert np.mean(x) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_tile_image_index_equals_the_all_pairs_test():
+    """STRtree overlaps == the strict all-pairs rectangle test, including touching and degenerate cases."""
+    from lunaralbedo.engine.scene import overlaps_per_box
+    from lunaralbedo.io.rasters import intersects
+
+    rng = np.random.default_rng(9)
+    west = rng.uniform(0, 10, 400).round(1)
+    south = rng.uniform(0, 10, 400).round(1)
+    boxes = np.c_[west, south, west + rng.uniform(0.1, 1.5, 400).round(1), south + rng.uniform(0.1, 1.5, 400).round(1)]
+    tiles = np.array([(x, y, x + 1.0, y + 1.0) for x in np.arange(0, 11.0) for y in np.arange(0, 11.0)])
+    got = overlaps_per_box(boxes, tiles)
+    assert len(got) == len(tiles)
+    n = 0
+    for t, hits in zip(tiles, got):
+        want = [k for k, b in enumerate(boxes) if intersects(b, t)]
+        assert hits.tolist() == want
+        n += len(want)
+    assert n > 1000  # the case is not trivial
+    # edges that only touch do not overlap
+    assert overlaps_per_box([(0, 0, 1, 1)], [(1, 0, 2, 1)])[0].size == 0
+
+
+def test_per_window_geometry_gives_the_bytes_of_whole_tile_geometry(tmp_path, monkeypatch):
+    """Big tiles compute points and normals per image window (bounded memory): same outputs."""
+    from lunaralbedo.engine import observations
+    from lunaralbedo.engine.solve import solve
+    from lunaralbedo.simulate import SceneSpec, render_scene
+
+    render_scene(tmp_path / "s", SceneSpec(n_images=4, image_px=60, seed=3, max_num_iter=2))
+    outs = {}
+    for name, budget in (("whole", 2**40), ("window", 0)):
+        monkeypatch.setattr(observations, "TILE_GEOMETRY_BYTES", budget)
+        res = solve(tmp_path / "s" / "settings.txt", out=tmp_path / name, workers=1, plots=False)
+        outs[name] = (res.exposure.tobytes(), sorted((p.name, p.read_bytes()) for p in (tmp_path / name / "albedo").iterdir()))
+    assert len(outs["whole"][1]) >= 2
+    assert outs["whole"] == outs["window"]
