@@ -25,14 +25,21 @@ import numpy as np
 from ..constants import MIN_COS_INCIDENCE_MODEL
 from ..io.rasters import read_dem_onto_grid, read_drg_onto_grid
 from ..model import geometry, shadows
+from ..model.longitude import overlap_shifts
 from .photometry import solver_model
 from .scene import Scene
 from .terrain import cast_shadow_masks
 
 
 def image_window(tile, bounds) -> tuple[int, int, int, int] | None:
-    """``(r0, r1, c0, c1)`` of the unpadded tile covering lon/lat ``bounds`` plus one pixel; None if empty."""
+    """``(r0, r1, c0, c1)`` of the unpadded tile covering lon/lat ``bounds`` plus one pixel; None if empty.
+
+    Longitudes count modulo 360° (a DRG stored at -180..-179 covers a tile at 180..181);
+    a DRG meeting the tile on both sides of it gets the window spanning both.
+    """
+    shifts = overlap_shifts(bounds, tile.padded_bounds) or [0.0]
     west, south, east, north = bounds
+    west, east = west + min(shifts), east + max(shifts)
     c0 = max(0, math.floor((west - tile.west) / tile.res_x) - 1)
     c1 = min(tile.width, math.ceil((east - tile.west) / tile.res_x) + 1)
     r0 = max(0, math.floor((tile.north - north) / tile.res_y) - 1)
