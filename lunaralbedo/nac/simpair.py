@@ -120,14 +120,32 @@ def build_pair(out: str | Path, seed: int = 4, samples: int = 100, overlap: int 
     return Pair(paths["LE"], paths["RE"], shot, scene, geo, sun, frames)
 
 
+def _ideal_looks(spec, sample) -> np.ndarray:
+    """Unit look vectors ``(..., 3)`` in the LE frame of ideal-camera 1-based ``sample`` (the detector row)."""
+    ds = np.asarray(sample, dtype=np.float64) - (spec.samples / 2.0 + 0.5)
+    u = np.stack([spec.x0 + spec.sample_axis[0] * ds, spec.y0 + spec.sample_axis[1] * ds,
+                  np.full(np.shape(ds), spec.focal_length)], axis=-1)
+    return u / np.linalg.norm(u, axis=-1, keepdims=True)
+
+
+def ideal_rays(pair: Pair, spec, sample, line) -> tuple[np.ndarray, np.ndarray]:
+    """True rays of ideal-camera pixels at 1-based ``(sample, line)``: origins (km, body-fixed) and unit directions.
+
+    The geometry the pair was rendered with (spacecraft ``p0 + vel t``, line ``l`` at
+    ``t = (l - 0.5) rate - lines rate / 2``, the LE frame), not the kernels'.
+    """
+    p0, vel, m, _ = pair.geometry
+    shot = pair.shot
+    t = (np.asarray(line, dtype=np.float64) - 0.5) * shot.line_rate - shot.lines * shot.line_rate / 2.0
+    return p0 + vel * t[..., None], _ideal_looks(spec, sample) @ (m @ pair.frames["LE"]).T
+
+
 def render_ideal(pair: Pair, spec, columns) -> np.ndarray:
     """Noise-free image ``(lines, len(columns))`` of the ideal camera's 0-based ``columns`` (LE frame, true)."""
     p0, vel, m, _ = pair.geometry
     out = []
     for c in columns:
-        ds = (c + 1.0) - (spec.samples / 2.0 + 0.5)
-        u = np.array([spec.x0 + spec.sample_axis[0] * ds, spec.y0 + spec.sample_axis[1] * ds, spec.focal_length])
-        z = u / np.linalg.norm(u)
+        z = _ideal_looks(spec, c + 1.0)
         x = np.cross([0.0, 1.0, 0.0], z)
         x /= np.linalg.norm(x)
         q = np.stack([x, np.cross(z, x), z], axis=1)  # a frame whose z axis is the column's look direction
