@@ -22,7 +22,7 @@ from ..isis.labels import value_of
 from ..isis.pixels import read_band
 from ..isis.write import Quantity, write_cube
 from ..spice.kernels import LABEL_KEYS, isisdata_dir, resolve_isis_path
-from .ideal import blend, ideal_camera, ideal_spec, resample, sample_map
+from .ideal import NOPROJ_INSTRUMENTS, blend, ideal_camera, ideal_spec, noproj_spec, resample, sample_map
 from .jitreg import overlap_columns, register
 from .jitreg_files import read_offset, write_jitreg
 
@@ -36,6 +36,7 @@ class MosaicResult:
     spec: object
     shape: tuple[int, int]
     overlap: tuple[int, int]
+    ideal_source: str = "computed"
 
 
 def _open_camera(path: Path, kernels, isisdata, source):
@@ -64,8 +65,23 @@ def _kernels_group(label, isisdata) -> dict:
     return out
 
 
+def choose_spec(le_label, le_cam, re_cam, ideal: str = "auto"):
+    """``(IdealSpec, source)``: the noproj definition of the LE's instrument (``auto``/``noproj``) or the computed one."""
+    if ideal not in ("auto", "noproj", "computed"):
+        raise InputError(f"ideal camera: choose auto, noproj or computed, not {ideal!r}")
+    inst = le_label.instrument
+    key = f"{value_of(inst.get('SpacecraftName', ''))}/{value_of(inst.get('InstrumentId', ''))}".upper()
+    if ideal != "computed" and key in NOPROJ_INSTRUMENTS:
+        summing = float(value_of(inst.get("SpatialSumming", 1)) or 1)
+        return noproj_spec(le_cam, NOPROJ_INSTRUMENTS[key], summing, key), f"noproj definition {key} (seed 004)"
+    if ideal == "noproj":
+        raise InputError(f"{le_label.path}: no noproj ideal-camera definition for {key} "
+                         f"(known: {', '.join(NOPROJ_INSTRUMENTS)}); use --ideal computed")
+    return ideal_spec(le_cam, re_cam), "computed from the LE/RE camera models"
+
+
 def ideal_label(le_label, cam, spec, lines: int, so: float, lo: float, measured: bool, le: Path, re: Path,
-                isisdata) -> dict:
+                isisdata, source: str = "computed") -> dict:
     inst = le_label.instrument
     xdep = 1 if abs(spec.sample_axis[0]) >= abs(spec.sample_axis[1]) else 2
     ideal = {
@@ -81,20 +97,22 @@ def ideal_label(le_label, cam, spec, lines: int, so: float, lo: float, measured:
         "TransX0": spec.x0, "TransY0": spec.y0, "SampleAxis": list(spec.sample_axis), "LineAxis": list(spec.line_axis),
     }
     info = {"LeftCube": str(le), "RightCube": str(re), "SampleOffset": so, "LineOffset": lo,
-            "OffsetSource": "jitreg" if measured else "given",
+            "OffsetSource": "jitreg" if measured else "given", "IdealCameraSource": source,
             "OffsetConvention": "feature at RE pixel (x, y) lies at LE pixel (x + SampleOffset, y + LineOffset)"}
     return {"Instrument": ideal, "Kernels": _kernels_group(le_label, isisdata), "NacMosaic": info}
 
 
 def nac_mosaic(le: str | Path, re: str | Path, out: str | Path, offset: str | Path | tuple | None = None,
                kernels: Sequence[Path] = (), isisdata=None, source: str = "auto", height_m: float = 0.0,
-               step: int = 8, jitreg_prefix: str | Path | None = None) -> MosaicResult:
+               step: int = 8, jitreg_prefix: str | Path | None = None, ideal: str = "auto") -> MosaicResult:
     """Mosaic the LE and RE cubes into one ideal-camera cube ``out`` (see module docstring).
 
     ``offset``: a ``jitreg`` JSON, a ``(sample_offset, line_offset)`` pair, or None
     to measure it (outputs then written at ``jitreg_prefix``, default ``OUT`` without
     suffix + ``-jitreg``).  ``height_m``: height (m above 1737.4 km) of the sphere
     the ideal rays meet (ISIS uses the ellipsoid; a mean DEM height is better).
+    ``ideal``: ``auto`` (the noproj definition of a known instrument, else computed),
+    ``noproj`` (require one) or ``computed`` (see :mod:`.ideal`).
     """
     le, re, out = Path(le), Path(re), Path(out)
     re_label, re_cam, _ = _open_camera(re, kernels, isisdata, source)
@@ -103,8 +121,8 @@ def nac_mosaic(le: str | Path, re: str | Path, out: str | Path, offset: str | Pa
         le_cam = build_camera(le_label, obs.ephemeris, obs.code)
         if not le_cam.is_line_scanner:
             raise InputError(f"{le}: not a line scanner (nacmosaic mosaics the two CCDs of a push-broom camera)")
-        spec = ideal_spec(le_cam, re_cam)
-        ideal = ideal_camera(spec, obs.ephemeris, le_cam.timing, le_cam.lines)
+        spec, source = choose_spec(le_label, le_cam, re_cam, ideal)
+        ideal = ideal_camera(spec, obs.ephemeris, le_cam)
     shape = (le_cam.lines, spec.samples)
     le_img, re_img = read_band(le_label), read_band(re_label)
     le_i = resample(le_img, *sample_map(ideal, le_cam, shape, height_m, step=step))
@@ -124,5 +142,5 @@ def nac_mosaic(le: str | Path, re: str | Path, out: str | Path, offset: str | Pa
     re_i = resample(re_img, *sample_map(ideal, re_cam, shape, height_m, offset=(so, lo), step=step))
     cols = overlap_columns(le_i, re_i, crop_width=shape[1])
     mosaic = blend(le_i, re_i, cols)
-    write_cube(out, mosaic, ideal_label(le_label, le_cam, spec, shape[0], so, lo, measured, le, re, isisdata))
-    return MosaicResult(out, so, lo, measured, spec, shape, cols)
+    write_cube(out, mosaic, ideal_label(le_label, ideal, spec, shape[0], so, lo, measured, le, re, isisdata, source))
+    return MosaicResult(out, so, lo, measured, spec, shape, cols, source)
