@@ -15,7 +15,7 @@ RE boresights in the LE focal plane (seed 004: "the angle between the two camera
 mean DEM height; ISIS intersects the ellipsoid) and the ground point is projected
 into the input CCD; the mapping is computed every ``step`` pixels and
 interpolated bilinearly (it is smooth), and the CCD image is sampled with cubic
-splines.  A measured LE/RE offset ``(so, lo)`` (convention of
+splines, in blocks of lines (:mod:`.noproj`).  A measured LE/RE offset ``(so, lo)`` (convention of
 :mod:`lunaralbedo.nac.jitreg`) is applied to RE by sampling it at ideal pixel
 ``(x - so, y - lo)``: sub-pixel, in the same single resampling.
 """
@@ -23,10 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..camera.intersect import ray_sphere
 from ..camera.model import CameraModel, DetectorMap
 from ..camera.ideal import IdealSpec
-from ..constants import MOON_RADIUS_KM
 from ..errors import InputError
 
 #: ISIS ``noproj`` ideal-camera definitions (keys ``SpacecraftName/InstrumentId`` of the match cube, as the
@@ -100,38 +98,6 @@ def noproj_spec(le: CameraModel, group: dict, summing: float = 1.0, name: str = 
     samples = int(round(float(group["DetectorSamples"]) / summing))
     return IdealSpec(fp.focal_length, float(np.hypot(*sa)) * summing, samples, float(trans[0]), float(trans[1]),
                      tuple(float(v) * summing for v in sa), tuple(float(v) * summing for v in la))
-
-
-def sample_map(ideal: CameraModel, cam: CameraModel, shape, height_m: float, offset=(0.0, 0.0), step: int = 8):
-    """0-based ``(col, row)`` in ``cam``'s image of every ideal pixel, shifted by ``offset`` (see module docstring)."""
-    from scipy.ndimage import map_coordinates
-
-    lines, samples = shape
-    rs = np.unique(np.r_[np.arange(0, lines, step), lines - 1])
-    cs = np.unique(np.r_[np.arange(0, samples, step), samples - 1])
-    ll, ss = np.meshgrid(rs, cs, indexing="ij")
-    o, d = ideal.rays(ss + 1.0 - offset[0], ll + 1.0 - offset[1])
-    pts = ray_sphere(o, d, MOON_RADIUS_KM + height_m / 1000.0)
-    s, l = cam.ground_to_image(np.where(np.isfinite(pts), pts, 0.0))
-    s, l = s - 1.0, l - 1.0
-    # node index of every output pixel, then bilinear interpolation of the node values
-    ri = np.interp(np.arange(lines), rs, np.arange(rs.size))
-    ci = np.interp(np.arange(samples), cs, np.arange(cs.size))
-    grid = np.meshgrid(ri, ci, indexing="ij")
-    return tuple(map_coordinates(a, grid, order=1, mode="nearest", cval=np.nan) for a in (s, l))
-
-
-def resample(image: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
-    """``image`` at fractional 0-based ``(col, row)`` by cubic splines; NaN outside the image."""
-    from scipy.ndimage import map_coordinates
-
-    img = np.asarray(image, dtype=np.float64)
-    ok = np.isfinite(img)
-    filled = np.where(ok, img, np.nanmean(img) if ok.any() else 0.0)
-    out = map_coordinates(filled, [np.nan_to_num(row, nan=-1e6), np.nan_to_num(col, nan=-1e6)], order=3, mode="nearest")
-    h, w = img.shape
-    inside = (col >= -0.5) & (col <= w - 0.5) & (row >= -0.5) & (row <= h - 0.5)
-    return np.where(inside, out, np.nan).astype(np.float32)
 
 
 def blend(le: np.ndarray, re: np.ndarray, columns: tuple[int, int]) -> np.ndarray:

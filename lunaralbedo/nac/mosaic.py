@@ -9,6 +9,7 @@ pointing frame) and a ``NacMosaic`` group recording the inputs and the offset.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -19,10 +20,11 @@ from ..camera.build import build_camera
 from ..errors import InputError
 from ..ingest.observation import open_observation
 from ..isis.labels import value_of
-from ..isis.pixels import read_band
-from ..isis.write import Quantity, write_cube
+from ..isis.pixels import read_rows
+from ..isis.write import Quantity, write_cube_rows
 from ..spice.kernels import LABEL_KEYS, isisdata_dir, resolve_isis_path
-from .ideal import NOPROJ_INSTRUMENTS, blend, ideal_camera, ideal_spec, noproj_spec, resample, sample_map
+from .ideal import NOPROJ_INSTRUMENTS, blend, ideal_camera, ideal_spec, noproj_spec
+from .noproj import NodeMap, SplineRows, resample_rows
 from .jitreg import overlap_columns, register
 from .jitreg_files import read_offset, write_jitreg
 
@@ -80,6 +82,12 @@ def choose_spec(le_label, le_cam, re_cam, ideal: str = "auto"):
     return ideal_spec(le_cam, re_cam), "computed from the LE/RE camera models"
 
 
+def _strip(spline, nodes, columns, block_lines: int) -> np.ndarray:
+    """The CCD resampled on ideal ``columns`` ``[c0, c1)`` of all lines (for registration and the overlap)."""
+    return np.concatenate([resample_rows(spline, *nodes.coords(l0, min(nodes.shape[0], l0 + block_lines), *columns))
+                           for l0 in range(0, nodes.shape[0], block_lines)])
+
+
 def ideal_label(le_label, cam, spec, lines: int, so: float, lo: float, measured: bool, le: Path, re: Path,
                 isisdata, source: str = "computed") -> dict:
     inst = le_label.instrument
@@ -104,7 +112,8 @@ def ideal_label(le_label, cam, spec, lines: int, so: float, lo: float, measured:
 
 def nac_mosaic(le: str | Path, re: str | Path, out: str | Path, offset: str | Path | tuple | None = None,
                kernels: Sequence[Path] = (), isisdata=None, source: str = "auto", height_m: float = 0.0,
-               step: int = 8, jitreg_prefix: str | Path | None = None, ideal: str = "auto") -> MosaicResult:
+               step: int = 8, jitreg_prefix: str | Path | None = None, ideal: str = "auto",
+               block_lines: int = 256) -> MosaicResult:
     """Mosaic the LE and RE cubes into one ideal-camera cube ``out`` (see module docstring).
 
     ``offset``: a ``jitreg`` JSON, a ``(sample_offset, line_offset)`` pair, or None
@@ -112,7 +121,8 @@ def nac_mosaic(le: str | Path, re: str | Path, out: str | Path, offset: str | Pa
     suffix + ``-jitreg``).  ``height_m``: height (m above 1737.4 km) of the sphere
     the ideal rays meet (ISIS uses the ellipsoid; a mean DEM height is better).
     ``ideal``: ``auto`` (the noproj definition of a known instrument, else computed),
-    ``noproj`` (require one) or ``computed`` (see :mod:`.ideal`).
+    ``noproj`` (require one) or ``computed`` (see :mod:`.ideal`).  ``block_lines``: ideal
+    lines resampled at a time (memory; the output does not depend on it, see :mod:`.noproj`).
     """
     le, re, out = Path(le), Path(re), Path(out)
     re_label, re_cam, _ = _open_camera(re, kernels, isisdata, source)
@@ -124,12 +134,17 @@ def nac_mosaic(le: str | Path, re: str | Path, out: str | Path, offset: str | Pa
         spec, source = choose_spec(le_label, le_cam, re_cam, ideal)
         ideal = ideal_camera(spec, obs.ephemeris, le_cam)
     shape = (le_cam.lines, spec.samples)
-    le_img, re_img = read_band(le_label), read_band(re_label)
-    le_i = resample(le_img, *sample_map(ideal, le_cam, shape, height_m, step=step))
+    splines = {k: SplineRows(lambda a, b, lab=lab: read_rows(lab, a, b), lab.shape[1:])
+               for k, lab in (("le", le_label), ("re", re_label))}
+    maps = {"le": NodeMap(ideal, le_cam, shape, height_m, step=step), "re": NodeMap(ideal, re_cam, shape, height_m, step=step)}
+    both = np.flatnonzero(maps["le"].valid_columns() & maps["re"].valid_columns())
+    if both.size == 0:
+        raise InputError(f"{le}, {re}: the LE and RE CCDs do not overlap on the ideal camera")
+    strip = (max(0, int(both[0]) - 2 * step), min(shape[1], int(both[-1]) + 1 + 2 * step))
     measured = offset is None
     if measured:
-        re_i = resample(re_img, *sample_map(ideal, re_cam, shape, height_m, step=step))
-        result = register(le_i, re_i)
+        result = register(_strip(splines["le"], maps["le"], strip, block_lines), _strip(splines["re"], maps["re"], strip, block_lines))
+        result = dataclasses.replace(result, columns=tuple(c + strip[0] for c in result.columns))
         prefix = Path(jitreg_prefix) if jitreg_prefix else out.with_name(out.stem + "-jitreg")
         s = write_jitreg(prefix, result, le, re)
         so, lo = s["sample_offset"], s["line_offset"]
@@ -139,8 +154,17 @@ def nac_mosaic(le: str | Path, re: str | Path, out: str | Path, offset: str | Pa
         so, lo = read_offset(offset)
     else:
         so, lo = (float(v) for v in offset)
-    re_i = resample(re_img, *sample_map(ideal, re_cam, shape, height_m, offset=(so, lo), step=step))
-    cols = overlap_columns(le_i, re_i, crop_width=shape[1])
-    mosaic = blend(le_i, re_i, cols)
-    write_cube(out, mosaic, ideal_label(le_label, ideal, spec, shape[0], so, lo, measured, le, re, isisdata, source))
+    maps["re"] = NodeMap(ideal, re_cam, shape, height_m, offset=(so, lo), step=step)
+    a, b = overlap_columns(_strip(splines["le"], maps["le"], strip, block_lines),
+                           _strip(splines["re"], maps["re"], strip, block_lines), crop_width=shape[1])
+    cols = (a + strip[0], b + strip[0])
+
+    def blocks():
+        for l0 in range(0, shape[0], block_lines):
+            l1 = min(shape[0], l0 + block_lines)
+            le_i, re_i = (resample_rows(splines[k], *maps[k].coords(l0, l1)) for k in ("le", "re"))
+            yield blend(le_i, re_i, cols)
+
+    write_cube_rows(out, shape, ideal_label(le_label, ideal, spec, shape[0], so, lo, measured, le, re, isisdata,
+                                            source), blocks())
     return MosaicResult(out, so, lo, measured, spec, shape, cols, source)
