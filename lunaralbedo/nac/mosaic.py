@@ -17,6 +17,7 @@ from typing import Sequence
 import numpy as np
 
 from ..camera.build import build_camera
+from ..camera.ideal import IdealSpec
 from ..errors import InputError
 from ..ingest.observation import open_observation
 from ..isis.labels import value_of
@@ -31,13 +32,18 @@ from .jitreg_files import read_offset, write_jitreg
 
 @dataclass
 class MosaicResult:
+    """What :func:`nac_mosaic` wrote (the ideal camera's numbers are in ``spec``, not repeated here)."""
+
     path: Path
+    shape: tuple[int, int]  # ideal lines, samples
+    overlap: tuple[int, int]  # blended columns [start, stop)
+
+    # RE offset applied (pixels, convention of .jitreg), measured by jitreg or given
     sample_offset: float
     line_offset: float
     measured: bool
-    spec: object
-    shape: tuple[int, int]
-    overlap: tuple[int, int]
+
+    spec: IdealSpec
     ideal_source: str = "computed"
 
 
@@ -167,4 +173,4 @@ def nac_mosaic(le: str | Path, re: str | Path, out: str | Path, offset: str | Pa
 
     write_cube_rows(out, shape, ideal_label(le_label, ideal, spec, shape[0], so, lo, measured, le, re, isisdata,
                                             source), blocks())
-    return MosaicResult(out, so, lo, measured, spec, shape, cols, source)
+    return MosaicResult(out, shape, cols, so, lo, measured, spec, source)

@@ -101,7 +101,7 @@ class SplineRows:
         from scipy.ndimage import spline_filter1d
 
         if k not in self._cache:
-            if len(self._cache) > 3:
+            if len(self._cache) > 1:
                 self._cache.pop(min(self._cache))
             h = self.shape[0]
             t0, t1 = k * TILE_ROWS, min(h, (k + 1) * TILE_ROWS)
