@@ -23,7 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
 from lunaralbedo.nac.align import icp  # noqa: E402
 from lunaralbedo.nac.jitreg import register  # noqa: E402
@@ -47,7 +48,7 @@ def bench_jitreg(lines: int) -> None:
 
 
 def bench_mosaic(lines: int, whole: bool = True) -> None:
-    import resource
+    import os
     import subprocess
     import tempfile
 
@@ -59,19 +60,18 @@ def bench_mosaic(lines: int, whole: bool = True) -> None:
         p = build_pair(Path(tmp), samples=5064, overlap=135, lines=lines, ahead=3.0, focal_mm=1000.0,
                        line_rate=0.0005, rendered=False)
         for block in (256, lines) if whole else (256,):
-            before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
             out = Path(tmp) / f"m{block}.cub"
             t = time.perf_counter()
-            subprocess.run([sys.executable, "-m", "lunaralbedo.cli", "nacmosaic", str(p.le), str(p.re), "-o", str(out),
-                            "--offset", str(_offset_file(Path(tmp))), "--block-lines", str(block)], check=True,
-                           capture_output=True, env={**__import__("os").environ,
-                                                     "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+            child = subprocess.Popen([sys.executable, "-m", "lunaralbedo.cli", "nacmosaic", str(p.le), str(p.re), "-o",
+                                      str(out), "--offset", str(_offset_file(Path(tmp))), "--block-lines", str(block)],
+                                     stdout=subprocess.DEVNULL, env={**os.environ, "PYTHONPATH": str(ROOT)})
+            _pid, status, usage = os.wait4(child.pid, 0)  # this child's own peak RSS (KiB on Linux)
             dt = time.perf_counter() - t
-            rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+            if status != 0:
+                raise SystemExit(f"nacmosaic failed (status {status})")
             _b, nl, ns = read_label(out).shape
             print(f"nacmosaic: 2 x 5064 x {lines} px -> {ns} x {nl} ideal pixels, blocks of {block} lines: {dt:.1f} s = "
-                  f"{lines / dt:,.0f} lines/s, peak RSS {max(rss, before) / 1024:,.0f} MB"
-                  + (" (largest child so far)" if rss <= before else ""))
+                  f"{lines / dt:,.0f} lines/s, peak RSS {usage.ru_maxrss / 1024:,.0f} MB")
 
 
 def _offset_file(d: Path) -> Path:
