@@ -1,6 +1,6 @@
 """``nacmosaic``: LE + RE cubes -> one ideal-camera ISIS cube (``noproj`` + ``lronacjitreg`` + ``handmos``).
 
-Orchestration only (math in :mod:`.ideal` and :mod:`.jitreg`).  Each cube is opened
+Orchestration only (math in :mod:`.ideal`, :mod:`.noproj` and :mod:`.jitreg`).  Each cube is opened
 with its kernels (as ``ingest`` does), its camera built, then the kernel pool is
 released; the ideal camera uses the LE's ephemeris and timing.  The output label
 has an ISIS ``IdealCamera`` Instrument group (see :mod:`lunaralbedo.camera.ideal`),
@@ -137,19 +137,20 @@ def nac_mosaic(le: str | Path, re: str | Path, out: str | Path, offset: str | Pa
         le_cam = build_camera(le_label, obs.ephemeris, obs.code)
         if not le_cam.is_line_scanner:
             raise InputError(f"{le}: not a line scanner (nacmosaic mosaics the two CCDs of a push-broom camera)")
-        spec, source = choose_spec(le_label, le_cam, re_cam, ideal)
-        ideal = ideal_camera(spec, obs.ephemeris, le_cam)
+        spec, ideal_source = choose_spec(le_label, le_cam, re_cam, ideal)
+        ideal_cam = ideal_camera(spec, obs.ephemeris, le_cam)
     shape = (le_cam.lines, spec.samples)
     splines = {k: SplineRows(lambda a, b, lab=lab: read_rows(lab, a, b), lab.shape[1:])
                for k, lab in (("le", le_label), ("re", re_label))}
-    maps = {"le": NodeMap(ideal, le_cam, shape, height_m, step=step), "re": NodeMap(ideal, re_cam, shape, height_m, step=step)}
+    maps = {k: NodeMap(ideal_cam, cam, shape, height_m, step=step) for k, cam in (("le", le_cam), ("re", re_cam))}
     both = np.flatnonzero(maps["le"].valid_columns() & maps["re"].valid_columns())
     if both.size == 0:
         raise InputError(f"{le}, {re}: the LE and RE CCDs do not overlap on the ideal camera")
     strip = (max(0, int(both[0]) - 2 * step), min(shape[1], int(both[-1]) + 1 + 2 * step))
+    le_strip = _strip(splines["le"], maps["le"], strip, block_lines)
     measured = offset is None
     if measured:
-        result = register(_strip(splines["le"], maps["le"], strip, block_lines), _strip(splines["re"], maps["re"], strip, block_lines))
+        result = register(le_strip, _strip(splines["re"], maps["re"], strip, block_lines))
         result = dataclasses.replace(result, columns=tuple(c + strip[0] for c in result.columns))
         prefix = Path(jitreg_prefix) if jitreg_prefix else out.with_name(out.stem + "-jitreg")
         s = write_jitreg(prefix, result, le, re)
@@ -160,9 +161,8 @@ def nac_mosaic(le: str | Path, re: str | Path, out: str | Path, offset: str | Pa
         so, lo = read_offset(offset)
     else:
         so, lo = (float(v) for v in offset)
-    maps["re"] = NodeMap(ideal, re_cam, shape, height_m, offset=(so, lo), step=step)
-    a, b = overlap_columns(_strip(splines["le"], maps["le"], strip, block_lines),
-                           _strip(splines["re"], maps["re"], strip, block_lines), crop_width=shape[1])
+    maps["re"] = NodeMap(ideal_cam, re_cam, shape, height_m, offset=(so, lo), step=step)
+    a, b = overlap_columns(le_strip, _strip(splines["re"], maps["re"], strip, block_lines), crop_width=shape[1])
     cols = (a + strip[0], b + strip[0])
 
     def blocks():
@@ -171,6 +171,6 @@ def nac_mosaic(le: str | Path, re: str | Path, out: str | Path, offset: str | Pa
             le_i, re_i = (resample_rows(splines[k], *maps[k].coords(l0, l1)) for k in ("le", "re"))
             yield blend(le_i, re_i, cols)
 
-    write_cube_rows(out, shape, ideal_label(le_label, ideal, spec, shape[0], so, lo, measured, le, re, isisdata,
-                                            source), blocks())
-    return MosaicResult(out, shape, cols, so, lo, measured, spec, source)
+    write_cube_rows(out, shape, ideal_label(le_label, ideal_cam, spec, shape[0], so, lo, measured, le, re, isisdata,
+                                            ideal_source), blocks())
+    return MosaicResult(out, shape, cols, so, lo, measured, spec, ideal_source)

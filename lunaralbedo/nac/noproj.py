@@ -73,11 +73,11 @@ class NodeMap:
         grid = np.meshgrid(ri - i0, ci, indexing="ij")
         return tuple(map_coordinates(a, grid, order=1, mode="nearest") for a in self.nodes(i0, i1))
 
-    def valid_columns(self, rows=3) -> np.ndarray:
-        """Ideal columns seen by the CCD on a few node rows (first, middle and last chunks), bool per column."""
+    def valid_columns(self) -> np.ndarray:
+        """Ideal columns seen by the CCD on the first, middle and last node rows, bool per column."""
         n = self.rs.size
         seen = np.zeros(self.cs.size, bool)
-        for i in sorted({0, n // 2, n - 1})[:rows]:
+        for i in sorted({0, n // 2, n - 1}):
             s, l = self.nodes(i, i + 1)
             h, w = self.cam.lines, self.cam.samples
             seen |= ((s >= -0.5) & (s <= w - 0.5) & (l >= -0.5) & (l <= h - 0.5))[0]
