@@ -29,5 +29,5 @@ def command(source, reference, prefix, max_displacement, method, translation_onl
     """Rigid transform (Moon body-fixed metres) that moves the SOURCE DEM onto the reference."""
     from ..nac.align_files import align_files
 
-    r = align_files(source, reference, prefix, max_displacement, method, translation_only, outlier_ratio, dem_values)
-    click.echo(open(f"{prefix}-log.txt").read().rstrip())
+    align_files(source, reference, prefix, max_displacement, method, translation_only, outlier_ratio, dem_values)
+    click.echo(Path(f"{prefix}-log.txt").read_text().rstrip())

@@ -69,7 +69,7 @@ def plot_exposures(path: Path, keys: Sequence[str], exposure: np.ndarray, initia
     ax.set_title("Estimated relative exposure times")
     ax.legend()
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def plot_cost(path: Path, q: Sequence[float]) -> None:
@@ -89,10 +89,11 @@ def plot_cost(path: Path, q: Sequence[float]) -> None:
     ax.set_title("Convergence")
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
 
 
-def _save(fig, path: Path) -> None:
+def save_figure(fig, path: Path) -> None:
+    """Write a matplotlib figure as PNG (110 dpi) atomically and close it."""
     import matplotlib.pyplot as plt
 
     with atomic_path(path) as tmp:

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import InputError
 from .atomic import atomic_write_text
-from .outputs import _save
+from .outputs import save_figure
 
 
 def write_response_csv(path: Path, dn: np.ndarray, g: np.ndarray, se_log_g: np.ndarray, count: np.ndarray,
@@ -109,7 +109,7 @@ def plot_response(path: Path, dn: np.ndarray, g: np.ndarray, g_initial: np.ndarr
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def plot_loglik(path: Path, loglik: Sequence[float], n_juggle: int) -> None:
@@ -126,7 +126,7 @@ def plot_loglik(path: Path, loglik: Sequence[float], n_juggle: int) -> None:
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def plot_residuals(path: Path, dn: np.ndarray, residuals: dict) -> None:
@@ -144,4 +144,4 @@ def plot_residuals(path: Path, dn: np.ndarray, residuals: dict) -> None:
     a2.set_ylabel("observations")
     a2.set_xlabel("pixel value z (DN)")
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)

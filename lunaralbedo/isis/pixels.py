@@ -46,6 +46,13 @@ def special_mask(stored: np.ndarray, pixel_type: str) -> np.ndarray:
 
 def read_band(label: IsisLabel | str | Path, band: int = 1) -> np.ndarray:
     """Band ``band`` (1-based) of a cube as float64 physical values, NaN at special pixels."""
+    return read_rows(label, None, None, band)
+
+
+def read_rows(label: IsisLabel | str | Path, start: int | None, stop: int | None, band: int = 1) -> np.ndarray:
+    """Lines ``[start, stop)`` (0-based; None: all) of band ``band`` as in :func:`read_band`, read by a window."""
+    from rasterio.windows import Window
+
     if not isinstance(label, IsisLabel):
         label = read_label(label)
     data_path = label.data_path
@@ -57,7 +64,9 @@ def read_band(label: IsisLabel | str | Path, band: int = 1) -> np.ndarray:
             with rasterio.open(data_path) as ds:
                 if not 1 <= band <= ds.count:
                     raise IsisError(f"{data_path}: band {band} out of range 1..{ds.count}")
-                stored = ds.read(band, masked=False)
+                window = None if start is None and stop is None else \
+                    Window(0, start or 0, ds.width, (ds.height if stop is None else stop) - (start or 0))
+                stored = ds.read(band, window=window, masked=False)
     except RasterioIOError as exc:
         raise IsisError(f"{data_path}: GDAL cannot read the cube: {exc}") from None
     base, mult = label.base_multiplier

@@ -5,13 +5,13 @@ Special pixels: NaN values are written as ISIS NULL.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 import datetime as _dt
 
 import numpy as np
 
-from ..io.atomic import atomic_write_bytes
+from ..io.atomic import atomic_path
 from .labels import time_string
 
 ISIS_NULL_REAL = np.frombuffer(np.uint32(0xFF7FFFFB).tobytes(), "<f4")[0]
@@ -55,7 +55,14 @@ def _group(name: str, values: Mapping[str, Any], indent: str = "  ") -> str:
 def write_cube(path: str | Path, data: np.ndarray, groups: Mapping[str, Mapping[str, Any]]) -> None:
     """Write a one-band float32 cube with extra label groups (e.g. Instrument, Kernels), atomically."""
     data = np.asarray(data, dtype="<f4")
-    lines, samples = data.shape
+    write_cube_rows(path, data.shape, groups, [data])
+
+
+def write_cube_rows(path: str | Path, shape: tuple[int, int], groups: Mapping[str, Mapping[str, Any]],
+                    blocks: Iterable[np.ndarray]) -> None:
+    """:func:`write_cube` from consecutive blocks of lines (``(n, samples)`` arrays, ``shape[0]`` lines in all),
+    so that the image never has to be in memory; atomic (temp file + rename) like :func:`write_cube`."""
+    lines, samples = shape
     core = (
         "Object = IsisCube\n  Object = Core\n"
         f"    StartByte   = {_LABEL_BYTES + 1}\n    Format      = BandSequential\n"
@@ -69,5 +76,14 @@ def write_cube(path: str | Path, data: np.ndarray, groups: Mapping[str, Mapping[
     raw = text.encode("ascii")
     if len(raw) > _LABEL_BYTES:
         raise ValueError(f"label of {path} is longer than {_LABEL_BYTES} bytes")
-    pixels = np.where(np.isfinite(data), data, ISIS_NULL_REAL).astype("<f4")
-    atomic_write_bytes(path, raw + b"\0" * (_LABEL_BYTES - len(raw)) + pixels.tobytes())
+    written = 0
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        f.write(raw + b"\0" * (_LABEL_BYTES - len(raw)))
+        for block in blocks:
+            block = np.asarray(block, dtype="<f4")
+            if block.ndim != 2 or block.shape[1] != samples:
+                raise ValueError(f"{path}: block of shape {block.shape}, expected (n, {samples})")
+            f.write(np.where(np.isfinite(block), block, ISIS_NULL_REAL).astype("<f4").tobytes())
+            written += block.shape[0]
+        if written != lines:
+            raise ValueError(f"{path}: {written} lines written, {lines} expected")

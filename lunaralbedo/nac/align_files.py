@@ -22,7 +22,7 @@ from ..constants import MOON_RADIUS_M
 from ..errors import InputError
 from ..ingest.dem import DemSource, load_dems
 from ..io.atomic import atomic_write_text
-from ..io.outputs import _save
+from ..io.outputs import save_figure
 from ..io.rasters import write_geotiff
 from ..model.geometry import body_fixed, dem_normals, lonlat_height
 from .align import apply, ce90_le90, error_stats, icp
@@ -141,7 +141,7 @@ def plot_errors(path: Path, beg: np.ndarray, end: np.ndarray) -> None:
     ax.legend()
     ax.set_title("DEM vs reference before and after alignment")
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def _log_text(report: dict) -> str:

@@ -5,15 +5,17 @@ focal length, no distortion, one row of ``samples`` detectors of the LE's pixel
 pitch whose centre sits at focal-plane offset ``(x0, y0)`` mm from the LE's
 boresight (ISIS's ``TransX0``/``TransY0``; seed 004's NAC values are
 ``TransY = 16.8833`` mm, ``TransX = 0.6475`` mm, ``DetectorSamples = 10000``,
-7 um pixels).  The offset is half-way between the LE and RE boresights in the LE
-focal plane (seed 004: "the angle between the two cameras ... divide by two"),
-computed here from the two camera models rather than typed in.
+7 um pixels).  For a pair listed in :data:`NOPROJ_INSTRUMENTS` (the real LRO NAC) those
+typed numbers are used, as ISIS ``noproj`` reads them from ``noprojInstruments*.pvl``
+(:func:`noproj_spec`); for any other pair the offset is half-way between the LE and
+RE boresights in the LE focal plane (seed 004: "the angle between the two cameras
+... divide by two"), computed from the two camera models (:func:`ideal_spec`).
 
 ``noproj``: every ideal pixel's ray meets the sphere of radius ``R + h`` (``h`` the
 mean DEM height; ISIS intersects the ellipsoid) and the ground point is projected
 into the input CCD; the mapping is computed every ``step`` pixels and
 interpolated bilinearly (it is smooth), and the CCD image is sampled with cubic
-splines.  A measured LE/RE offset ``(so, lo)`` (convention of
+splines, in blocks of lines (:mod:`.noproj`).  A measured LE/RE offset ``(so, lo)`` (convention of
 :mod:`lunaralbedo.nac.jitreg`) is applied to RE by sampling it at ideal pixel
 ``(x - so, y - lo)``: sub-pixel, in the same single resampling.
 """
@@ -21,15 +23,32 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..camera.intersect import ray_sphere
 from ..camera.model import CameraModel, DetectorMap
 from ..camera.ideal import IdealSpec
-from ..constants import MOON_RADIUS_KM
+from ..errors import InputError
+
+#: ISIS ``noproj`` ideal-camera definitions (keys ``SpacecraftName/InstrumentId`` of the match cube, as the
+#: groups of ``noprojInstruments*.pvl``): seed 004's LRO NAC numbers, also written by ASP's ``lronac2mosaic.py``.
+#: ``TransX``/``TransY`` in mm (focal-plane position of the ideal detector centre, LE frame), ``ItransS``/``ItransL``
+#: the same in unsummed pixels (``-Trans / pitch``), ``DetectorSamples`` unsummed.
+NOPROJ_INSTRUMENTS = {
+    "LUNAR RECONNAISSANCE ORBITER/NACL": {"TransY": 16.8833, "ItransS": -2411.9, "TransX": 0.6475, "ItransL": -92.5,
+                                         "DetectorSamples": 10000},
+}
 
 
-def ideal_camera(spec: IdealSpec, ephemeris, timing, lines: int) -> CameraModel:
-    """A line-scan :class:`CameraModel` of ``spec`` on the match camera's ephemeris and line timing."""
-    return CameraModel(spec.focal_plane(), DetectorMap(), (lines, spec.samples), ephemeris, timing=timing)
+def ideal_camera(spec: IdealSpec, ephemeris, match: CameraModel) -> CameraModel:
+    """A line-scan :class:`CameraModel` of ``spec`` on the match camera's ephemeris, one line per match cube line.
+
+    Ideal line ``L`` is exposed when the match cube's line ``L`` is (also for a cropped or
+    line-summed match cube: the ideal camera has no AlphaCube).
+    """
+    from ..camera.model import LineTiming
+
+    mid = (match.samples + 1) / 2.0
+    et0, et1 = (float(match.pixel_et(mid, l)) for l in (0.5, 1.5))
+    return CameraModel(spec.focal_plane(), DetectorMap(), (match.lines, spec.samples), ephemeris,
+                       timing=LineTiming(et0=et0, rate=et1 - et0))
 
 
 def _focal_xy(v):
@@ -61,36 +80,24 @@ def ideal_spec(le: CameraModel, re: CameraModel, margin: int = 2) -> IdealSpec:
     return IdealSpec(f, pitch, 2 * half, x0, y0, (sx, sy), (fp.transx[2], fp.transy[2]))
 
 
-def sample_map(ideal: CameraModel, cam: CameraModel, shape, height_m: float, offset=(0.0, 0.0), step: int = 8):
-    """0-based ``(col, row)`` in ``cam``'s image of every ideal pixel, shifted by ``offset`` (see module docstring)."""
-    from scipy.ndimage import map_coordinates
+def noproj_spec(le: CameraModel, group: dict, summing: float = 1.0, name: str = "noproj definition") -> IdealSpec:
+    """The ideal camera of an ISIS ``noproj`` definition ``group`` (keys of :data:`NOPROJ_INSTRUMENTS`) on ``le``.
 
-    lines, samples = shape
-    rs = np.unique(np.r_[np.arange(0, lines, step), lines - 1])
-    cs = np.unique(np.r_[np.arange(0, samples, step), samples - 1])
-    ll, ss = np.meshgrid(rs, cs, indexing="ij")
-    o, d = ideal.rays(ss + 1.0 - offset[0], ll + 1.0 - offset[1])
-    pts = ray_sphere(o, d, MOON_RADIUS_KM + height_m / 1000.0)
-    s, l = cam.ground_to_image(np.where(np.isfinite(pts), pts, 0.0))
-    s, l = s - 1.0, l - 1.0
-    # node index of every output pixel, then bilinear interpolation of the node values
-    ri = np.interp(np.arange(lines), rs, np.arange(rs.size))
-    ci = np.interp(np.arange(samples), cs, np.arange(cs.size))
-    grid = np.meshgrid(ri, ci, indexing="ij")
-    return tuple(map_coordinates(a, grid, order=1, mode="nearest", cval=np.nan) for a in (s, l))
-
-
-def resample(image: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
-    """``image`` at fractional 0-based ``(col, row)`` by cubic splines; NaN outside the image."""
-    from scipy.ndimage import map_coordinates
-
-    img = np.asarray(image, dtype=np.float64)
-    ok = np.isfinite(img)
-    filled = np.where(ok, img, np.nanmean(img) if ok.any() else 0.0)
-    out = map_coordinates(filled, [np.nan_to_num(row, nan=-1e6), np.nan_to_num(col, nan=-1e6)], order=3, mode="nearest")
-    h, w = img.shape
-    inside = (col >= -0.5) & (col <= w - 0.5) & (row >= -0.5) & (row <= h - 0.5)
-    return np.where(inside, out, np.nan).astype(np.float32)
+    As ``noproj``: ``TransX0 = TransX``, ``TransY0 = TransY`` (mm), the pitch and axes are the
+    match camera's (times ``summing``), ``DetectorSamples / summing`` samples.  ``ItransS``
+    and ``ItransL`` must be ``-Trans / pitch`` of the axis that follows samples and lines
+    (seed 004: if they do not match, "funny errors will occur"); InputError otherwise.
+    """
+    fp = le.focal
+    sa, la = np.array([fp.transx[1], fp.transy[1]]), np.array([fp.transx[2], fp.transy[2]])
+    trans = np.array([float(group.get("TransX", 0.0)), float(group.get("TransY", 0.0))])
+    for key, axis in (("ItransS", sa), ("ItransL", la)):
+        expect = -float(trans @ axis) / float(axis @ axis)
+        if key in group and abs(float(group[key]) - expect) > 0.05:
+            raise InputError(f"{name}: {key} = {group[key]} does not match TransX/TransY ({expect:.2f} px expected)")
+    samples = int(round(float(group["DetectorSamples"]) / summing))
+    return IdealSpec(fp.focal_length, float(np.hypot(*sa)) * summing, samples, float(trans[0]), float(trans[1]),
+                     tuple(float(v) * summing for v in sa), tuple(float(v) * summing for v in la))
 
 
 def blend(le: np.ndarray, re: np.ndarray, columns: tuple[int, int]) -> np.ndarray:

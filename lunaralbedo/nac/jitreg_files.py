@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io.atomic import atomic_write_text
-from ..io.outputs import _save
+from ..io.outputs import save_figure
 from .jitreg import JitterResult
 
 
@@ -81,7 +81,7 @@ def plot_jitter(path: Path, result: JitterResult, title: str = "LE/RE offset alo
     axes[1].set_xlabel("line (0-based row of the ideal-camera grid)")
     axes[0].set_title(title)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def write_jitreg(prefix: str | Path, result: JitterResult, le: Path, re: Path, output_log: Path | None = None) -> dict:

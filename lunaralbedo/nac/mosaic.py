@@ -1,6 +1,6 @@
 """``nacmosaic``: LE + RE cubes -> one ideal-camera ISIS cube (``noproj`` + ``lronacjitreg`` + ``handmos``).
 
-Orchestration only (math in :mod:`.ideal` and :mod:`.jitreg`).  Each cube is opened
+Orchestration only (math in :mod:`.ideal`, :mod:`.noproj` and :mod:`.jitreg`).  Each cube is opened
 with its kernels (as ``ingest`` does), its camera built, then the kernel pool is
 released; the ideal camera uses the LE's ephemeris and timing.  The output label
 has an ISIS ``IdealCamera`` Instrument group (see :mod:`lunaralbedo.camera.ideal`),
@@ -9,6 +9,7 @@ pointing frame) and a ``NacMosaic`` group recording the inputs and the offset.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -16,26 +17,34 @@ from typing import Sequence
 import numpy as np
 
 from ..camera.build import build_camera
+from ..camera.ideal import IdealSpec
 from ..errors import InputError
 from ..ingest.observation import open_observation
 from ..isis.labels import value_of
-from ..isis.pixels import read_band
-from ..isis.write import Quantity, write_cube
+from ..isis.pixels import read_rows
+from ..isis.write import Quantity, write_cube_rows
 from ..spice.kernels import LABEL_KEYS, isisdata_dir, resolve_isis_path
-from .ideal import blend, ideal_camera, ideal_spec, resample, sample_map
+from .ideal import NOPROJ_INSTRUMENTS, blend, ideal_camera, ideal_spec, noproj_spec
+from .noproj import NodeMap, SplineRows, resample_rows
 from .jitreg import overlap_columns, register
 from .jitreg_files import read_offset, write_jitreg
 
 
 @dataclass
 class MosaicResult:
+    """What :func:`nac_mosaic` wrote (the ideal camera's numbers are in ``spec``, not repeated here)."""
+
     path: Path
+    shape: tuple[int, int]  # ideal lines, samples
+    overlap: tuple[int, int]  # blended columns [start, stop)
+
+    # RE offset applied (pixels, convention of .jitreg), measured by jitreg or given
     sample_offset: float
     line_offset: float
     measured: bool
-    spec: object
-    shape: tuple[int, int]
-    overlap: tuple[int, int]
+
+    spec: IdealSpec
+    ideal_source: str = "computed"
 
 
 def _open_camera(path: Path, kernels, isisdata, source):
@@ -64,8 +73,29 @@ def _kernels_group(label, isisdata) -> dict:
     return out
 
 
+def choose_spec(le_label, le_cam, re_cam, ideal: str = "auto"):
+    """``(IdealSpec, source)``: the noproj definition of the LE's instrument (``auto``/``noproj``) or the computed one."""
+    if ideal not in ("auto", "noproj", "computed"):
+        raise InputError(f"ideal camera: choose auto, noproj or computed, not {ideal!r}")
+    inst = le_label.instrument
+    key = f"{value_of(inst.get('SpacecraftName', ''))}/{value_of(inst.get('InstrumentId', ''))}".upper()
+    if ideal != "computed" and key in NOPROJ_INSTRUMENTS:
+        summing = float(value_of(inst.get("SpatialSumming", 1)) or 1)
+        return noproj_spec(le_cam, NOPROJ_INSTRUMENTS[key], summing, key), f"noproj definition {key} (seed 004)"
+    if ideal == "noproj":
+        raise InputError(f"{le_label.path}: no noproj ideal-camera definition for {key} "
+                         f"(known: {', '.join(NOPROJ_INSTRUMENTS)}); use --ideal computed")
+    return ideal_spec(le_cam, re_cam), "computed from the LE/RE camera models"
+
+
+def _strip(spline, nodes, columns, block_lines: int) -> np.ndarray:
+    """The CCD resampled on ideal ``columns`` ``[c0, c1)`` of all lines (for registration and the overlap)."""
+    return np.concatenate([resample_rows(spline, *nodes.coords(l0, min(nodes.shape[0], l0 + block_lines), *columns))
+                           for l0 in range(0, nodes.shape[0], block_lines)])
+
+
 def ideal_label(le_label, cam, spec, lines: int, so: float, lo: float, measured: bool, le: Path, re: Path,
-                isisdata) -> dict:
+                isisdata, source: str = "computed") -> dict:
     inst = le_label.instrument
     xdep = 1 if abs(spec.sample_axis[0]) >= abs(spec.sample_axis[1]) else 2
     ideal = {
@@ -81,20 +111,24 @@ def ideal_label(le_label, cam, spec, lines: int, so: float, lo: float, measured:
         "TransX0": spec.x0, "TransY0": spec.y0, "SampleAxis": list(spec.sample_axis), "LineAxis": list(spec.line_axis),
     }
     info = {"LeftCube": str(le), "RightCube": str(re), "SampleOffset": so, "LineOffset": lo,
-            "OffsetSource": "jitreg" if measured else "given",
+            "OffsetSource": "jitreg" if measured else "given", "IdealCameraSource": source,
             "OffsetConvention": "feature at RE pixel (x, y) lies at LE pixel (x + SampleOffset, y + LineOffset)"}
     return {"Instrument": ideal, "Kernels": _kernels_group(le_label, isisdata), "NacMosaic": info}
 
 
 def nac_mosaic(le: str | Path, re: str | Path, out: str | Path, offset: str | Path | tuple | None = None,
                kernels: Sequence[Path] = (), isisdata=None, source: str = "auto", height_m: float = 0.0,
-               step: int = 8, jitreg_prefix: str | Path | None = None) -> MosaicResult:
+               step: int = 8, jitreg_prefix: str | Path | None = None, ideal: str = "auto",
+               block_lines: int = 256) -> MosaicResult:
     """Mosaic the LE and RE cubes into one ideal-camera cube ``out`` (see module docstring).
 
     ``offset``: a ``jitreg`` JSON, a ``(sample_offset, line_offset)`` pair, or None
     to measure it (outputs then written at ``jitreg_prefix``, default ``OUT`` without
     suffix + ``-jitreg``).  ``height_m``: height (m above 1737.4 km) of the sphere
     the ideal rays meet (ISIS uses the ellipsoid; a mean DEM height is better).
+    ``ideal``: ``auto`` (the noproj definition of a known instrument, else computed),
+    ``noproj`` (require one) or ``computed`` (see :mod:`.ideal`).  ``block_lines``: ideal
+    lines resampled at a time (memory; the output does not depend on it, see :mod:`.noproj`).
     """
     le, re, out = Path(le), Path(re), Path(out)
     re_label, re_cam, _ = _open_camera(re, kernels, isisdata, source)
@@ -103,15 +137,21 @@ def nac_mosaic(le: str | Path, re: str | Path, out: str | Path, offset: str | Pa
         le_cam = build_camera(le_label, obs.ephemeris, obs.code)
         if not le_cam.is_line_scanner:
             raise InputError(f"{le}: not a line scanner (nacmosaic mosaics the two CCDs of a push-broom camera)")
-        spec = ideal_spec(le_cam, re_cam)
-        ideal = ideal_camera(spec, obs.ephemeris, le_cam.timing, le_cam.lines)
+        spec, ideal_source = choose_spec(le_label, le_cam, re_cam, ideal)
+        ideal_cam = ideal_camera(spec, obs.ephemeris, le_cam)
     shape = (le_cam.lines, spec.samples)
-    le_img, re_img = read_band(le_label), read_band(re_label)
-    le_i = resample(le_img, *sample_map(ideal, le_cam, shape, height_m, step=step))
+    splines = {k: SplineRows(lambda a, b, lab=lab: read_rows(lab, a, b), lab.shape[1:])
+               for k, lab in (("le", le_label), ("re", re_label))}
+    maps = {k: NodeMap(ideal_cam, cam, shape, height_m, step=step) for k, cam in (("le", le_cam), ("re", re_cam))}
+    both = np.flatnonzero(maps["le"].valid_columns() & maps["re"].valid_columns())
+    if both.size == 0:
+        raise InputError(f"{le}, {re}: the LE and RE CCDs do not overlap on the ideal camera")
+    strip = (max(0, int(both[0]) - 2 * step), min(shape[1], int(both[-1]) + 1 + 2 * step))
+    le_strip = _strip(splines["le"], maps["le"], strip, block_lines)
     measured = offset is None
     if measured:
-        re_i = resample(re_img, *sample_map(ideal, re_cam, shape, height_m, step=step))
-        result = register(le_i, re_i)
+        result = register(le_strip, _strip(splines["re"], maps["re"], strip, block_lines))
+        result = dataclasses.replace(result, columns=tuple(c + strip[0] for c in result.columns))
         prefix = Path(jitreg_prefix) if jitreg_prefix else out.with_name(out.stem + "-jitreg")
         s = write_jitreg(prefix, result, le, re)
         so, lo = s["sample_offset"], s["line_offset"]
@@ -121,8 +161,16 @@ def nac_mosaic(le: str | Path, re: str | Path, out: str | Path, offset: str | Pa
         so, lo = read_offset(offset)
     else:
         so, lo = (float(v) for v in offset)
-    re_i = resample(re_img, *sample_map(ideal, re_cam, shape, height_m, offset=(so, lo), step=step))
-    cols = overlap_columns(le_i, re_i, crop_width=shape[1])
-    mosaic = blend(le_i, re_i, cols)
-    write_cube(out, mosaic, ideal_label(le_label, le_cam, spec, shape[0], so, lo, measured, le, re, isisdata))
-    return MosaicResult(out, so, lo, measured, spec, shape, cols)
+    maps["re"] = NodeMap(ideal_cam, re_cam, shape, height_m, offset=(so, lo), step=step)
+    a, b = overlap_columns(le_strip, _strip(splines["re"], maps["re"], strip, block_lines), crop_width=shape[1])
+    cols = (a + strip[0], b + strip[0])
+
+    def blocks():
+        for l0 in range(0, shape[0], block_lines):
+            l1 = min(shape[0], l0 + block_lines)
+            le_i, re_i = (resample_rows(splines[k], *maps[k].coords(l0, l1)) for k in ("le", "re"))
+            yield blend(le_i, re_i, cols)
+
+    write_cube_rows(out, shape, ideal_label(le_label, ideal_cam, spec, shape[0], so, lo, measured, le, re, isisdata,
+                                            ideal_source), blocks())
+    return MosaicResult(out, shape, cols, so, lo, measured, spec, ideal_source)

@@ -28,7 +28,6 @@ from ..spice.writers import write_text_kernel
 from .synthetic import WaveTexture
 
 LE_CODE, RE_CODE = -999011, -999012
-IFOV = PITCH_MM / FOCAL_MM  # radians per pixel
 
 
 def _ry(t):
@@ -54,9 +53,10 @@ class Pair:
     frames: dict  # CCD -> spacecraft matrices actually used for rendering
 
 
-def _frames_kernels(kdir: Path, samples: int, overlap: int, ahead: float) -> dict:
-    a = (samples - overlap) / 2.0 * IFOV
-    nominal = {"LE": _ry(-a), "RE": _ry(a) @ _rx(-ahead * IFOV)}
+def _frames_kernels(kdir: Path, samples: int, overlap: int, ahead: float, focal_mm: float = FOCAL_MM) -> dict:
+    ifov = PITCH_MM / focal_mm
+    a = (samples - overlap) / 2.0 * ifov
+    nominal = {"LE": _ry(-a), "RE": _ry(a) @ _rx(-ahead * ifov)}
     fk, ik = {}, {}
     for name, code in (("LE", LE_CODE), ("RE", RE_CODE)):
         frame = f"SIM_NAC_{name}"
@@ -64,7 +64,7 @@ def _frames_kernels(kdir: Path, samples: int, overlap: int, ahead: float) -> dic
                    f"FRAME_{code}_CLASS_ID": code, f"FRAME_{code}_CENTER": -999,
                    f"TKFRAME_{code}_RELATIVE": "SIM_SPACECRAFT", f"TKFRAME_{code}_SPEC": "MATRIX",
                    f"TKFRAME_{code}_MATRIX": list(nominal[name].T.ravel())})
-        ik.update({f"INS{code}_FOCAL_LENGTH": FOCAL_MM, f"INS{code}_PIXEL_PITCH": PITCH_MM,
+        ik.update({f"INS{code}_FOCAL_LENGTH": focal_mm, f"INS{code}_PIXEL_PITCH": PITCH_MM,
                    f"INS{code}_TRANSX": [0.0, PITCH_MM, 0.0], f"INS{code}_TRANSY": [0.0, 0.0, PITCH_MM],
                    f"INS{code}_ITRANSS": [0.0, 1 / PITCH_MM, 0.0], f"INS{code}_ITRANSL": [0.0, 0.0, 1 / PITCH_MM],
                    f"INS{code}_BORESIGHT_SAMPLE": (samples + 1) / 2.0, f"INS{code}_BORESIGHT_LINE": 0.0})
@@ -74,8 +74,16 @@ def _frames_kernels(kdir: Path, samples: int, overlap: int, ahead: float) -> dic
 
 
 def build_pair(out: str | Path, seed: int = 4, samples: int = 100, overlap: int = 40, lines: int = 320,
-               ahead: float = 3.0, boresight_error=(0.6, 0.4), noise: float = 0.003) -> Pair:
-    """Write kernels, ``dem/dem.tif`` and ``cubes/SIMNAC_LE.cub``/``SIMNAC_RE.cub`` under ``out``; see the module docstring."""
+               ahead: float = 3.0, boresight_error=(0.6, 0.4), noise: float = 0.003, focal_mm: float = FOCAL_MM,
+               line_rate: float | None = None, rendered: bool = True) -> Pair:
+    """Write kernels, ``dem/dem.tif`` and ``cubes/SIMNAC_LE.cub``/``SIMNAC_RE.cub`` under ``out``; see the module docstring.
+
+    ``rendered=False`` (benchmarks of large pairs): the cubes hold uniform noise instead of a
+    rendering, and ``focal_mm``/``line_rate`` may differ from the renderer's camera (e.g. NAC-like
+    10 um/700 mm pixels on a 5064-sample CCD).
+    """
+    if rendered and focal_mm != FOCAL_MM:
+        raise ValueError("a rendered pair uses the renderer's focal length")
     out = Path(out)
     rng = np.random.default_rng(seed)
     scene = make_scene(rng)
@@ -86,13 +94,14 @@ def build_pair(out: str | Path, seed: int = 4, samples: int = 100, overlap: int 
     scene.albedo = np.clip(scene.albedo * (1.0 + 0.2 * t / t.std()), 0.03, 0.3)
     shot = Shot(key="SIMNAC", kind="line", et=ET_BASE + 86400.0 + 77.7, exposure=1.0, aim_lon=6.0, aim_lat=-6.0,
                 sun_azimuth=100.0, sun_elevation=55.0, view_azimuth=0.0, view_zenith=2.0, lines=lines,
-                samples=samples)
+                samples=samples, **({"line_rate": line_rate} if line_rate else {}))
     kdir = out / "kernels"
     write_geotiff(out / "dem" / "dem.tif", scene.heights.astype(np.float32), scene.grid.transform, MOON_CRS,
                   nodata=-32767.0, dtype="float32")
     geo = write_kernels(kdir, scene, [shot])[shot.key]
-    nominal = _frames_kernels(kdir, samples, overlap, ahead)
-    err = _ry(boresight_error[0] * IFOV) @ _rx(-boresight_error[1] * IFOV)
+    nominal = _frames_kernels(kdir, samples, overlap, ahead, focal_mm)
+    ifov = PITCH_MM / focal_mm
+    err = _ry(boresight_error[0] * ifov) @ _rx(-boresight_error[1] * ifov)
     frames = {"LE": nominal["LE"], "RE": nominal["RE"] @ err}
     p0, vel, m, _sun = geo
     kernels = [kdir / n for n in KERNEL_FILES] + [kdir / "sim_nac.tf", kdir / "sim_nac.ti"]
@@ -102,7 +111,8 @@ def build_pair(out: str | Path, seed: int = 4, samples: int = 100, overlap: int 
         sun = np.asarray(spiceypy.pxform("J2000", "MOON_ME", shot.et)) @ np.asarray(sun)
         start = shot.et - lines * shot.line_rate / 2.0
         for name, code in (("LE", LE_CODE), ("RE", RE_CODE)):
-            img = render(scene, shot, p0, vel, m @ frames[name], sun, rng, noise)
+            img = render(scene, shot, p0, vel, m @ frames[name], sun, rng, noise) if rendered else \
+                rng.uniform(0.05, 0.15, (lines, samples)).astype(np.float32)
             inst = {"SpacecraftName": "LUNARALBEDO SIM", "InstrumentId": f"NAC{name[0]}", "TargetName": "MOON",
                     "StartTime": spiceypy.et2utc(start, "ISOC", 6),
                     "SpacecraftClockStartCount": spiceypy.sce2s(-999, start),
@@ -120,14 +130,32 @@ def build_pair(out: str | Path, seed: int = 4, samples: int = 100, overlap: int 
     return Pair(paths["LE"], paths["RE"], shot, scene, geo, sun, frames)
 
 
+def _ideal_looks(spec, sample) -> np.ndarray:
+    """Unit look vectors ``(..., 3)`` in the LE frame of ideal-camera 1-based ``sample`` (the detector row)."""
+    ds = np.asarray(sample, dtype=np.float64) - (spec.samples / 2.0 + 0.5)
+    u = np.stack([spec.x0 + spec.sample_axis[0] * ds, spec.y0 + spec.sample_axis[1] * ds,
+                  np.full(np.shape(ds), spec.focal_length)], axis=-1)
+    return u / np.linalg.norm(u, axis=-1, keepdims=True)
+
+
+def ideal_rays(pair: Pair, spec, sample, line) -> tuple[np.ndarray, np.ndarray]:
+    """True rays of ideal-camera pixels at 1-based ``(sample, line)``: origins (km, body-fixed) and unit directions.
+
+    The geometry the pair was rendered with (spacecraft ``p0 + vel t``, line ``l`` at
+    ``t = (l - 0.5) rate - lines rate / 2``, the LE frame), not the kernels'.
+    """
+    p0, vel, m, _ = pair.geometry
+    shot = pair.shot
+    t = (np.asarray(line, dtype=np.float64) - 0.5) * shot.line_rate - shot.lines * shot.line_rate / 2.0
+    return p0 + vel * t[..., None], _ideal_looks(spec, sample) @ (m @ pair.frames["LE"]).T
+
+
 def render_ideal(pair: Pair, spec, columns) -> np.ndarray:
     """Noise-free image ``(lines, len(columns))`` of the ideal camera's 0-based ``columns`` (LE frame, true)."""
     p0, vel, m, _ = pair.geometry
     out = []
     for c in columns:
-        ds = (c + 1.0) - (spec.samples / 2.0 + 0.5)
-        u = np.array([spec.x0 + spec.sample_axis[0] * ds, spec.y0 + spec.sample_axis[1] * ds, spec.focal_length])
-        z = u / np.linalg.norm(u)
+        z = _ideal_looks(spec, c + 1.0)
         x = np.cross([0.0, 1.0, 0.0], z)
         x /= np.linalg.norm(x)
         q = np.stack([x, np.cross(z, x), z], axis=1)  # a frame whose z axis is the column's look direction
