@@ -47,6 +47,10 @@ def _ints(v):
 class PushFrameCamera:
     """A push-frame camera for one band: ``rays``, ``pixel_et`` and ``ground_to_image`` like :class:`CameraModel`."""
 
+    #: Ground -> image is piecewise (one piece per framelet, cube lines jump between framelets),
+    #: so orthoprojection projects every pixel exactly instead of interpolating a coarse grid.
+    smooth_ground_map = False
+
     def __init__(self, focal: FocalPlane, detector: DetectorMap, shape, ephemeris, et_start: float, rate: float,
                  framelet_height: int, line_summing: int, band_start_line: float, framelet_offset: int = 0,
                  reversed_order: bool = False, even: bool = False):
@@ -96,8 +100,12 @@ class PushFrameCamera:
         look = np.einsum("...ij,...j->...i", self.rotations[n - 1], self.focal.look(ds, dl))
         return np.array(self.positions[n - 1]), look / np.linalg.norm(look, axis=-1, keepdims=True)
 
-    def ground_to_image(self, points, iterations: int = 0):
-        """Cube ``(sample, line)`` of body-fixed points (km); NaN when no framelet of this cube's parity sees them."""
+    def ground_to_image(self, points, iterations: int = 0, clip: bool = True):
+        """Cube ``(sample, line)`` of body-fixed points (km); NaN when no framelet of this cube's parity sees them.
+
+        ``clip`` is accepted for the interface of :class:`CameraModel`: a point outside every
+        framelet has no coordinates, so the result is the same either way.
+        """
         p = np.asarray(points, dtype=np.float64)
         best_s = np.full(p.shape[:-1], np.nan)
         best_l = np.full(p.shape[:-1], np.nan)

@@ -31,8 +31,10 @@ def orthoproject(camera, image: np.ndarray, grid: Grid, heights_m: np.ndarray, b
     Cube coordinates come from :func:`.approx.image_coordinates` (exact projection on a
     coarse grid, interpolation checked to 0.125 px and refined where exceeded);
     ``exact=True`` projects every pixel with the camera model instead (slow: a line
-    scanner searches the exposure line of every point).
+    scanner searches the exposure line of every point); cameras whose ground map is not
+    smooth (``smooth_ground_map = False``: the LRO WAC's framelets) are always projected exactly.
     """
+    exact = exact or not getattr(camera, "smooth_ground_map", True)
     h = grid.shape[0]
     out = np.full(grid.shape, np.nan)
     center_pos = camera.positions[len(camera.positions) // 2]
