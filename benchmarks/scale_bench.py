@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from run_all import plain_read_seconds, scene, solve_child  # noqa: E402
+from common import plain_read_seconds, scene, solve_child  # noqa: E402
 
 from lunaralbedo.simulate import SceneSpec  # noqa: E402
 
