@@ -8,7 +8,7 @@ iteration's partial sums from them in one fused pass (:mod:`.kernels`); ``finali
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np

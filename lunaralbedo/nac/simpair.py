@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import spiceypy
 
-from ..ingest.simulate import (ET_BASE, FOCAL_MM, KERNEL_FILES, PITCH_MM, SC_FRAME, Shot, make_scene, render,
+from ..ingest.simulate import (ET_BASE, FOCAL_MM, KERNEL_FILES, PITCH_MM, Shot, make_scene, render,
                                write_kernels)
 from ..io.atomic import atomic_write_text
 from ..io.rasters import MOON_CRS, write_geotiff
