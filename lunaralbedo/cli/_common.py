@@ -14,7 +14,7 @@ from typing import Callable
 
 import click
 
-from ..errors import ClusterError, Interrupted, LunarAlbedoError, typed_error
+from ..errors import ClusterError, InputError, Interrupted, LunarAlbedoError, typed_error
 
 INTERNAL_ERROR = 1
 
@@ -75,3 +75,31 @@ def parallel_options(default: str) -> Callable:
                             help=f"Workers on this machine (1 = in-process, serial; default: {default}).")(func)
 
     return decorate
+
+
+def pyramid_options(func: Callable) -> Callable:
+    """``--levels``, ``--stretch``, ``--range`` and ``--tile-size``: the tile pyramid and its one 8-bit
+    albedo stretch, shared by ``export-kml`` and ``export-web`` (see :func:`pyramid_kwargs`)."""
+    for option in reversed((
+        click.option("--levels", type=int, default=None, help="Pyramid levels (default: as many as the data needs)."),
+        click.option("--stretch", "stretch", default=None, metavar="pLO,pHI", help="Albedo percentile stretch, e.g. p2,p98 (default)."),
+        click.option("--range", "value_range", default=None, metavar="LO,HI", help="Fixed albedo stretch: LO -> 0 (black), HI -> 255 (white)."),
+        click.option("--tile-size", type=int, default=256, show_default=True, help="PNG tile size in pixels."),
+    )):
+        func = option(func)
+    return func
+
+
+def pyramid_kwargs(levels, stretch, value_range, tile_size) -> dict:
+    """The keyword arguments of :func:`lunaralbedo.export.export_kml` / ``export_web`` from :func:`pyramid_options`."""
+    from ..export.stretch import parse_pair
+
+    if stretch is not None and value_range is not None:
+        raise InputError("give either --stretch or --range, not both")
+    return {
+        "levels": levels,
+        "stretch": parse_pair(stretch, "--stretch") if stretch is not None else (2.0, 98.0),
+        "value_range": parse_pair(value_range, "--range") if value_range is not None else None,
+        "tile_size": tile_size,
+    }
+

@@ -5,22 +5,12 @@ import json
 
 import click
 
-from ..errors import InputError
-from ._common import parallel_options, reports_errors
-
-
-def _pair(text: str | None, what: str):
-    from ..export.stretch import parse_pair
-
-    return None if text is None else parse_pair(text, what)
+from ._common import parallel_options, pyramid_kwargs, pyramid_options, reports_errors
 
 
 @click.command("export-kml")
 @click.argument("results_dir", type=click.Path(file_okay=False, path_type=str))
-@click.option("--levels", type=int, default=None, help="Pyramid levels (default: as many as the data needs).")
-@click.option("--stretch", "stretch", default=None, metavar="pLO,pHI", help="Percentile stretch, e.g. p2,p98 (default).")
-@click.option("--range", "value_range", default=None, metavar="LO,HI", help="Fixed stretch: albedo LO -> 0, HI -> 255.")
-@click.option("--tile-size", type=int, default=256, show_default=True, help="PNG tile size in pixels.")
+@pyramid_options
 @parallel_options("all cores, as threads: the tasks are GDAL reads and writes")
 @click.option("--sub4-resampling", type=click.Choice(["average", "nearest"]), default="average", show_default=True,
               help="albedo_sub4 resampling; nearest reproduces PhotometryTK's values.")
@@ -31,14 +21,9 @@ def command(results_dir, levels, stretch, value_range, tile_size, workers, sched
     for Google Earth, Moon) and RESULTS_DIR/albedo_mosaic.tif (COG, plus error_mosaic.tif)."""
     from ..export import export_kml
 
-    if stretch is not None and value_range is not None:
-        raise InputError("give either --stretch or --range, not both")
     summary = export_kml(
         results_dir,
-        levels=levels,
-        stretch=_pair(stretch, "--stretch") or (2.0, 98.0),
-        value_range=_pair(value_range, "--range"),
-        tile_size=tile_size,
+        **pyramid_kwargs(levels, stretch, value_range, tile_size),
         workers=workers,
         scheduler=scheduler,
         sub4_resampling=sub4_resampling,

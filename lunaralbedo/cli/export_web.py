@@ -5,19 +5,14 @@ import json
 
 import click
 
-from ..errors import InputError
-from ._common import parallel_options, reports_errors
-from .export_kml import _pair
+from ._common import parallel_options, pyramid_kwargs, pyramid_options, reports_errors
 
 
 @click.command("export-web")
 @click.argument("results_dir", type=click.Path(file_okay=False, path_type=str))
 @click.option("-o", "--out", default=None, type=click.Path(file_okay=False, path_type=str),
               help="Site folder (default: RESULTS_DIR/web; replaced).")
-@click.option("--levels", type=int, default=None, help="Pyramid levels (default: as many as the data needs).")
-@click.option("--stretch", "stretch", default=None, metavar="pLO,pHI", help="Albedo percentile stretch, e.g. p2,p98 (default).")
-@click.option("--range", "value_range", default=None, metavar="LO,HI", help="Fixed albedo stretch: LO -> black, HI -> white.")
-@click.option("--tile-size", type=int, default=256, show_default=True, help="PNG tile size in pixels.")
+@pyramid_options
 @parallel_options("all cores, as threads: the tasks are GDAL reads and PNG writes")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @reports_errors
@@ -26,15 +21,10 @@ def command(results_dir, out, levels, stretch, value_range, tile_size, workers, 
     values on click, run report) that opens from file:// or any static server."""
     from ..web import export_web
 
-    if stretch is not None and value_range is not None:
-        raise InputError("give either --stretch or --range, not both")
     summary = export_web(
         results_dir,
         out=out,
-        levels=levels,
-        stretch=_pair(stretch, "--stretch") or (2.0, 98.0),
-        value_range=_pair(value_range, "--range"),
-        tile_size=tile_size,
+        **pyramid_kwargs(levels, stretch, value_range, tile_size),
         workers=workers,
         scheduler=scheduler,
     )
