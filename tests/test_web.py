@@ -108,6 +108,33 @@ def test_export_web_without_a_solve_is_a_clear_error(tmp_path):
     assert not (tmp_path / "web").exists()
 
 
+def test_view_of_a_folder_without_a_result_is_a_clear_error(tmp_path):
+    """``view`` builds the site first; on a folder that holds no solve it stops there: exit 2, one line."""
+    (tmp_path / "albedo").mkdir()
+    result = CliRunner().invoke(main, ["view", str(tmp_path), "--port", "0", "--no-browser"])
+    assert result.exit_code == 2 and "Traceback" not in result.output
+    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "report.json" in errors[0]
+    assert not (tmp_path / "web").exists()
+
+
+def test_view_on_a_port_in_use_is_a_clear_error(tmp_path):
+    """A port that cannot be bound is named with a hint, exit 2, and nothing is served."""
+    import socket
+
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "index.html").write_text("<html></html>")
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        port = busy.getsockname()[1]
+        result = CliRunner().invoke(main, ["view", str(site), "--port", str(port), "--no-browser"])
+    assert result.exit_code == 2 and "Traceback" not in result.output
+    assert f"cannot serve on 127.0.0.1:{port}" in result.output and "--port 0" in result.output
+    assert sorted(p.name for p in site.iterdir()) == ["index.html"]
+
+
 def test_hillshade_of_planes():
     """A plane facing the Sun is fully lit, a flat one at sin(altitude), one facing away dark."""
     rows, cols, d = 5, 6, 100.0
