@@ -52,7 +52,7 @@ def bench_mosaic(lines: int, whole: bool = True) -> None:
     import subprocess
     import tempfile
 
-    from lunaralbedo.nac.simpair import build_pair
+    from lunaralbedo.simulate.nacpair import build_pair
     from lunaralbedo.isis.labels import read_label
 
     with tempfile.TemporaryDirectory() as tmp:

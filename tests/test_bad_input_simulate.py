@@ -51,7 +51,7 @@ def test_output_folder_not_empty_is_left_alone(tmp_path):
 
 
 def test_failure_while_rendering_leaves_no_scene_folder(tmp_path, monkeypatch):
-    import lunaralbedo.simulate as sim
+    import lunaralbedo.simulate.strip as sim
 
     def full_disk(*_a, **_k):
         raise OSError(28, "No space left on device")

@@ -15,7 +15,7 @@ from lunaralbedo.cli import main
 from lunaralbedo.ingest.grid import Grid
 from lunaralbedo.ingest.keys import make_keys
 from lunaralbedo.ingest.run import ingest
-from lunaralbedo.ingest.simulate import Scene, build, truth_on_grid
+from lunaralbedo.simulate.mission import Scene, build, truth_on_grid
 from lunaralbedo.io.positions import read_positions
 from lunaralbedo.settings import load_settings
 

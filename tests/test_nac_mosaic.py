@@ -10,7 +10,7 @@ from click.testing import CliRunner
 from lunaralbedo.cli import main
 from lunaralbedo.isis.labels import read_label
 from lunaralbedo.isis.pixels import read_band
-from lunaralbedo.nac.simpair import build_pair, render_ideal
+from lunaralbedo.simulate.nacpair import build_pair, render_ideal
 
 ERROR = (0.6, 0.4)  # RE boresight error (across, along track), pixels; the kernels do not know it
 NOISE = 0.003
@@ -114,7 +114,7 @@ def test_backplanes_of_the_mosaic_match_the_rendered_geometry(pair, tmp_path):
     from lunaralbedo.backplanes.angles import BAND_NAMES, angles, neighbour_normals, planetocentric
     from lunaralbedo.camera.ideal import spec_from_label
     from lunaralbedo.camera.intersect import ray_dem
-    from lunaralbedo.nac.simpair import ideal_rays
+    from lunaralbedo.simulate.nacpair import ideal_rays
 
     out = tmp_path / "bp.tif"
     res = CliRunner().invoke(main, ["backplanes", str(d / "m.cub"), "--dem", str(d / "dem" / "dem.tif"), "-o", str(out)])

@@ -10,7 +10,7 @@ import rasterio
 
 from lunaralbedo.engine.solve import solve
 from lunaralbedo.errors import ResumeError
-from lunaralbedo.simulate import SceneSpec, render_scene, score
+from lunaralbedo.simulate import SceneSpec, render_scene, score, true_exposures
 
 TOL = 0.03
 
@@ -20,7 +20,7 @@ def film(tmp_path_factory):
     d = tmp_path_factory.mktemp("film")
     truth = render_scene(d, SceneSpec(reflectance_type=2, film_contrast=1.4, seed=9, n_images=6, image_px=120,
                                       exposure_spread=0.5))
-    (d / "t.csv").write_text("key,exposure,other\n" + "".join(f"{k},{t},x\n" for k, t in zip(truth["keys"], truth["exposure"])))
+    (d / "t.csv").write_text("key,exposure,other\n" + "".join(f"{k},{t},x\n" for k, t in true_exposures(truth).items()))
     return d
 
 

@@ -17,7 +17,7 @@ EXPOSURE_TOL = 0.01
 def scene(request, tmp_path_factory):
     d = tmp_path_factory.mktemp(f"scene{request.param}")
     truth = render_scene(d, SceneSpec(reflectance_type=request.param, max_num_iter=10, seed=7 + request.param))
-    spread = np.array(truth["exposure"])
+    spread = np.array([im["exposure"] for im in truth["images"].values()])
     assert spread.max() / spread.min() > 2.0  # exposures really differ by up to +-40 %
     return d
 

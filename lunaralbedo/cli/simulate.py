@@ -1,4 +1,4 @@
-"""``lunaralbedo simulate OUTDIR``: render a forward-model scene in the solver's input contract."""
+"""``lunaralbedo simulate OUTDIR``: render a forward-model scene (solver DRGs, or ISIS cubes with kernels)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -7,21 +7,43 @@ import click
 
 from ._common import reports_errors
 
+#: Options of the DRG strip that the ISIS mission does not take.
+_STRIP_ONLY = {"image_px": "--size", "res_deg": "--res", "exposure_spread": "--spread", "reflectance_type": "--reflectance",
+               "tile_size": "--tile-size", "noise_dn": "--noise"}
+
 
 @click.command("simulate")
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--images", "n_images", type=int, default=6, show_default=True, help="Number of images in the strip.")
-@click.option("--size", "image_px", type=int, default=120, show_default=True, help="Image size in pixels (square).")
-@click.option("--res", "res_deg", type=float, default=0.01, show_default=True, help="Pixel size in degrees.")
-@click.option("--spread", "exposure_spread", type=float, default=0.4, show_default=True, help="Exposures within 1 +- spread.")
-@click.option("--reflectance", "reflectance_type", type=click.IntRange(0, 3), default=2, show_default=True)
-@click.option("--tile-size", type=float, default=1.0, show_default=True, help="TILE_SIZE of the written settings (degrees).")
-@click.option("--noise", "noise_dn", type=float, default=1.0, show_default=True, help="Gaussian noise, DN.")
-@click.option("--seed", type=int, default=7, show_default=True)
+@click.option("--format", "fmt", type=click.Choice(["drg", "isis"]), default="drg", show_default=True,
+              help="drg: a strip of DRGs in the input contract of `solve`; isis: Level-1 ISIS cubes, SPICE kernels "
+                   "and a DEM in the input contract of `ingest` (the sample_data mission).")
+@click.option("--images", "n_images", type=int, default=None, help="Number of images [drg: 6, isis: 5 frames].")
+@click.option("--size", "image_px", type=int, default=120, show_default=True, help="Image size in pixels (square; drg).")
+@click.option("--res", "res_deg", type=float, default=0.01, show_default=True, help="Pixel size in degrees (drg).")
+@click.option("--spread", "exposure_spread", type=float, default=0.4, show_default=True, help="Exposures within 1 +- spread (drg).")
+@click.option("--reflectance", "reflectance_type", type=click.IntRange(0, 3), default=2, show_default=True,
+              help="REFLECTANCE_TYPE of the photometric model (drg; isis is Lunar-Lambertian).")
+@click.option("--tile-size", type=float, default=1.0, show_default=True, help="TILE_SIZE of the written settings (degrees; drg).")
+@click.option("--noise", "noise_dn", type=float, default=1.0, show_default=True, help="Gaussian noise, DN (drg).")
+@click.option("--seed", type=int, default=None, help="Random seed [drg: 7, isis: 20240601, the sample_data mission].")
 @reports_errors
-def command(out_dir, **kwargs):
-    """Render a strip of overlapping images from a known albedo, DEM, geometry and exposures."""
+def command(out_dir, fmt, n_images, seed, **kwargs):
+    """Render a scene from a known albedo, DEM, Sun/spacecraft geometry and exposures; the truth goes to OUT_DIR/truth/."""
+    from ..errors import InputError
+
+    if fmt == "isis":
+        ctx = click.get_current_context()
+        given = [flag for name, flag in _STRIP_ONLY.items() if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT]
+        if given:
+            raise InputError(f"{', '.join(given)}: not an option of --format isis (only --images and --seed)")
+        from ..simulate import render_mission
+
+        truth = render_mission(out_dir, seed=20240601 if seed is None else seed, n_frames=5 if n_images is None else n_images)
+        click.echo(f"rendered {len(truth['images'])} ISIS cubes into {out_dir}/cubes/ (kernels: {out_dir}/kernels/, "
+                   f"DEM: {out_dir}/dem/, truth: {out_dir}/truth/); next: lunaralbedo ingest")
+        return
     from ..simulate import SceneSpec, render_scene
 
-    truth = render_scene(out_dir, SceneSpec(**kwargs))
-    click.echo(f"rendered {len(truth['keys'])} images into {out_dir}/ (settings: {out_dir}/settings.txt, truth: {out_dir}/truth/)")
+    truth = render_scene(out_dir, SceneSpec(n_images=6 if n_images is None else n_images, seed=7 if seed is None else seed,
+                                            **kwargs))
+    click.echo(f"rendered {len(truth['images'])} images into {out_dir}/ (settings: {out_dir}/settings.txt, truth: {out_dir}/truth/)")

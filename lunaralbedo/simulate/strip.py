@@ -1,4 +1,4 @@
-"""Forward model: render a scene from a known albedo, DEM, Sun/spacecraft geometry and exposures.
+"""The DRG strip: a scene rendered by the forward model (:mod:`.forward`) in the input contract of ``solve``.
 
 The scene is written in the exact input contract of ``lunaralbedo solve``:
 
@@ -17,25 +17,25 @@ writes the DRGs east of 180° with -180..180 file longitudes, as a mission archi
 """
 from __future__ import annotations
 
-import json
-import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 from rasterio.transform import Affine
 
-from .constants import MOON_RADIUS_KM
-from .engine.photometry import bind
-from .errors import InputError, OutputError
-from .io.guard import check_output_dir
-from .io.atomic import atomic_write_text
-from .io.positions import write_positions
-from .io.rasters import MOON_CRS, write_geotiff
-from .model import geometry
-from .model import photometry
-from .model.cast_shadows import cast_shadow_mask, shadow_reach_km
-from .settings import legacy_text
+from ..constants import MOON_RADIUS_KM
+from ..engine.photometry import bind
+from ..errors import InputError
+from ..io.atomic import atomic_write_text
+from ..io.positions import write_positions
+from ..io.rasters import MOON_CRS, write_geotiff
+from ..model import geometry
+from ..model import photometry
+from ..model.cast_shadows import cast_shadow_mask, shadow_reach_km
+from ..settings import legacy_text
+from . import forward
+from .fields import truth_albedo, truth_dem
+from .truth import render_into, write_truth
 
 
 @dataclass
@@ -120,84 +120,12 @@ _LIMITS = {
 }
 
 
-def _features(extent, per_square_degree, seed):
-    """Random blobs ``(cx, cy, r, sign)`` over ``extent`` (lon_min, lon_max, lat_min, lat_max), degrees."""
-    rng = np.random.default_rng(seed)
-    area = (extent[1] - extent[0]) * (extent[3] - extent[2])
-    n = max(3, int(round(per_square_degree * area)))
-    return [(rng.uniform(extent[0], extent[1]), rng.uniform(extent[2], extent[3]), rng.uniform(0.05, 0.2), rng.choice([-1.0, 1.0]))
-            for _ in range(n)]
-
-
-def _near(features, lon, lat, reach):
-    """The features within ``reach`` radii of the window (the others add less than 1e-5 there)."""
-    lo0, lo1, la0, la1 = np.min(lon), np.max(lon), np.min(lat), np.max(lat)
-    return [f for f in features if lo0 - reach * f[2] <= f[0] <= lo1 + reach * f[2] and la0 - reach * f[2] <= f[1] <= la1 + reach * f[2]]
-
-
-def truth_albedo(lon, lat, extent, seed=3):
-    """A textured albedo field (dimensionless, 0.3..1.8) of lon/lat (degrees) over ``extent``.
-
-    A pure function of position: any window of the scene can be evaluated alone.
-    """
-    rng = np.random.default_rng(seed)
-    a = np.ones(np.broadcast(lon, lat).shape, dtype=np.float64)
-    for _ in range(6):
-        kx, ky = rng.uniform(2, 9, 2)
-        ph = rng.uniform(0, 2 * np.pi, 2)
-        a += 0.06 * np.sin(kx * lon + ph[0]) * np.cos(ky * lat + ph[1])
-    for cx, cy, r, sign in _near(_features(extent, 4.0, seed + 100), lon, lat, 5):  # bright ejecta / dark patches
-        a += (0.3 if sign > 0 else -0.25) * np.exp(-((lon - cx) ** 2 + (lat - cy) ** 2) / (2 * r * r))
-    return np.clip(a, 0.3, 1.8)
-
-
-def truth_dem(lon, lat, extent, relief_m, seed=5, fresh_per_square_degree=0.0):
-    """Heights (metres above the 1737.4 km sphere) with gentle hills and craters over ``extent``.
-
-    With ``fresh_per_square_degree`` > 0, fresh bowl craters (:func:`fresh_craters`) are added.
-    """
-    h = relief_m * 0.3 * np.sin(2.5 * lon) * np.cos(3.1 * lat)
-    for cx, cy, r, _ in _near(_features(extent, 2.5, seed), lon, lat, 3):
-        d2 = ((lon - cx) ** 2 + (lat - cy) ** 2) / (r * r)
-        h = h + relief_m * (-np.exp(-d2 * 2) + 0.4 * np.exp(-((np.sqrt(d2) - 1) ** 2) * 8))
-    if fresh_per_square_degree > 0:
-        h = h + fresh_craters(lon, lat, extent, fresh_per_square_degree, seed + 50)
-    return h
-
-
-def fresh_craters(lon, lat, extent, per_square_degree, seed=55):
-    """Heights (metres) of fresh simple craters: parabolic bowls, depth 0.2 x diameter, raised rims.
-
-    Radii 0.6-2.4 km (0.02-0.08 degrees); inside the rim (normalised radius
-    :math:`\rho < 1`) :math:`h = d(\rho^2 - 1) + h_r`, outside :math:`h_r\rho^{-3}`, with
-    depth :math:`d = 0.4 r` and rim height :math:`h_r = 0.08 r` (walls ~39 degrees at the rim), the
-    outer flank brought smoothly to zero at 4 radii.
-    """
-    rng = np.random.default_rng(seed)
-    area = (extent[1] - extent[0]) * (extent[3] - extent[2])
-    n = max(1, int(round(per_square_degree * area)))
-    cx = rng.uniform(extent[0], extent[1], n)
-    cy = rng.uniform(extent[2], extent[3], n)
-    rad = 0.02 * 4.0 ** rng.uniform(0, 1, n)
-    h = np.zeros(np.broadcast(lon, lat).shape)
-    lo0, lo1, la0, la1 = np.min(lon), np.max(lon), np.min(lat), np.max(lat)
-    for x, y, r in zip(cx, cy, rad):
-        if not (lo0 - 4 * r <= x <= lo1 + 4 * r and la0 - 4 * r <= y <= la1 + 4 * r):
-            continue
-        rho = np.sqrt((lon - x) ** 2 + (lat - y) ** 2) / r
-        r_m = np.radians(r) * MOON_RADIUS_KM * 1000.0
-        depth, rim = 0.4 * r_m, 0.08 * r_m
-        outside = rim * np.clip((np.maximum(rho, 1) ** -3 - 1 / 64) / (1 - 1 / 64), 0, None)  # zero from 4 radii
-        h += np.where(rho < 1, depth * (rho**2 - 1) + rim, outside)
-    return h
-
-
 def _write_field(path: Path, fn, transform: Affine, shape: tuple[int, int], nodata=None, chunk: int = 512) -> None:
     """Write ``fn(lon, lat)`` (float32) over a grid in column chunks, atomically."""
     import rasterio
     from rasterio.windows import Window
 
-    from .io.atomic import atomic_path
+    from ..io.atomic import atomic_path
 
     h, w = shape
     with atomic_path(path) as tmp:
@@ -212,36 +140,22 @@ def _write_field(path: Path, fn, transform: Affine, shape: tuple[int, int], noda
 
 def _sun_and_spacecraft(spec: SceneSpec, k: int, lon_c: float, lat_c: float, rng) -> tuple[np.ndarray, np.ndarray]:
     """Sun 1 AU away at the given incidence (+-3 degrees) and azimuth; spacecraft above the centre."""
-    inc = np.radians(spec.sun_incidence_deg + rng.uniform(-3, 3))
-    az = np.radians(spec.sun_azimuths[k % len(spec.sun_azimuths)])
-    up = geometry.body_fixed(lon_c, lat_c, 0.0) / MOON_RADIUS_KM
-    lo, la = np.radians(lon_c), np.radians(lat_c)
-    east = np.array([-np.sin(lo), np.cos(lo), 0.0])
-    north = np.array([-np.sin(la) * np.cos(lo), -np.sin(la) * np.sin(lo), np.cos(la)])
-    sun_dir = np.cos(inc) * up + np.sin(inc) * (np.sin(az) * east + np.cos(az) * north)
-    sun = sun_dir * 1.496e8
+    inc = spec.sun_incidence_deg + rng.uniform(-3, 3)
+    sun = forward.sun_position(geometry.body_fixed(lon_c, lat_c, 0.0), spec.sun_azimuths[k % len(spec.sun_azimuths)], 90.0 - inc)
     off = rng.uniform(-0.08, 0.08, 2)  # a little off-nadir, degrees of arc
     sc = geometry.body_fixed(lon_c + off[0], lat_c + off[1], spec.altitude_km * 1000.0)
     return sun, sc
 
 
 def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
-    """Render the scene of ``spec`` into ``out_dir`` (see module docstring); return the truth.
+    """Render the scene of ``spec`` into ``out_dir`` (see module docstring); return the truth (:mod:`.truth`).
 
     :class:`InputError` for a spec that cannot make a scene, :class:`OutputError` when
     ``out_dir`` cannot be created or is not empty; both before anything is written.
+    A failed render leaves no scene folder behind.
     """
     spec = (spec or SceneSpec()).validate()
-    out = check_output_dir(out_dir, "scene folder")
-    if out.is_dir() and any(out.iterdir()):
-        raise OutputError(f"{out}: the scene folder exists and is not empty")
-    created = not out.exists()
-    try:
-        return _render(out, spec)
-    except BaseException:
-        if created:  # nothing half-written: a failed render leaves no scene folder behind
-            shutil.rmtree(out, ignore_errors=True)
-        raise
+    return render_into(out_dir, lambda out: _render(out, spec))
 
 
 def _render(out: Path, spec: SceneSpec) -> dict:
@@ -294,12 +208,12 @@ def _render(out: Path, spec: SceneSpec) -> dict:
             up = pts / np.linalg.norm(pts, axis=-1, keepdims=True)
             flat = model.reflectance(*geometry.illumination(pts, up, sun, sc), params)
             r = np.where(shade, spec.scatter * flat, r)
-        signal = gain * albedo_fn(lon, lat) * exposures[k] * r
+        film = None
         if spec.film_contrast > 0:  # an unknown nonlinear response: DN = f(A T R)
-            from .response.synthetic import FilmCurve
+            from ..response.synthetic import FilmCurve
 
-            signal = FilmCurve(k=spec.film_contrast, x0=spec.film_mid).forward(np.maximum(signal / gain, 1e-9))
-        dn = np.clip(np.round(signal + rng.normal(0, spec.noise_dn, signal.shape)), 0, 255).astype(np.uint8)
+            film = FilmCurve(k=spec.film_contrast, x0=spec.film_mid)
+        dn = forward.to_dn(forward.exposure_signal(albedo_fn(lon, lat), exposures[k], r), gain, spec.noise_dn, rng, film)
         alpha = np.full(dn.shape, 255, np.uint8)
         if spec.wrap_lon and transform.c >= 180.0:  # the file says -180..-170 for 180..190
             transform = Affine.translation(-360.0, 0.0) @ transform
@@ -336,48 +250,11 @@ def _render(out: Path, spec: SceneSpec) -> dict:
         f"Synthetic scene rendered by lunaralbedo.simulate (seed {spec.seed})",
     )
     atomic_write_text(out / "settings.txt", settings)
-    truth = {"keys": keys, "exposure": exposures.tolist(), "gain": gain, "spec": asdict(spec)}
-    atomic_write_text(out / "truth" / "truth.json", json.dumps(truth, indent=2))
+    truth = {"reflectance_type": model.code, **dict(zip(model.parameters, params)), "seed": spec.seed,
+             "albedo": "truth/albedo.tif", "dem": "DEM/dem.tif", "frame": "Moon body-fixed (1737.4 km sphere), km",
+             "gain": gain, "spec": asdict(spec),
+             "images": {key: {"exposure": float(exposures[k]), "sun_km": sun_pos[key].tolist(),
+                              "spacecraft_km": sc_pos[key].tolist(), "drg": f"DRG/{key}_drg.tif"}
+                        for k, key in enumerate(keys)}}
+    write_truth(out, truth)
     return truth
-
-
-def score(result_dir: str | Path, scene_dir: str | Path) -> dict:
-    """Compare a solve's outputs with the truth of a rendered scene.
-
-    Returns ``albedo_rel_rmse`` (relative RMSE of the albedo after the one global
-    scale that A*T leaves free, least squares), ``exposure_max_rel_err`` (largest
-    relative exposure error after normalising both to the same geometric mean),
-    ``coverage`` (fraction of truth pixels with a solved albedo).
-    """
-    import glob
-
-    import rasterio
-    from rasterio.merge import merge
-
-    from .io.outputs import read_exposure_csv
-
-    result_dir, scene_dir = Path(result_dir), Path(scene_dir)
-    truth = json.loads((scene_dir / "truth" / "truth.json").read_text())
-    with rasterio.open(scene_dir / "truth" / "albedo.tif") as t:
-        ta, tt, tb = t.read(1), t.transform, t.bounds
-    files = sorted(glob.glob(str(result_dir / "albedo" / "*.tif")))
-    mos, _ = merge(files, bounds=tb, res=(tt.a, -tt.e), nodata=np.nan, dtype="float32")
-    a = mos[0]
-    ok = np.isfinite(a) & np.isfinite(ta)
-    s = np.sum(a[ok] * ta[ok]) / np.sum(a[ok] ** 2)
-    rel = (s * a[ok] - ta[ok]) / ta[ok]
-    est = read_exposure_csv(result_dir / "exposure.csv")
-    if "images" in truth:  # the sample mission of tools/make_sample_data.py
-        true_exp = {k: v["exposure"] for k, v in truth["images"].items()}
-    else:
-        true_exp = dict(zip(truth["keys"], truth["exposure"]))
-    keys = sorted(set(true_exp) & set(est))
-    te = np.array([true_exp[k] for k in keys])
-    ratio = np.array([est[k] for k in keys]) / te
-    ratio /= np.exp(np.mean(np.log(ratio)))
-    return {
-        "albedo_rel_rmse": float(np.sqrt(np.mean(rel**2))),
-        "exposure_max_rel_err": float(np.max(np.abs(ratio - 1))),
-        "coverage": float(ok.mean()),
-        "images_compared": len(keys),
-    }

@@ -1,6 +1,9 @@
-"""Forward model of a synthetic mission: DEM, albedo, kernels and Level-1 ISIS cubes rendered as A*T*R.
+"""A synthetic mission in the ingest contract: DEM, albedo, kernels and Level-1 ISIS cubes rendered as A*T*R.
 
-Used by ``tools/make_sample_data.py`` (sample_data/) and by the round-trip tests.
+``lunaralbedo simulate --format isis`` and ``tools/make_sample_data.py`` (sample_data/) write
+it; the round-trip tests ingest it.  Pixels go through the one forward model of
+:mod:`.forward` (Sun geometry, A*T*R with the photometric registry's Lunar-Lambert model,
+multiplicative noise) and the truth is written in the one format of :mod:`.truth`.
 Geometry is built directly in the body-fixed frame (km) and written to kernels
 (SPK type 13, CK type 3, text LSK/PCK/FK/IK/SCLK); images are rendered with an
 independent pinhole model (not the ingest camera code), so ingesting them is a
@@ -9,7 +12,6 @@ with IAU_MOON (PCK: IAU rotation without nutation terms).
 """
 from __future__ import annotations
 
-import json
 import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -18,23 +20,25 @@ import numpy as np
 import spiceypy
 from rasterio.transform import Affine
 
-from ..io.atomic import atomic_write_text
+from ..camera.intersect import ray_dem
+from ..ingest.grid import Grid, bilinear
+from ..ingest.observation import packaged_lsk
 from ..io.rasters import MOON_CRS, write_geotiff
 from ..isis.write import Quantity, write_cube
+from ..model import photometry
 from ..model.geometry import body_fixed, dem_normals, illumination, lonlat_height
-from ..model.photometry import lunar_lambert
 from ..spice.kernels import KernelPool
 from ..spice.writers import write_ck, write_spk, write_text_kernel
-from ..camera.intersect import ray_dem
-from .grid import Grid, bilinear
-from .observation import packaged_lsk
+from .forward import SUN_DISTANCE_KM, exposure_signal, local_frame, sun_position, to_radiance
+from .truth import write_truth
 
 SC, SC_FRAME, FRAME_CAM, LINE_CAM = -999, -999000, -999001, -999002
 FOCAL_MM, PITCH_MM = 4.5, 0.01
-SUN_DISTANCE_KM = 1.496e8
 ET_BASE = 675_000_000.0  # ~2021-05-22
 KERNEL_FILES = ("sim.tls", "sim.tpc", "sim.tf", "sim.ti", "sim.tsc", "sim.bsp", "sim.bc")
 C1, C2 = 1.4, 0.5
+#: The mission's photometric model (registry) and its parameters.
+MODEL = photometry.get("lunar-lambert")
 
 
 @dataclass
@@ -85,17 +89,10 @@ def make_scene(rng, shape=(300, 300), west=4.5, north=-4.5, res=0.01) -> Scene:
     return Scene(grid, h, np.clip(alb, 0.05, 0.25))
 
 
-def _enu(point):
-    up = point / np.linalg.norm(point)
-    east = np.cross([0.0, 0.0, 1.0], up)
-    east /= np.linalg.norm(east)
-    return east, np.cross(up, east), up
-
-
 def shot_geometry(scene: Scene, shot: Shot):
     """Body-fixed spacecraft position P0 (km) at the centre time, velocity (km/s), camera->body matrix, Sun (km)."""
     aim = body_fixed(shot.aim_lon, shot.aim_lat, float(scene.height(shot.aim_lon, shot.aim_lat)))
-    east, north, up = _enu(aim)
+    east, north, up = local_frame(aim)
     az, zen = np.radians(shot.view_azimuth), np.radians(shot.view_zenith)
     horiz = np.cos(az) * north + np.sin(az) * east
     p0 = aim + shot.altitude_km / np.cos(zen) * (np.cos(zen) * up + np.sin(zen) * horiz)
@@ -104,8 +101,7 @@ def shot_geometry(scene: Scene, shot: Shot):
     x /= np.linalg.norm(x)
     m = np.stack([x, np.cross(z, x), z], axis=1)  # columns: camera axes in the body frame
     vel = shot.speed_kms * (m[:, 1] - m[:, 1] @ up * up) / np.linalg.norm(m[:, 1] - m[:, 1] @ up * up)
-    saz, sel = np.radians(shot.sun_azimuth), np.radians(shot.sun_elevation)
-    sun = SUN_DISTANCE_KM * (np.cos(sel) * (np.cos(saz) * north + np.sin(saz) * east) + np.sin(sel) * up)
+    sun = sun_position(aim, shot.sun_azimuth, shot.sun_elevation)
     return p0, vel, m, sun
 
 
@@ -232,15 +228,15 @@ def render(scene: Scene, shot: Shot, p0, vel, m, sun_km, rng, noise: float) -> n
     # Photometry with the single per-image spacecraft position (p0) that the solver assumes;
     # only the ray geometry of a line scanner follows the moving spacecraft.
     cos_i, cos_e, alpha = illumination(pts, n, sun_km, p0)
-    img = bilinear(scene.albedo, col, row) * shot.exposure * lunar_lambert.reflectance(cos_i, cos_e, alpha, (C1, C2))
-    return img * (1.0 + noise * rng.standard_normal(img.shape))
+    img = exposure_signal(bilinear(scene.albedo, col, row), shot.exposure, MODEL.reflectance(cos_i, cos_e, alpha, (C1, C2)))
+    return to_radiance(img, noise, rng)
 
 
 def truth_on_grid(scene: Scene, exposure: float, sun_km, sc_km) -> np.ndarray:
     """A * T * R at the DEM pixel centres (what an ideal DRG holds), for round-trip checks."""
     pts = body_fixed(*scene.grid.lonlat(), scene.heights)
     cos_i, cos_e, alpha = illumination(pts, dem_normals(pts), sun_km, sc_km)
-    return scene.albedo * exposure * lunar_lambert.reflectance(cos_i, cos_e, alpha, (C1, C2))
+    return exposure_signal(scene.albedo, exposure, MODEL.reflectance(cos_i, cos_e, alpha, (C1, C2)))
 
 
 def default_shots(rng, n_frames: int = 5, with_line: bool = False) -> list[Shot]:
@@ -273,7 +269,7 @@ def build(out: str | Path, seed: int = 20240601, n_frames: int = 5, with_line: b
                   nodata=-32767.0, dtype="float32", compress="deflate")
     write_geotiff(out / "truth" / "albedo.tif", scene.albedo.astype(np.float32), scene.grid.transform, MOON_CRS,
                   dtype="float32", compress="deflate")
-    truth = {"c1": C1, "c2": C2, "reflectance_type": 2, "noise_relative": noise, "seed": seed,
+    truth = {"c1": C1, "c2": C2, "reflectance_type": MODEL.code, "noise_relative": noise, "seed": seed,
              "albedo": "truth/albedo.tif", "dem": "dem/dem.tif", "frame": "MOON_ME (= IAU_MOON here), km",
              "images": {}}
     with KernelPool([kdir / n for n in KERNEL_FILES]):
@@ -298,5 +294,5 @@ def build(out: str | Path, seed: int = 20240601, n_frames: int = 5, with_line: b
             write_cube(out / "cubes" / f"{s.key}.cub", img, {"Instrument": inst, "Kernels": kern})
             truth["images"][s.key] = {**asdict(s), "sun_km": sun.tolist(), "spacecraft_km": p0.tolist(),
                                       "cube": f"cubes/{s.key}.cub"}
-    atomic_write_text(out / "truth" / "truth.json", json.dumps(truth, indent=1) + "\n")
+    write_truth(out, truth)
     return truth

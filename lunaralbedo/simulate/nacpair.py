@@ -1,6 +1,6 @@
 """Forward model of an LE/RE line-scanner pair with a known RE boresight error (tests and docs of ``nacmosaic``).
 
-Reuses the synthetic mission of :mod:`lunaralbedo.ingest.simulate` (scene, SPK/CK of
+Reuses the synthetic mission of :mod:`.mission` (scene, SPK/CK of
 the spacecraft, renderer) and adds two CCD frames fixed to the spacecraft
 (``sim_nac.tf``/``sim_nac.ti``): LE looks ``(samples - overlap) / 2`` pixels to one
 side, RE as far to the other and ``ahead`` pixels along the track.  The kernels
@@ -18,14 +18,13 @@ from pathlib import Path
 import numpy as np
 import spiceypy
 
-from ..ingest.simulate import (ET_BASE, FOCAL_MM, KERNEL_FILES, PITCH_MM, Shot, make_scene, render,
-                               write_kernels)
+from .mission import ET_BASE, FOCAL_MM, KERNEL_FILES, PITCH_MM, Shot, make_scene, render, write_kernels
 from ..io.atomic import atomic_write_text
 from ..io.rasters import MOON_CRS, write_geotiff
 from ..isis.write import Quantity, write_cube
 from ..spice.kernels import KernelPool
 from ..spice.writers import write_text_kernel
-from .synthetic import WaveTexture
+from ..nac.synthetic import WaveTexture
 
 LE_CODE, RE_CODE = -999011, -999012
 
