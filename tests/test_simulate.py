@@ -94,3 +94,13 @@ def test_isis_scene_ingests_and_solves_to_its_truth(tmp_path):
 def test_isis_format_refuses_what_it_cannot_do(tmp_path, args, culprit):
     out = tmp_path / "mission"
     assert_clean_failure(cli("simulate", out, "--format", "isis", *args), 2, culprit, absent=out)
+
+
+def test_sample_data_truth_is_the_common_format():
+    """The committed sample_data mission (tools/make_sample_data.py) reads through the same reader."""
+    from pathlib import Path
+
+    truth = read_truth(Path(__file__).resolve().parents[1] / "sample_data")
+    exp = true_exposures(truth)
+    assert len(exp) == 5 and all(0.7 < e < 1.3 for e in exp.values())
+    assert truth["reflectance_type"] == 2 and (truth["c1"], truth["c2"]) == (1.4, 0.5)
