@@ -124,3 +124,28 @@ def test_nan_heights_block_nothing_and_have_no_shadow():
     assert not m[10].any()
     assert m[30, 10:20].all()  # still shadowed by the wall's finite columns
     assert not m[30, 23:].any()
+
+
+@pytest.mark.parametrize("lat, res, incidence, azimuth, relief", [
+    (0.0, 0.0025, 80.0, 90.0, 600.0),    # low Sun over fresh craters: long shadows, many steps skipped
+    (-60.0, 0.002, 70.0, 200.0, 900.0),  # high latitude: longitude pixels a half of latitude ones
+    (10.0, 0.01, 30.0, 300.0, 3000.0),   # high Sun over steep relief: the slope bound does not apply
+    (0.0, 0.0025, 40.0, 45.0, 300.0),    # high Sun, gentle terrain: every ray is cut short by the slope bound
+])
+def test_shortcuts_do_not_change_the_mask(lat, res, incidence, azimuth, relief):
+    """The slope bound and the block-maximum skipping give exactly the plain march's mask."""
+    rng = np.random.default_rng(int(incidence))
+    n = 160
+    transform = Affine(res, 0, 20.0 - n * res / 2, 0, -res, lat + n * res / 2)
+    lon, lat_g = geometry.lonlat_grid(transform, (n, n))
+    extent = (lon.min(), lon.max(), lat_g.min(), lat_g.max())
+    dem = truth_dem(lon, lat_g, extent, relief, fresh_per_square_degree=2.0 / res) + rng.normal(0, relief / 50, (n, n))
+    dem[rng.random((n, n)) < 0.002] = np.nan  # holes: block nothing, get no answer
+    sun = _sun(20.0, lat, incidence, azimuth)
+    window = (30, n - 30, 30, n - 30)
+    fast = cast_shadow_mask(dem, transform, sun, window)
+    plain = cast_shadow_mask(dem, transform, sun, window, shortcuts=False)
+    assert 0 <= plain.mean() < 0.9
+    if incidence >= 70:
+        assert plain.mean() > 0.05  # the low-Sun cases really cast shadows
+    assert np.array_equal(fast, plain), f"{np.count_nonzero(fast != plain)} pixels differ"

@@ -120,13 +120,11 @@ def gather(scene: Scene, t: int, lut: np.ndarray | None = None) -> tuple[dict[st
     geo = _Geometry(scene, tile) if model.needs_geometry else None
     thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
     with_cos_i = geo is not None and s.shadow_type == shadows.LAMBERT_RATIO
-    cast = cast_shadow_masks(scene, tile, scene.tile_images[t]) if geo is not None and s.uses_cast_shadows else {}
+    windows = {int(k): win for k in scene.tile_images[t] if (win := image_window(tile, scene.images[k].lonlat_bounds))}
+    cast = cast_shadow_masks(scene, tile, windows) if geo is not None and s.uses_cast_shadows else {}
     kept = []  # (k, window, window blending weights, then the observations: pix, value, weight, layers)
     weights_sum = np.zeros((h, w))
-    for k in scene.tile_images[t]:
-        win = image_window(tile, scene.images[k].lonlat_bounds)
-        if win is None:
-            continue
+    for k, win in windows.items():
         r0, r1, c0, c1 = win
         sub = tile.transform @ tile.transform.translation(c0, r0)
         info = scene.images[k]
@@ -136,8 +134,8 @@ def gather(scene: Scene, t: int, lut: np.ndarray | None = None) -> tuple[dict[st
             continue
         val, ok, wt, use = got
         use &= val > 0
-        if int(k) in cast:
-            use &= ~cast[int(k)][r0:r1, c0:c1]
+        if k in cast:
+            use &= ~cast[k]
         layers = {}
         if geo is not None:
             pts, normals, bad = geo.window(*win)

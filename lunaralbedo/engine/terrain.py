@@ -33,9 +33,11 @@ def _pixel_km(tile) -> float:
     return math.radians(1.0) * MOON_RADIUS_KM * min(tile.res_x * max(math.cos(lat), 1e-3), tile.res_y)
 
 
-def cast_shadow_masks(scene, tile, images) -> dict[int, np.ndarray]:
-    """Per image index ``k`` in ``images``: True where tile pixels are in the terrain's cast shadow."""
-    if not len(images) or not scene.dems:
+def cast_shadow_masks(scene, tile, windows: dict[int, tuple[int, int, int, int]]) -> dict[int, np.ndarray]:
+    """Per image ``k`` of ``windows``: True where the pixels of its window ``(r0, r1, c0, c1)`` of the
+    (unpadded) tile are in the terrain's cast shadow (an array of the window's shape)."""
+    images = list(windows)
+    if not images or not scene.dems:
         return {}
     lon_c = tile.west + tile.width * tile.res_x / 2
     lat_c = tile.north - tile.height * tile.res_y / 2
@@ -54,6 +56,6 @@ def cast_shadow_masks(scene, tile, images) -> dict[int, np.ndarray]:
         if need <= margin or margin >= max_margin:
             break
         margin = min(max(need, 2 * margin), max_margin)
-    window = (margin, margin + tile.height, margin, margin + tile.width)
-    return {int(k): cast_shadow_mask(dem, transform, scene.sun[k], window) for k in images}
+    return {int(k): cast_shadow_mask(dem, transform, scene.sun[k], (margin + r0, margin + r1, margin + c0, margin + c1))
+            for k, (r0, r1, c0, c1) in windows.items()}
 
