@@ -119,6 +119,27 @@ def illumination(points_km, normals, sun_km, spacecraft_km):
     return _dot(normals, l), _dot(normals, v), np.arccos(np.clip(_dot(l, v), -1.0, 1.0))
 
 
+def merge_dem_layers(layers, shape) -> np.ndarray:
+    """Heights where DEMs overlap: the mean of the DEMs with a value there (seed 000 section 6).
+
+    The one overlap rule of the package, used by ``ingest`` (:class:`lunaralbedo.ingest.dem.DemMosaic`)
+    and ``solve`` (:func:`lunaralbedo.io.rasters.read_dem_onto_grid`): "if the DEM images
+    overlap, the values from all images at a given pixel will be averaged".  ``layers``
+    yields one array of ``shape`` per DEM (metres, NaN = no value), in file order; the
+    float64 sum runs in that order, so the result does not depend on anything else.
+    Returns float64 metres, NaN where no DEM has a value.
+    """
+    total = np.zeros(shape, np.float64)
+    count = np.zeros(shape, np.int32)
+    for layer in layers:
+        d = np.asarray(layer)
+        ok = np.isfinite(d)
+        total[ok] += d[ok]
+        count[ok] += 1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / count, np.nan)
+
+
 def radius_to_height(values_m: np.ndarray, mode: str = "auto") -> tuple[np.ndarray, bool]:
     """Heights (metres above 1737.4 km) from DEM values; ``mode`` is auto, radius or height.
 
