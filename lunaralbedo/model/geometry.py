@@ -58,14 +58,24 @@ def lonlat_height(points_km):
     return lon, lat, (r - MOON_RADIUS_KM) * 1000.0
 
 
-def _dot(a, b):
-    """Row-wise dot product of ``(..., 3)`` arrays."""
-    return np.einsum("...i,...i->...", a, b)
+#: How :func:`illumination` sums the three products of a dot product: ``"einsum"`` (the
+#: solver and the forward models) or ``"sum"`` (``np.sum`` over the last axis, x + y + z
+#: left to right: the legacy mode's numerics, which differ from einsum's in the last bit).
+SUMMATIONS = ("einsum", "sum")
 
 
-def _unit(v):
+def _dot(a, b, summation: str = "einsum"):
+    """Row-wise dot product of ``(..., 3)`` arrays, summed as ``summation`` says (see :data:`SUMMATIONS`)."""
+    if summation == "einsum":
+        return np.einsum("...i,...i->...", a, b)
+    if summation == "sum":
+        return np.sum(a * b, axis=-1)
+    raise ValueError(f"summation must be one of {', '.join(SUMMATIONS)}, got {summation!r}")
+
+
+def _unit(v, summation: str = "einsum"):
     with np.errstate(invalid="ignore", divide="ignore"):
-        return v / np.sqrt(_dot(v, v))[..., None]
+        return v / np.sqrt(_dot(v, v, summation))[..., None]
 
 
 def _central_difference(a, axis):
@@ -109,14 +119,20 @@ def dem_normals(points_km, differences: str = "central"):
         return np.stack([nx / norm, ny / norm, nz / norm], axis=-1)
 
 
-def illumination(points_km, normals, sun_km, spacecraft_km):
-    """``(cos i, cos e, alpha)`` per pixel; alpha (phase angle) in radians.
+def illumination(points_km, normals, sun_km, spacecraft_km, summation: str = "einsum"):
+    r"""``(cos i, cos e, alpha)`` per pixel; alpha (phase angle) in radians (seed 001 eqs. 4-5).
 
-    ``sun_km`` and ``spacecraft_km`` are body-fixed positions (km) of one image.
+    :math:`\cos i = \mathbf{n}\cdot\mathbf{l}`, :math:`\cos e = \mathbf{n}\cdot\mathbf{v}`,
+    :math:`\cos\alpha = \mathbf{l}\cdot\mathbf{v}` with unit vectors from the points to
+    the Sun and the spacecraft.  ``sun_km`` and ``spacecraft_km`` are body-fixed positions
+    of one image, in the unit of ``points_km`` (km here; the legacy mode passes metres).
+    ``summation="sum"`` sums the dot products (and the norms) as the legacy mode did
+    (:data:`SUMMATIONS`); the default keeps the solver's numerics.
     """
-    l = _unit(np.asarray(sun_km, dtype=np.float64) - points_km)
-    v = _unit(np.asarray(spacecraft_km, dtype=np.float64) - points_km)
-    return _dot(normals, l), _dot(normals, v), np.arccos(np.clip(_dot(l, v), -1.0, 1.0))
+    l = _unit(np.asarray(sun_km, dtype=np.float64) - points_km, summation)
+    v = _unit(np.asarray(spacecraft_km, dtype=np.float64) - points_km, summation)
+    return (_dot(normals, l, summation), _dot(normals, v, summation),
+            np.arccos(np.clip(_dot(l, v, summation), -1.0, 1.0)))
 
 
 def merge_dem_layers(layers, shape) -> np.ndarray:
