@@ -111,7 +111,7 @@ def exposure_scaling(q: bool, figures: dict) -> None:
 def ortho(q: bool, figures: dict) -> None:
     from lunaralbedo.camera.optics import LroNacDistortion
     from lunaralbedo.simulate import mission as sim
-    from lunaralbedo.ingest.grid import Grid, aligned_grid, mpp_to_degrees
+    from lunaralbedo.model.grid import Grid, aligned_grid, mpp_to_degrees
     from lunaralbedo.ingest.orthoproject import footprint, orthoproject
 
     rng = np.random.default_rng(1)

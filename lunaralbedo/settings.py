@@ -39,7 +39,7 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     "NUM_PROCESSES": (int, 1, None),
     "TILE_SIZE": (float, 4.0, None),
     "SIMULATION_BOX": (tuple, (-180.0, 180.0, -90.0, 90.0), None),
-    "REFLECTANCE_TYPE": (int, photometry.get("lunar-lambert").code, tuple(photometry.codes())),
+    "REFLECTANCE_TYPE": (int, photometry.get("lunar-lambert").code, None),  # allowed: the registry's codes (_spec)
     "SHADOW_THRESH": (float, 40.0, None),
     "SHADOW_TYPE": (int, 1, (0, 1, 2, 3)),
     "TR_CONST": (float, 1.5, None),
@@ -49,11 +49,21 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     "USE_NORMALIZED_COST_FUN": (int, 0, (0, 1)),
     "COMPUTE_ERRORS": (int, 1, (0, 1)),
     "CAST_SHADOWS": (int, None, (0, 1)),  # None: on whenever the model uses a DEM
-    "REFLECTANCE": (str, None, tuple(photometry.names())),  # the model by name (TOML); wins over REFLECTANCE_TYPE
+    "REFLECTANCE": (str, None, None),  # the model by name (TOML); wins over REFLECTANCE_TYPE; allowed: the registry's names
 }
-_MODEL_KEYS = photometry.declared_settings()
-_at = list(_CORE).index("TR_CONST") + 1
-_SPEC = {**dict(list(_CORE.items())[:_at]), **_MODEL_KEYS, **dict(list(_CORE.items())[_at:])}
+
+
+def _model_keys_spec() -> dict[str, tuple[type, Any, tuple | None]]:
+    """Keys declared by the registered models (read at each call: a model registered later counts)."""
+    return photometry.declared_settings()
+
+
+def _spec() -> dict[str, tuple[type, Any, tuple | None]]:
+    """Every key in the manual's order: the core keys, the models' keys after TR_CONST."""
+    core = {**_CORE, "REFLECTANCE_TYPE": (*_CORE["REFLECTANCE_TYPE"][:2], tuple(photometry.codes())),
+            "REFLECTANCE": (*_CORE["REFLECTANCE"][:2], tuple(photometry.names()))}
+    at = list(core).index("TR_CONST") + 1
+    return {**dict(list(core.items())[:at]), **_model_keys_spec(), **dict(list(core.items())[at:])}
 
 
 @dataclass(frozen=True)
@@ -87,9 +97,10 @@ class Settings:
 
     def __getattr__(self, name: str) -> Any:
         key = name.upper()
-        if name.startswith("_") or key not in _MODEL_KEYS:
+        declared = _model_keys_spec()
+        if name.startswith("_") or key not in declared:
             raise AttributeError(name)
-        return dict(self.__dict__.get("model_settings", ())).get(key, _MODEL_KEYS[key][1])
+        return dict(self.__dict__.get("model_settings", ())).get(key, declared[key][1])
 
     @property
     def model(self) -> photometry.PhotometricModel:
@@ -104,7 +115,7 @@ class Settings:
     @property
     def initial_params(self):
         """Initial values of the model's fitted parameters (float64 array)."""
-        return self.model.initial({key: getattr(self, key.lower()) for key in _MODEL_KEYS})
+        return self.model.initial({key: getattr(self, key.lower()) for key in _model_keys_spec()})
 
     @property
     def needs_geometry(self) -> bool:
@@ -126,18 +137,18 @@ class Settings:
         out = {}
         for f in dataclasses.fields(self):
             if f.name == "model_settings":
-                out.update({k.lower(): plain(getattr(self, k.lower())) for k in _MODEL_KEYS})
+                out.update({k.lower(): plain(getattr(self, k.lower())) for k in _model_keys_spec()})
                 continue
             out[f.name] = plain(getattr(self, f.name))
         return out
 
     def to_legacy_text(self) -> str:
         """Render as a legacy settings file (absolute paths)."""
-        values = {key: getattr(self, key.lower()) for key in _SPEC if key not in ("REFLECTANCE_TYPE", "REFLECTANCE")}
-        return legacy_text({**values, **_model_keys(self.model)})
+        values = {key: getattr(self, key.lower()) for key in _spec() if key not in ("REFLECTANCE_TYPE", "REFLECTANCE")}
+        return legacy_text({**values, **model_entry(self.model)})
 
 
-def _model_keys(model) -> dict[str, Any]:
+def model_entry(model) -> dict[str, Any]:
     """REFLECTANCE_TYPE when the model has a legacy code, else REFLECTANCE (its name)."""
     return {"REFLECTANCE_TYPE": model.code} if model.code is not None else {"REFLECTANCE": model.name}
 
@@ -149,11 +160,12 @@ def legacy_text(values: dict[str, Any], comment: str = "") -> str:
     keys get their defaults, None an empty value.  ``comment`` lines are prefixed
     with ``#``.
     """
-    unknown = set(values) - set(_SPEC)
+    spec = _spec()
+    unknown = set(values) - set(spec)
     if unknown:
         raise SettingsError(f"unknown settings keys: {', '.join(sorted(unknown))}")
     lines = [f"# {c}" for c in comment.splitlines()]
-    for key, (_typ, default, _allowed) in _SPEC.items():
+    for key, (_typ, default, _allowed) in spec.items():
         if key == "REFLECTANCE" and values.get(key) is None:
             continue  # a model with a legacy code is written as REFLECTANCE_TYPE
         v = values.get(key, default)
@@ -187,8 +199,8 @@ def _parse_box(text: str, where: str) -> tuple[float, float, float, float]:
     return (lon0, lon1, max(lat0, -90.0), min(lat1, 90.0))
 
 
-def _convert(key: str, raw: Any, base: Path, where: str) -> Any:
-    typ, _default, allowed = _SPEC[key]
+def _convert(key: str, raw: Any, base: Path, where: str, spec: dict) -> Any:
+    typ, _default, allowed = spec[key]
     if raw is None or (isinstance(raw, str) and raw.strip() == ""):
         return None
     if typ is Path:
@@ -240,16 +252,17 @@ def _validate(values: dict[str, Any], where: str) -> None:
 
 
 def _build(pairs: list[tuple[str, Any, str]], base: Path, source: Path) -> Settings:
-    values: dict[str, Any] = {k: spec[1] for k, spec in _SPEC.items()}
+    spec = _spec()
+    values: dict[str, Any] = {k: v[1] for k, v in spec.items()}
     seen: set[str] = set()
     for key, raw, where in pairs:
-        if key not in _SPEC:
-            raise SettingsError(f"{where}: unknown key {key!r}; allowed keys: {', '.join(_SPEC)}")
+        if key not in spec:
+            raise SettingsError(f"{where}: unknown key {key!r}; allowed keys: {', '.join(spec)}")
         if key in seen:
             raise SettingsError(f"{where}: key {key} is given twice")
         seen.add(key)
-        conv = _convert(key, raw, base, where)
-        values[key] = conv if (conv is not None or _SPEC[key][0] is Path) else _SPEC[key][1]
+        conv = _convert(key, raw, base, where, spec)
+        values[key] = conv if (conv is not None or spec[key][0] is Path) else spec[key][1]
     _validate(values, str(source))
     return _settings(values, source)
 
@@ -258,7 +271,8 @@ def _settings(values: dict[str, Any], source: Path | None) -> Settings:
     """A :class:`Settings` from validated values keyed by legacy key."""
     model = photometry.get(values["REFLECTANCE"] or values["REFLECTANCE_TYPE"])
     core = {k.lower(): v for k, v in values.items() if k in _CORE and k not in ("REFLECTANCE_TYPE", "REFLECTANCE")}
-    return Settings(**core, reflectance=model.name, model_settings=tuple((k, values[k]) for k in _MODEL_KEYS), source=source)
+    return Settings(**core, reflectance=model.name, model_settings=tuple((k, values[k]) for k in _model_keys_spec()),
+                    source=source)
 
 
 def parse_legacy(text: str, source: Path) -> Settings:
@@ -311,8 +325,9 @@ def replace(settings: Settings, **changes: Any) -> Settings:
     """
     if "reflectance_type" in changes:
         changes["reflectance"] = photometry.get(changes.pop("reflectance_type")).name
-    model_changes = {k.upper(): changes.pop(k) for k in list(changes) if k.upper() in _MODEL_KEYS}
+    declared = _model_keys_spec()
+    model_changes = {k.upper(): changes.pop(k) for k in list(changes) if k.upper() in declared}
     if model_changes:
         merged = {**dict(settings.model_settings), **model_changes}
-        changes["model_settings"] = tuple((k, merged.get(k, _MODEL_KEYS[k][1])) for k in _MODEL_KEYS)
+        changes["model_settings"] = tuple((k, merged.get(k, declared[k][1])) for k in declared)
     return dataclasses.replace(settings, **changes)

@@ -199,7 +199,8 @@ def test_coarser_levels_are_count_weighted_means_of_the_finest_level():
 def test_exact_copy_equals_gdal_nearest(tmp_path, corners, n, size):
     from rasterio.enums import Resampling
 
-    from lunaralbedo.export.sources import Grid, find_sources, native_grid, pixel_offset, read_region
+    from lunaralbedo.export.sources import find_sources, native_grid, pixel_offset, read_region
+    from lunaralbedo.model.grid import Grid
 
     make_result(tmp_path, corners, n=n, size=size)
     sources = find_sources(tmp_path / "albedo")
@@ -207,7 +208,7 @@ def test_exact_copy_equals_gdal_nearest(tmp_path, corners, n, size):
     w, s, e, nn = grid.bounds
     dx, dy = (e - w) / grid.width, (nn - s) / grid.height
     grids = [grid] + [  # aligned sub-grids, some reaching past the data
-        Grid((w + c * dx, nn - (r + h) * dy, w + (c + wd) * dx, nn - r * dy), h, wd)
+        Grid.from_bounds((w + c * dx, nn - (r + h) * dy, w + (c + wd) * dx, nn - r * dy), h, wd)
         for r, c, h, wd in [(0, 0, 7, 9), (3, 5, 40, 33), (grid.height - 10, grid.width - 12, 10, 12), (10, 30, 30, 30)]
     ]
     for g in grids:

@@ -12,7 +12,7 @@ import spiceypy
 from click.testing import CliRunner
 
 from lunaralbedo.cli import main
-from lunaralbedo.ingest.grid import Grid
+from lunaralbedo.model.grid import Grid
 from lunaralbedo.ingest.keys import make_keys
 from lunaralbedo.ingest.run import ingest
 from lunaralbedo.simulate.mission import Scene, build, truth_on_grid

@@ -20,15 +20,15 @@ CRS = "+proj=longlat +a=1737400 +b=1737400 +no_defs"
 
 
 def test_pixel_centre_convention_and_float32_corners():
-    g = Geo(c=9.135360366542784, a=0.042343605902381544, f=-6.324438818313529, e=-0.0422581076788565, width=135, height=135)
+    g = Geo.from_gdal((0.042343605902381544, 0, 9.135360366542784, 0, -0.0422581076788565, -6.324438818313529), 135, 135)
     assert g.corners()[0] == 9.15653228759765625  # the legacy list value: centre of pixel 0, as float32
     assert g.col(g.lon(17.25)) == pytest.approx(17.25)
     assert boxes_overlap((0, 1, 0, 1), (0.5, 2, 0.5, 2)) and not boxes_overlap((0, 1, 0, 1), (1, 2, 0, 1))
 
 
 def test_tile_grid_from_reference_spacing():
-    ref = Geo(c=172.74977475854126, a=0.04224640792195306, f=-21.942195237924917, e=-0.042233358662328274,
-              width=152, height=137)
+    ref = Geo.from_gdal((0.04224640792195306, 0, 172.74977475854126, 0, -0.042233358662328274, -21.942195237924917),
+                        152, 137)
     tiles = tiles_for_images([(4.02, 9.74, -11.89, -6.28)], 4.0, ref)
     # Named after the unpadded upper-left corner, listed south to north, west to east.
     assert [t.name for t in tiles] == ["tile_4E8S", "tile_8E8S", "tile_4E4S", "tile_8E4S"]

@@ -7,7 +7,7 @@ import pytest
 from lunaralbedo.camera.optics import LroNacDistortion
 from lunaralbedo.simulate import mission as sim
 from lunaralbedo.ingest.approx import exact_coordinates, image_coordinates
-from lunaralbedo.ingest.grid import Grid, aligned_grid, mpp_to_degrees
+from lunaralbedo.model.grid import Grid, aligned_grid, mpp_to_degrees
 from lunaralbedo.ingest.orthoproject import footprint, orthoproject
 
 

@@ -12,9 +12,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from rasterio.transform import Affine
+from affine import Affine
 
 from ..errors import SolverError
+from ..model.grid import Grid
 from ..model.longitude import wrap180
 
 
@@ -71,47 +72,54 @@ def tile_indices(lo: float, hi: float, tile_size: float) -> range:
 
 @dataclass(frozen=True)
 class Tile:
-    """One output tile and its padded solve grid.
+    """One output tile: its (unpadded) :class:`~lunaralbedo.model.grid.Grid`, index, name and solve padding.
 
-    ``transform`` maps (col, row) of the *padded* grid to (lon, lat) in degrees;
-    the unpadded tile is ``[pad:pad+height, pad:pad+width]`` of it.
+    While solving, the tile is read on ``padded`` (``pad`` more pixels on every side);
+    the unpadded tile is ``inner`` of it.
     """
 
     index: int
-    west: float
-    north: float
+    grid: Grid
     size_deg: float
-    res_x: float
-    res_y: float
-    width: int
-    height: int
     pad: int
 
     @property
     def name(self) -> str:
         return tile_name(self.west, self.north)
 
+    # The tile's grid, by the names the tile work uses (degrees, pixels).
+    west = property(lambda self: self.grid.transform.c, doc="West edge of the unpadded tile.")
+    north = property(lambda self: self.grid.transform.f, doc="North edge of the unpadded tile.")
+    res_x = property(lambda self: self.grid.res[0], doc="Pixel width, degrees.")
+    res_y = property(lambda self: self.grid.res[1], doc="Pixel height, degrees (positive).")
+    width = property(lambda self: self.grid.width, doc="Columns of the unpadded tile.")
+    height = property(lambda self: self.grid.height, doc="Rows of the unpadded tile.")
+
     @property
     def bounds(self) -> tuple[float, float, float, float]:
         """Unpadded ``(west, south, east, north)`` in degrees."""
-        return (self.west, self.north - self.height * self.res_y, self.west + self.width * self.res_x, self.north)
-
-    @property
-    def padded_bounds(self) -> tuple[float, float, float, float]:
-        w, s, e, n = self.bounds
-        return (w - self.pad * self.res_x, s - self.pad * self.res_y, e + self.pad * self.res_x, n + self.pad * self.res_y)
-
-    @property
-    def padded_shape(self) -> tuple[int, int]:
-        return (self.height + 2 * self.pad, self.width + 2 * self.pad)
-
-    @property
-    def padded_transform(self) -> Affine:
-        return Affine(self.res_x, 0.0, self.west - self.pad * self.res_x, 0.0, -self.res_y, self.north + self.pad * self.res_y)
+        return self.grid.bounds
 
     @property
     def transform(self) -> Affine:
-        return Affine(self.res_x, 0.0, self.west, 0.0, -self.res_y, self.north)
+        return self.grid.transform
+
+    @property
+    def padded(self) -> Grid:
+        """The solve grid: the tile with ``pad`` pixels more on every side."""
+        return self.grid.padded(self.pad)
+
+    @property
+    def padded_bounds(self) -> tuple[float, float, float, float]:
+        return self.padded.bounds
+
+    @property
+    def padded_shape(self) -> tuple[int, int]:
+        return self.padded.shape
+
+    @property
+    def padded_transform(self) -> Affine:
+        return self.padded.transform
 
     @property
     def inner(self) -> tuple[slice, slice]:
@@ -144,16 +152,7 @@ def make_tiles(
     for j in reversed(tile_indices(lat0, lat1, tile_size)):  # north to south
         for i in tile_indices(lon0, lon1, tile_size):
             tiles.append(
-                Tile(
-                    index=len(tiles),
-                    west=i * tile_size,
-                    north=(j + 1) * tile_size,
-                    size_deg=tile_size,
-                    res_x=rx,
-                    res_y=ry,
-                    width=nx,
-                    height=ny,
-                    pad=pad,
-                )
+                Tile(index=len(tiles), grid=Grid.from_origin(i * tile_size, (j + 1) * tile_size, (rx, ry), (ny, nx)),
+                     size_deg=tile_size, pad=pad)
             )
     return tiles

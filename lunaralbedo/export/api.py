@@ -33,12 +33,13 @@ from rasterio.errors import NotGeoreferencedWarning
 
 from ..errors import InputError
 from ..io.atomic import TMP_PREFIX, atomic_write_text, make_readable
+from ..model.grid import Grid
 from ..parallel import local_workers, make_executor
 from .kml import ROOT_NAME, KmlTileWriter
 from .mosaic import assemble_cog, block_grids, write_mosaic_block, write_sub4
 from .extent import clip, crop_grid, scan_tile, simulation_box, union
 from .pyramid import plan_pyramid, present_nodes
-from .sources import Grid, Source, find_sources, native_grid
+from .sources import Source, find_sources, native_grid
 from .stretch import stretch_from_range, stretch_from_values
 from .tiling import covering, level_resampling, pyramid_children, pyramid_tasks
 
@@ -152,7 +153,7 @@ def _file_grid(src: Source, bounds) -> Grid | None:
     if part is None or part == src.bounds:
         return None
     w, s, e, n = src.file_bounds
-    whole = Grid((w, max(s, -90.0), e, min(n, 90.0)), src.height, src.width)
+    whole = Grid.from_bounds((w, max(s, -90.0), e, min(n, 90.0)), src.height, src.width)
     return crop_grid(whole, (part[0] - src.shift, part[1], part[2] - src.shift, part[3]))
 
 

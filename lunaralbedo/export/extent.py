@@ -18,7 +18,8 @@ import numpy as np
 import rasterio
 
 from ..io.guard import raster_errors
-from .sources import Bounds, Grid, Source, read_masked
+from ..model.grid import Bounds, Grid
+from .sources import Source, read_masked
 
 
 def scan_tile(src: Source, max_values: int) -> tuple[np.ndarray, Bounds | None]:
@@ -67,8 +68,7 @@ def crop_grid(grid: Grid, extent: Bounds) -> Grid:
     r1 = min(grid.height, math.ceil((n - extent[1]) / ry - 1e-6))
     if c1 <= c0 or r1 <= r0:
         return grid
-    bounds = (w + c0 * rx, s if r1 == grid.height else n - r1 * ry, e if c1 == grid.width else w + c1 * rx, n - r0 * ry)
-    return Grid(bounds, r1 - r0, c1 - c0)
+    return grid.window(c0, r0, c1 - c0, r1 - r0)
 
 
 def clip(bounds: Bounds, extent: Bounds) -> Bounds | None:

@@ -34,7 +34,8 @@ from rio_cogeo.profiles import cog_profiles
 from ..io.atomic import TMP_PREFIX, atomic_path
 from ..io.guard import raster_errors
 from ..io.rasters import write_geotiff
-from .sources import Grid, Source, read_masked, read_region
+from ..model.grid import Grid
+from .sources import Source, read_masked, read_region
 
 COG_BLOCK = 256
 MOSAIC_BLOCK = 2048  # pixels a side of one mosaic task
@@ -47,15 +48,12 @@ def overview_count(height: int, width: int, block: int = COG_BLOCK) -> int:
 
 def block_grids(grid: Grid, size: int = MOSAIC_BLOCK) -> list[tuple[int, int, Grid]]:
     """``(row_off, col_off, sub-grid)`` of the ``size``-pixel blocks of ``grid`` (one mosaic task each)."""
-    w, s, e, n = grid.bounds
-    dx, dy = (e - w) / grid.width, (n - s) / grid.height
     out = []
     for r0 in range(0, grid.height, size):
         r1 = min(grid.height, r0 + size)
         for c0 in range(0, grid.width, size):
             c1 = min(grid.width, c0 + size)
-            bounds = (w + c0 * dx, s if r1 == grid.height else n - r1 * dy, e if c1 == grid.width else w + c1 * dx, n - r0 * dy)
-            out.append((r0, c0, Grid(bounds, r1 - r0, c1 - c0)))
+            out.append((r0, c0, grid.window(c0, r0, c1 - c0, r1 - r0)))
     return out
 
 
@@ -122,7 +120,7 @@ def write_sub4(src: Source, path: str | Path, resampling: Resampling = Resamplin
     """
     h4, w4 = sub4_shape(*(part.shape if part is not None else (src.height, src.width)))
     wb, sb, eb, nb = part.bounds if part is not None else src.file_bounds
-    dst_transform = Grid((wb, sb, eb, nb), h4, w4).transform
+    dst_transform = Grid.from_bounds((wb, sb, eb, nb), h4, w4).transform
     with raster_errors(src.path), rasterio.open(src.path) as ds:
         vals = read_masked(ds, None, src.legacy)
         crs = ds.crs

@@ -19,7 +19,8 @@ from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 from ..errors import InputError
-from .sources import Bounds, Grid, intersects
+from ..model.grid import Bounds, Grid
+from .sources import intersects
 
 MAX_LEVELS = 20  # GDAL's reader follows at most 20 levels
 
@@ -37,7 +38,7 @@ class Node:
 
     @property
     def grid(self) -> Grid:
-        return Grid(self.bounds, self.height, self.width)
+        return Grid.from_bounds(self.bounds, self.height, self.width)
 
     @property
     def key(self) -> tuple[int, int, int]:

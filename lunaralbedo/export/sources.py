@@ -32,10 +32,10 @@ from rasterio.windows import Window, from_bounds
 from ..errors import InputError
 from ..io.guard import raster_errors
 from ..io.rasters import intersects  # noqa: F401  (used here and by the other export modules)
+from ..model.grid import Bounds, Grid
 from ..model.longitude import longitude_shifts  # noqa: F401  (re-exported)
 
 TILE_GLOB = "tile_*.tif"
-Bounds = tuple[float, float, float, float]  # (west, south, east, north), degrees
 
 
 @dataclass(frozen=True)
@@ -108,24 +108,6 @@ def find_sources(folder: str | Path, what: str = "albedo") -> list[Source]:
     return [Source(**{**h.__dict__, "shift": d}) for h, d in zip(heads, shifts)]
 
 
-@dataclass(frozen=True)
-class Grid:
-    """A north-up lon/lat grid: ``bounds`` (continuous longitudes) and ``(height, width)``."""
-
-    bounds: Bounds
-    height: int
-    width: int
-
-    @property
-    def transform(self) -> Affine:
-        w, s, e, n = self.bounds
-        return Affine((e - w) / self.width, 0.0, w, 0.0, -(n - s) / self.height, n)
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return (self.height, self.width)
-
-
 def union_bounds(sources: Sequence[Source]) -> Bounds:
     """Union of the source bounds (continuous longitudes, latitudes clipped to ±90°)."""
     b = np.array([s.bounds for s in sources])
@@ -142,7 +124,7 @@ def native_grid(sources: Sequence[Source]) -> Grid:
     """
     rx, ry = sources[0].res
     w, s, e, n = union_bounds(sources)
-    return Grid((w, s, e, n), max(1, round((n - s) / ry)), max(1, round((e - w) / rx)))
+    return Grid.from_bounds((w, s, e, n), max(1, round((n - s) / ry)), max(1, round((e - w) / rx)))
 
 
 def read_masked(ds, window: Window | None = None, legacy: bool | None = None) -> np.ndarray:

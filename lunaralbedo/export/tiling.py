@@ -21,7 +21,8 @@ from rasterio.enums import ColorInterp, Resampling
 
 from ..io.atomic import atomic_path
 from .pyramid import Node, Pyramid
-from .sources import Grid, Source, intersects, read_region
+from ..model.grid import Grid
+from .sources import Source, intersects, read_region
 
 TileWriter = Callable[[Path, Node, Sequence[Node], np.ndarray], None]
 

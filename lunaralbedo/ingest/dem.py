@@ -21,8 +21,8 @@ from rasterio.warp import transform as warp_transform
 from ..errors import InputError
 from ..io.rasters import MOON_CRS
 from ..isis.pixels import read_dem_cube
-from ..model.geometry import radius_to_height
-from .grid import Grid, aligned_grid, bilinear
+from ..model.geometry import merge_dem_layers, radius_to_height
+from ..model.grid import Grid, aligned_grid, bilinear
 
 DEM_SUFFIXES = (".tif", ".tiff", ".cub", ".vrt", ".img")
 
@@ -106,20 +106,19 @@ def load_dems(paths: Sequence[str | Path], mode: str = "auto") -> list[DemSource
 
 
 class DemMosaic:
-    """Several DEM sources looked up as one (the first source with a value wins)."""
+    """Several DEM sources looked up as one: where they overlap, their heights are averaged.
+
+    The overlap rule is :func:`lunaralbedo.model.geometry.merge_dem_layers` (seed 000
+    section 6), the one ``solve`` applies to the work dir's DEM tiles too.
+    """
 
     def __init__(self, sources: Sequence[DemSource]):
         self.sources = list(sources)
 
     def height(self, lon, lat) -> np.ndarray:
         """Heights (m above 1737.4 km) at lon/lat degrees; NaN where no source has data."""
-        out = np.full(np.shape(lon), np.nan)
-        for s in self.sources:
-            missing = np.isnan(out)
-            if not missing.any():
-                break
-            out[missing] = s.sample(np.asarray(lon)[missing], np.asarray(lat)[missing])
-        return out
+        lon, lat = np.asarray(lon, dtype=np.float64), np.asarray(lat, dtype=np.float64)
+        return merge_dem_layers((s.sample(lon, lat) for s in self.sources), lon.shape)
 
     def base_grid(self, box: tuple[float, float, float, float], mpp_deg: float | None = None) -> Grid:
         """Grid covering ``box`` (west, south, east, north): the first DEM's pixels, or ``mpp_deg`` pixels."""

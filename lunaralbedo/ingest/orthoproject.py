@@ -20,7 +20,7 @@ from ..isis.labels import IsisLabel
 from ..isis.pixels import cube_georeference, read_band
 from ..model.geometry import lonlat_height
 from .approx import exact_coordinates, image_coordinates
-from .grid import Grid
+from ..model.grid import Grid
 from .sampling import sample_visible
 
 

@@ -24,7 +24,7 @@ from ..spice.kernels import expand_kernel_args
 from ..camera.build import build_camera
 from ..camera.pushframe import PushFrameCamera
 from .dem import DemMosaic, load_dems
-from .grid import mpp_to_degrees
+from ..model.grid import mpp_to_degrees
 from .keys import band_items
 from .observation import open_observation
 from .orthoproject import footprint, level2_bounds, orthoproject, warp_level2

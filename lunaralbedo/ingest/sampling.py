@@ -5,7 +5,7 @@ For output pixel ``(i, j)`` of a north-up grid: the body-fixed point of its DEM 
 differences, one-sided at the grid's edges; the same formula as
 :func:`lunaralbedo.model.geometry.dem_normals`), ``cos e`` towards the spacecraft, and
 the cube value at 1-based ``(sample, line)`` sampled bilinearly as
-:func:`lunaralbedo.ingest.grid.bilinear` does.  NaN where the DEM has no value, the
+:func:`lunaralbedo.model.grid.bilinear` does.  NaN where the DEM has no value, the
 point is not imaged or the slope faces away from the spacecraft (``cos e <= 0``).
 """
 from __future__ import annotations

@@ -17,7 +17,7 @@ import numpy as np
 from ..io.atomic import atomic_write_text
 from ..io.rasters import MOON_CRS, write_geotiff
 from ..settings import legacy_text, load_settings
-from .grid import Grid
+from ..model.grid import Grid
 
 NO_DEM = -32767.0
 

@@ -391,23 +391,16 @@ def read_dem_onto_grid(
 ) -> np.ndarray:
     """Average of every DEM tile resampled (bilinear) onto the grid; float32 metres, NaN where none.
 
-    Overlapping DEM tiles are averaged (seed 000 section 6); ``nodata`` applies to
+    Overlapping DEM tiles are averaged (:func:`lunaralbedo.model.geometry.merge_dem_layers`,
+    the rule ingest uses too; seed 000 section 6); ``nodata`` applies to
     tiles that do not carry their own no-data value.  Scale/offset (ISIS
     Base/Multiplier) are applied, and a tile holding radius (e.g. LOLA or GLD100 cubes,
     ~1.737e6 m) is converted to height above the 1737.4 km sphere.
     """
-    from ..model.geometry import radius_to_height
+    from ..model.geometry import merge_dem_layers, radius_to_height
 
     grid_box = _grid_bounds(dst_transform, dst_shape)
-    total = np.zeros(dst_shape, np.float64)
-    count = np.zeros(dst_shape, np.int32)
-    for info in infos:
-        if not intersects_lon(info.lonlat_bounds, grid_box):
-            continue
-        d = read_onto_grid(info, 1, dst_transform, dst_shape, dst_crs, Resampling.bilinear, nodata=nodata)
-        d = radius_to_height(d)[0]
-        ok = np.isfinite(d)
-        total[ok] += d[ok]
-        count[ok] += 1
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(count > 0, total / count, np.nan).astype(np.float32)
+    layers = (radius_to_height(read_onto_grid(info, 1, dst_transform, dst_shape, dst_crs, Resampling.bilinear,
+                                              nodata=nodata))[0]
+              for info in infos if intersects_lon(info.lonlat_bounds, grid_box))
+    return merge_dem_layers(layers, dst_shape).astype(np.float32)

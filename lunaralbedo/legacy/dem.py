@@ -36,7 +36,7 @@ def merge_dems(dems: list[tuple[np.ndarray, Geo]], nodata: float, nw, se) -> tup
             continue
         c0, r0, c1, r1 = win
         sub = data[r0:r1, c0:c1]
-        sgeo = geo.crop(c0, r0, c1 - c0, r1 - r0)
+        sgeo = geo.window(c0, r0, c1 - c0, r1 - r0)
         if merged is None:
             bc, br = float(sgeo.col(nw[0])), float(sgeo.row(nw[1]))
             ec, er = float(sgeo.col(se[0])), float(sgeo.row(se[1]))
@@ -45,7 +45,7 @@ def merge_dems(dems: list[tuple[np.ndarray, Geo]], nodata: float, nw, se) -> tup
             ncols, nrows = int(round(e0 - b0)), int(round(e1 - b1))
             merged = np.full((nrows, ncols), nd, dtype=np.float32)
             count = np.zeros((nrows, ncols), dtype=np.int32)
-            mgeo = sgeo.crop(b0, b1, ncols, nrows)
+            mgeo = sgeo.window(b0, b1, ncols, nrows)
         rows, cols = np.mgrid[0 : sub.shape[0], 0 : sub.shape[1]]
         lc = np.rint(mgeo.col(sgeo.lon(cols))).astype(np.int64)  # C round: no exact halves on a common grid
         lr = np.rint(mgeo.row(sgeo.lat(rows))).astype(np.int64)

@@ -100,12 +100,12 @@ def read_dem(path: Path, default_nodata: float) -> tuple[np.ndarray, float]:
 def write_uint8_tile(path: Path, value: np.ndarray, valid: np.ndarray, geo: Geo, crs) -> None:
     """A legacy uint8 gray + alpha tile (alpha 255 where valid)."""
     alpha = np.where(valid, 255, 0).astype(np.uint8)
-    write_geotiff(path, np.stack([value.astype(np.uint8), alpha]), Affine(*geo.gdal), crs, dtype="uint8")
+    write_geotiff(path, np.stack([value.astype(np.uint8), alpha]), geo.transform, crs, dtype="uint8")
 
 
 def write_float_tile(path: Path, value: np.ndarray, geo: Geo, crs, nodata: float | None = None) -> None:
     """A float32 single-band tile (DEM, weightsSum)."""
-    write_geotiff(path, value.astype(np.float32), Affine(*geo.gdal), crs, nodata=nodata, dtype="float32")
+    write_geotiff(path, value.astype(np.float32), geo.transform, crs, nodata=nodata, dtype="float32")
 
 
 def write_lines(path: Path, lines: list[str]) -> None:

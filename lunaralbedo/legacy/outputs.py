@@ -97,7 +97,7 @@ def write_albedo(out: Path, tile: LegacyTile, res: TileResult, last: bool, c2: f
     if last:
         c0, r0, nc, nr = tile.crop_window
         sl = (slice(r0, r0 + nr), slice(c0, c0 + nc))
-        value, valid, geo = value[sl], valid[sl], geo.crop(c0, r0, nc, nr)
+        value, valid, geo = value[sl], valid[sl], geo.window(c0, r0, nc, nr)
         if err is not None:
             err, err_valid = err[sl], err_valid[sl]
     if not np.any(value > 0):

@@ -9,6 +9,8 @@ Conventions (SOURCES.md and the legacy numerics):
 * Lunar-Lambertian reflectance (eq. 2, :mod:`lunaralbedo.model.photometry.lunar_lambert`)
   stored as float32 (as the legacy images were), zero where ``cos i < 0.3``; ``c1``,
   ``c2`` rounded to float32 as the legacy parser stored them;
+* illumination angles (cos i, cos e, phase) are :func:`lunaralbedo.model.geometry.illumination`
+  with ``summation="sum"`` (the legacy order of the dot-product sums);
 * Sun and spacecraft positions are given in km and used in metres.
 """
 from __future__ import annotations
@@ -37,10 +39,6 @@ def surface(dem: np.ndarray, geo: Geo, nodata: float) -> tuple[np.ndarray, np.nd
     return p, geometry.dem_normals(np.where(bad, np.nan, p), differences="backward")
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
 def reflectance(kind: int, points, normals, sun_km, sc_km, c1: float, c2: float) -> tuple[np.ndarray, np.ndarray]:
     """``(R float32, alpha float32 radians)`` per pixel; R = 0 where undefined or too oblique.
 
@@ -54,13 +52,11 @@ def reflectance(kind: int, points, normals, sun_km, sc_km, c1: float, c2: float)
         return np.ones(shape, dtype=np.float32), np.zeros(shape, dtype=np.float32)
     have = np.all(np.isfinite(normals), axis=-1)
     nrm = np.where(have[..., None], normals, 0.0)
-    s = _unit(np.asarray(sun_km, dtype=np.float64) * 1000.0 - points)
-    mu0 = np.sum(s * nrm, axis=-1)
+    sun_m, sc_m = (np.asarray(p, dtype=np.float64) * 1000.0 for p in (sun_km, sc_km))
+    mu0, mu, alpha = geometry.illumination(points, nrm, sun_m, sc_m, summation="sum")
     if kind == LAMBERT:
         return np.where(have, mu0, 0.0).astype(np.float32), np.zeros(shape, dtype=np.float32)
-    v = _unit(np.asarray(sc_km, dtype=np.float64) * 1000.0 - points)
-    mu = np.maximum(np.sum(v * nrm, axis=-1), 0.0)
-    alpha = np.arccos(np.clip(np.sum(s * v, axis=-1), -1.0, 1.0))
+    mu = np.maximum(mu, 0.0)
     L = lunar_lambert.weight(alpha * 180.0 / np.pi)  # the legacy degrees conversion
     den = mu0 + mu
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -128,7 +128,7 @@ def solve_tile(mode, tile_geo: Geo, inner, images, exposures, p: Params, surface
         if win is None:
             continue
         c0, r0, c1, r1 = win
-        sgeo = img.geo.crop(c0, r0, c1 - c0, r1 - r0)
+        sgeo = img.geo.window(c0, r0, c1 - c0, r1 - r0)
         sval, sok = img.values[r0:r1, c0:c1], img.valid[r0:r1, c0:c1]
         x, y = sgeo.col(lon), sgeo.row(lat)
         m = wgt != 0

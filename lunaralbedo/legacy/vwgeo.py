@@ -6,7 +6,8 @@ GeoTIFF whose GDAL geotransform is ``(c, a, 0, f, 0, e)`` lies at
     lon = c + a * (i + 0.5),   lat = f + e * (j + 0.5)
 
 and the inverse maps a lon/lat back to fractional pixel indices on that same
-convention.  Image "corners" (the numbers in its image/tile lists and every
+convention (:class:`Geo`, the package's :class:`~lunaralbedo.model.grid.Grid` with
+these formulas).  Image "corners" (the numbers in its image/tile lists and every
 overlap test) are the centres of the first and last pixels, rounded to float32.
 
 The tile grid (SOURCES.md: grid spacing from the first DRG, 5-pixel padding)
@@ -18,39 +19,37 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from affine import Affine
 
 from ..engine.tiles import tile_name, tile_starts
+from ..model.grid import Grid
 
 #: The legacy program padded every tile by this many pixels while solving.
 PIXEL_PADDING = 5
 
 
-@dataclass(frozen=True)
-class Geo:
-    """A north-up geographic georeference with the legacy pixel-centre convention.
+class Geo(Grid):
+    """A :class:`~lunaralbedo.model.grid.Grid` read with the legacy pixel-centre convention.
 
     ``c, f`` are the GDAL (pixel-corner) origin, ``a`` and ``e`` the pixel size
-    (``e`` negative for north-up rasters); ``width``/``height`` in pixels.
+    (``e`` negative for north-up rasters).  Adds only the legacy formulas: pixel
+    centres ``a * i + (c + a / 2)`` (Vision Workbench's order of operations) and the
+    float32 corners of the legacy lists.
     """
-
-    c: float
-    a: float
-    f: float
-    e: float
-    width: int
-    height: int
 
     @classmethod
     def from_gdal(cls, transform, width: int, height: int) -> "Geo":
+        """From rasterio ``Affine`` coefficients ``(a, b, c, d, e, f)``; rotated rasters are refused."""
         t = tuple(transform)[:6]
         if abs(t[1]) > 0 or abs(t[3]) > 0:
             raise ValueError("rotated rasters are not supported by the legacy grid")
-        return cls(c=float(t[2]), a=float(t[0]), f=float(t[5]), e=float(t[4]), width=int(width), height=int(height))
+        return cls(Affine(float(t[0]), 0.0, float(t[2]), 0.0, float(t[4]), float(t[5])), (int(height), int(width)))
 
-    @property
-    def gdal(self) -> tuple[float, float, float, float, float, float]:
-        """The rasterio ``Affine`` coefficients ``(a, b, c, d, e, f)``."""
-        return (self.a, 0.0, self.c, 0.0, self.e, self.f)
+    # The GDAL names of the transform's coefficients, as the legacy formulas use them.
+    c = property(lambda self: self.transform.c, doc="West edge (pixel corner), degrees.")
+    a = property(lambda self: self.transform.a, doc="Pixel width, degrees.")
+    f = property(lambda self: self.transform.f, doc="North edge (pixel corner), degrees.")
+    e = property(lambda self: self.transform.e, doc="Pixel height, degrees (negative: north-up).")
 
     # Centre-of-pixel convention (VW pixel_to_lonlat / lonlat_to_pixel).
     def lon(self, i):
@@ -64,10 +63,6 @@ class Geo:
 
     def row(self, lat):
         return (np.asarray(lat, dtype=np.float64) - (self.f + 0.5 * self.e)) / self.e
-
-    def crop(self, i0: int, j0: int, width: int, height: int) -> "Geo":
-        """Georeference of the sub-image starting at pixel ``(i0, j0)`` (VW ``crop``)."""
-        return Geo(self.c + i0 * self.a, self.a, self.f + j0 * self.e, self.e, width, height)
 
     def corners(self) -> tuple[float, float, float, float]:
         """``(west, east, south, north)`` of the first/last pixel centres, as float32 (legacy lists)."""
@@ -166,7 +161,7 @@ def tiles_for_images(image_corners, tile_size: float, ref: Geo, pad: int = PIXEL
         y0p, y1p = min_y + dy, max_y - dy
         ncols = int(_round_half_away((x1p - x0p) / ref.a))
         nrows = int(_round_half_away((y0p - y1p) / ref.e))
-        geo = Geo(c=x0p, a=ref.a, f=y1p, e=ref.e, width=ncols, height=nrows)
+        geo = Geo(Affine(ref.a, 0.0, x0p, 0.0, ref.e, y1p), (nrows, ncols))
         cur = geo
         tiles.append(LegacyTile(name=tile_name(min_x, max_y, legacy=True), min_x=min_x, max_x=max_x, min_y=min_y, max_y=max_y, geo=geo, pad=pad))
     return tiles

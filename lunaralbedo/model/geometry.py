@@ -58,14 +58,24 @@ def lonlat_height(points_km):
     return lon, lat, (r - MOON_RADIUS_KM) * 1000.0
 
 
-def _dot(a, b):
-    """Row-wise dot product of ``(..., 3)`` arrays."""
-    return np.einsum("...i,...i->...", a, b)
+#: How :func:`illumination` sums the three products of a dot product: ``"einsum"`` (the
+#: solver and the forward models) or ``"sum"`` (``np.sum`` over the last axis, x + y + z
+#: left to right: the legacy mode's numerics, which differ from einsum's in the last bit).
+SUMMATIONS = ("einsum", "sum")
 
 
-def _unit(v):
+def _dot(a, b, summation: str = "einsum"):
+    """Row-wise dot product of ``(..., 3)`` arrays, summed as ``summation`` says (see :data:`SUMMATIONS`)."""
+    if summation == "einsum":
+        return np.einsum("...i,...i->...", a, b)
+    if summation == "sum":
+        return np.sum(a * b, axis=-1)
+    raise ValueError(f"summation must be one of {', '.join(SUMMATIONS)}, got {summation!r}")
+
+
+def _unit(v, summation: str = "einsum"):
     with np.errstate(invalid="ignore", divide="ignore"):
-        return v / np.sqrt(_dot(v, v))[..., None]
+        return v / np.sqrt(_dot(v, v, summation))[..., None]
 
 
 def _central_difference(a, axis):
@@ -109,14 +119,41 @@ def dem_normals(points_km, differences: str = "central"):
         return np.stack([nx / norm, ny / norm, nz / norm], axis=-1)
 
 
-def illumination(points_km, normals, sun_km, spacecraft_km):
-    """``(cos i, cos e, alpha)`` per pixel; alpha (phase angle) in radians.
+def illumination(points_km, normals, sun_km, spacecraft_km, summation: str = "einsum"):
+    r"""``(cos i, cos e, alpha)`` per pixel; alpha (phase angle) in radians (seed 001 eqs. 4-5).
 
-    ``sun_km`` and ``spacecraft_km`` are body-fixed positions (km) of one image.
+    :math:`\cos i = \mathbf{n}\cdot\mathbf{l}`, :math:`\cos e = \mathbf{n}\cdot\mathbf{v}`,
+    :math:`\cos\alpha = \mathbf{l}\cdot\mathbf{v}` with unit vectors from the points to
+    the Sun and the spacecraft.  ``sun_km`` and ``spacecraft_km`` are body-fixed positions
+    of one image, in the unit of ``points_km`` (km here; the legacy mode passes metres).
+    ``summation="sum"`` sums the dot products (and the norms) as the legacy mode did
+    (:data:`SUMMATIONS`); the default keeps the solver's numerics.
     """
-    l = _unit(np.asarray(sun_km, dtype=np.float64) - points_km)
-    v = _unit(np.asarray(spacecraft_km, dtype=np.float64) - points_km)
-    return _dot(normals, l), _dot(normals, v), np.arccos(np.clip(_dot(l, v), -1.0, 1.0))
+    l = _unit(np.asarray(sun_km, dtype=np.float64) - points_km, summation)
+    v = _unit(np.asarray(spacecraft_km, dtype=np.float64) - points_km, summation)
+    return (_dot(normals, l, summation), _dot(normals, v, summation),
+            np.arccos(np.clip(_dot(l, v, summation), -1.0, 1.0)))
+
+
+def merge_dem_layers(layers, shape) -> np.ndarray:
+    """Heights where DEMs overlap: the mean of the DEMs with a value there (seed 000 section 6).
+
+    The one overlap rule of the package, used by ``ingest`` (:class:`lunaralbedo.ingest.dem.DemMosaic`)
+    and ``solve`` (:func:`lunaralbedo.io.rasters.read_dem_onto_grid`): "if the DEM images
+    overlap, the values from all images at a given pixel will be averaged".  ``layers``
+    yields one array of ``shape`` per DEM (metres, NaN = no value), in file order; the
+    float64 sum runs in that order, so the result does not depend on anything else.
+    Returns float64 metres, NaN where no DEM has a value.
+    """
+    total = np.zeros(shape, np.float64)
+    count = np.zeros(shape, np.int32)
+    for layer in layers:
+        d = np.asarray(layer)
+        ok = np.isfinite(d)
+        total[ok] += d[ok]
+        count[ok] += 1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / count, np.nan)
 
 
 def radius_to_height(values_m: np.ndarray, mode: str = "auto") -> tuple[np.ndarray, bool]:

@@ -21,7 +21,7 @@ import spiceypy
 from rasterio.transform import Affine
 
 from ..camera.intersect import ray_dem
-from ..ingest.grid import Grid, bilinear
+from ..model.grid import Grid, bilinear
 from ..ingest.observation import packaged_lsk
 from ..io.rasters import MOON_CRS, write_geotiff
 from ..isis.write import Quantity, write_cube

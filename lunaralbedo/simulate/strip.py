@@ -32,7 +32,7 @@ from ..io.rasters import MOON_CRS, write_geotiff
 from ..model import geometry
 from ..model import photometry
 from ..model.cast_shadows import cast_shadow_mask, shadow_reach_km
-from ..settings import legacy_text
+from ..settings import legacy_text, model_entry
 from . import forward
 from .fields import truth_albedo, truth_dem
 from .truth import render_into, write_truth
@@ -235,7 +235,7 @@ def _render(out: Path, spec: SceneSpec) -> dict:
             "NUM_PROCESSES": 1,
             "TILE_SIZE": spec.tile_size,
             "SIMULATION_BOX": box,
-            "REFLECTANCE_TYPE": spec.reflectance_type,
+            **model_entry(model),  # REFLECTANCE_TYPE, or REFLECTANCE for a model without a legacy code
             "SHADOW_THRESH": spec.shadow_thresh,
             "SHADOW_TYPE": 1,
             "TR_CONST": 1.5,

@@ -1,0 +1,65 @@
+"""One DEM-overlap rule: where DEM files overlap, ingest and solve both average their heights (seed 000 section 6)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from rasterio.transform import Affine
+
+from lunaralbedo.ingest.dem import DemMosaic, load_dems
+from lunaralbedo.io.rasters import MOON_CRS, raster_info, read_dem_onto_grid, write_geotiff
+from lunaralbedo.model.geometry import merge_dem_layers
+from lunaralbedo.model.grid import Grid
+
+LOW, HIGH = 100.0, 340.0  # metres: the two DEMs
+
+
+@pytest.fixture
+def dems(tmp_path):
+    """Two 1 x 1 degree DEMs, half a degree apart in longitude: lon 10..11 at LOW, lon 10.5..11.5 at HIGH."""
+    folder = tmp_path / "dem"
+    for name, west, h in (("a.tif", 10.0, LOW), ("b.tif", 10.5, HIGH)):
+        values = np.full((100, 100), h, np.float32)
+        values[:3, :3] = -32767.0  # a no-data corner in each file
+        write_geotiff(folder / name, values, Affine(0.01, 0, west, 0, -0.01, 1.0), MOON_CRS, nodata=-32767.0)
+    return folder
+
+
+def _regions(grid: Grid):
+    """Column slices of the grid (lon 10..11.5) where only a, both, only b have heights (2 pixels from the seams)."""
+    lon = grid.lonlat()[0][0]
+    rows = slice(10, 90)
+    return {"a": (rows, (lon > 10.02) & (lon < 10.48)), "both": (rows, (lon > 10.52) & (lon < 10.98)),
+            "b": (rows, (lon > 11.02) & (lon < 11.48))}
+
+
+def _check(heights, grid):
+    r = _regions(grid)
+    np.testing.assert_allclose(heights[r["a"][0]][:, r["a"][1]], LOW, atol=1e-3)
+    np.testing.assert_allclose(heights[r["b"][0]][:, r["b"][1]], HIGH, atol=1e-3)
+    np.testing.assert_allclose(heights[r["both"][0]][:, r["both"][1]], (LOW + HIGH) / 2, atol=1e-3)  # the mean
+    lon = grid.lonlat()[0][0]
+    assert np.isnan(heights[1, lon < 10.02]).all()  # a's no-data corner, outside b: no height
+    assert np.allclose(heights[1, (lon > 10.52) & (lon < 10.53)], LOW, atol=1e-3)  # a's height where b has none
+
+
+def test_ingest_averages_overlapping_dems(dems):
+    """The ingest path: DemMosaic, which ingest uses for footprints, orthoprojection and DEM/dem.tif."""
+    grid = Grid.from_origin(10.0, 1.0, (0.01, 0.01), (100, 150))
+    _check(DemMosaic(load_dems([dems])).onto(grid), grid)
+    # the order of the files does not matter
+    swapped = DemMosaic(load_dems([dems / "b.tif", dems / "a.tif"])).onto(grid)
+    np.testing.assert_array_equal(swapped, DemMosaic(load_dems([dems])).onto(grid))
+
+
+def test_solve_averages_overlapping_dems(dems):
+    """The solve path: read_dem_onto_grid, which reads the work dir's DEM tiles onto each solve tile."""
+    grid = Grid.from_origin(10.0, 1.0, (0.01, 0.01), (100, 150))
+    infos = [raster_info(p) for p in sorted(dems.glob("*.tif"))]
+    _check(read_dem_onto_grid(infos, grid.transform, grid.shape, MOON_CRS, nodata=-32767.0), grid)
+
+
+def test_the_rule_is_the_mean_of_the_dems_with_a_value():
+    a = np.array([1.0, np.nan, 3.0, np.nan])
+    b = np.array([5.0, 2.0, np.nan, np.nan])
+    np.testing.assert_array_equal(merge_dem_layers([a, b], (4,)), [3.0, 2.0, 3.0, np.nan])
+    assert np.isnan(merge_dem_layers([], (2,))).all()
