@@ -206,7 +206,8 @@ def read_onto_grid(
     """Resample one band of ``info`` onto a target grid; float32 with NaN where no data.
 
     Only the window of the source that covers the target (plus a 2-pixel margin for
-    interpolation) is read.  ``nodata`` overrides the file's own value when the file
+    interpolation) is read; a source on the target's grid (:func:`aligned_offset`) is
+    copied pixel for pixel instead of warped.  ``nodata`` overrides the file's own value when the file
     has none.
     """
     out = np.full(dst_shape, np.nan, dtype=np.float32)
@@ -221,6 +222,20 @@ def _read_onto_grid_once(info, band, dst_transform, dst_shape, dst_crs, resampli
     src_nodata = info.nodata if info.nodata is not None else nodata
     out = np.full(dst_shape, np.nan, dtype=np.float32)
     with raster_errors(info.path), rasterio.open(info.path) as ds:
+        same_crs = dst_crs is None or ds.crs is None or ds.crs == dst_crs
+        off = aligned_offset(ds.transform, dst_transform, dst_shape) if same_crs else None
+        if off is not None:  # the target's pixels are source pixels: copy them
+            r, c = off
+            r0, r1, c0, c1 = max(r, 0), min(r + dst_shape[0], ds.height), max(c, 0), min(c + dst_shape[1], ds.width)
+            if r1 > r0 and c1 > c0:
+                src = ds.read(band, window=Window(c0, r0, c1 - c0, r1 - r0), out_dtype=np.float32, masked=False)
+                if src_nodata is not None:
+                    src[src == np.float32(src_nodata)] = np.nan
+                scale, offset = ds.scales[band - 1], ds.offsets[band - 1]
+                if (scale, offset) != (1.0, 0.0):
+                    src = (src.astype(np.float64) * scale + offset).astype(np.float32)
+                out[r0 - r:r1 - r, c0 - c:c1 - c] = src
+            return out
         win = _source_window(ds, dst_transform, dst_shape, dst_crs)
         win = Window(win.col_off - 2, win.row_off - 2, win.width + 4, win.height + 4).round_offsets().round_lengths()
         win = win.intersection(Window(0, 0, ds.width, ds.height)) if _overlaps(win, ds) else None
@@ -323,7 +338,11 @@ def read_drg_onto_grid(
     neighbours are usable by :func:`lunaralbedo.model.shadows.usable_pixels`: lit with the
     threshold ``lit_threshold`` (shadow type 1; always lit when it is None) and, when
     ``saturation`` is given, below it (saturated pixels are left out).  Only the
-    covering window (plus a 2-pixel margin) of the source is read.
+    covering window (plus a 2-pixel margin) of the source is read.  A DRG on the target's
+    grid (:func:`aligned_offset`: same pixel size, integer offset; ingest writes DRGs on the
+    DEM's grid) is copied pixel for pixel instead of warped: the same values, and the
+    outermost valid pixels keep their exact zero blending weight (GDAL's bilinear gave them
+    ~1e-13 from the rounding of its coordinates).
 
     ``lut`` (a camera response g over 0..255, NaN where undefined; seed 002) maps the DN
     to sensor exposure *before* resampling, so the result interpolates exposures (the
@@ -340,34 +359,86 @@ def read_drg_onto_grid(
     return got
 
 
-def _read_drg_once(info, profile, dst_transform, dst_shape, dst_crs, lit_threshold, saturation, lut, resampling):
+#: A DRG whose grid matches the target's pixel size and lies an integer number of pixels from it
+#: within this fraction of a pixel is copied pixel for pixel instead of warped (bilinear weights
+#: would be (1, 0) up to this fraction).  Ingest writes DRGs on the DEM's grid, so this is the usual case.
+ALIGNED_TOLERANCE_PX = 1e-6
+
+
+def aligned_offset(src_transform: Affine, dst_transform: Affine, shape: tuple[int, int],
+                   tol: float | None = None) -> tuple[int, int] | None:
+    """``(row, col)`` of the target grid's first pixel on the source grid when both grids are aligned, else None.
+
+    Aligned: no rotation, the same pixel size (within ``tol`` pixel over ``shape``) and an
+    integer offset (within ``tol`` pixel, default :data:`ALIGNED_TOLERANCE_PX`; negative: never aligned).
+    """
+    tol = ALIGNED_TOLERANCE_PX if tol is None else tol
+    s, d = src_transform, dst_transform
+    if tol < 0:
+        return None
+    if s.b or s.d or d.b or d.d or not s.a or not s.e:
+        return None
+    h, w = shape
+    if abs(d.a - s.a) * max(w, 1) > tol * abs(s.a) or abs(d.e - s.e) * max(h, 1) > tol * abs(s.e):
+        return None
+    col, row = (d.c - s.c) / s.a, (d.f - s.f) / s.e
+    ci, ri = round(col), round(row)
+    if abs(col - ci) > tol or abs(row - ri) > tol:
+        return None
+    return int(ri), int(ci)
+
+
+def _drg_bands(ds, info, profile, win, lit_threshold, saturation, lut):
+    """The four source bands of a DRG window: value (0 where invalid), valid, blending weight, usable (or None)."""
     from ..model import shadows
     from ..model.weights import source_weights
 
+    value = ds.read(1, window=win, out_dtype=np.float32)
+    valid = np.isfinite(value)
+    if info.nodata is not None:
+        valid &= value != np.float32(info.nodata)
+    if info.has_alpha:
+        valid &= ds.read(2, window=win) > 0
+    dn = value
+    if lut is not None:
+        value = np.asarray(lut, np.float32)[np.clip(np.nan_to_num(value), 0, len(lut) - 1).astype(np.intp)]
+        valid &= np.isfinite(value)
+    r0, c0 = int(win.row_off), int(win.col_off)
+    usable = None
+    if lit_threshold is not None or saturation is not None:  # lit and saturated are decided on the DN
+        usable = shadows.usable_pixels(dn, valid, lit_threshold, saturation)
+    return np.where(valid, value, np.float32(0.0)).astype(np.float32), valid, source_weights(profile, r0, c0, valid), usable
+
+
+def _read_drg_once(info, profile, dst_transform, dst_shape, dst_crs, lit_threshold, saturation, lut, resampling):
     h, w = dst_shape
     with raster_errors(info.path), rasterio.open(info.path) as ds:
+        src_crs = ds.crs or dst_crs
+        same_crs = dst_crs is None or ds.crs is None or ds.crs == dst_crs
+        off = aligned_offset(ds.transform, dst_transform, dst_shape) if same_crs else None
+        if off is not None:  # the target's pixels are source pixels: copy them
+            r, c = off
+            r0, r1, c0, c1 = max(r, 0), min(r + h, ds.height), max(c, 0), min(c + w, ds.width)
+            if r1 <= r0 or c1 <= c0:
+                return None
+            win = Window(c0, r0, c1 - c0, r1 - r0)
+            val, valid, wt, usable = _drg_bands(ds, info, profile, win, lit_threshold, saturation, lut)
+            if not valid.any():
+                return None
+            out = (np.zeros(dst_shape, np.float32), np.zeros(dst_shape, bool), np.zeros(dst_shape, np.float32),
+                   np.zeros(dst_shape, bool))
+            inner = (slice(r0 - r, r1 - r), slice(c0 - c, c1 - c))
+            out[0][inner], out[1][inner], out[2][inner] = np.where(valid, val, 0), valid, np.where(valid, wt, 0)
+            out[3][inner] = valid & usable if usable is not None else valid
+            return out
         win = _source_window(ds, dst_transform, dst_shape, dst_crs)
         win = Window(win.col_off - 2, win.row_off - 2, win.width + 4, win.height + 4).round_offsets().round_lengths()
         if not _overlaps(win, ds):
             return None
         win = win.intersection(Window(0, 0, ds.width, ds.height))
-        value = ds.read(1, window=win, out_dtype=np.float32)
-        valid = np.isfinite(value)
-        if info.nodata is not None:
-            valid &= value != np.float32(info.nodata)
-        if info.has_alpha:
-            valid &= ds.read(2, window=win) > 0
+        val, valid, wt, usable = _drg_bands(ds, info, profile, win, lit_threshold, saturation, lut)
         src_transform = ds.window_transform(win)
-        src_crs = ds.crs or dst_crs
-    r0, c0 = int(win.row_off), int(win.col_off)
-    dn = value
-    if lut is not None:
-        value = np.asarray(lut, np.float32)[np.clip(np.nan_to_num(value), 0, len(lut) - 1).astype(np.intp)]
-        valid &= np.isfinite(value)
-    bands = [np.where(valid, value, 0.0).astype(np.float32), valid.astype(np.float32), source_weights(profile, r0, c0, valid)]
-    usable = lit_threshold is not None or saturation is not None
-    if usable:  # lit and saturated are decided on the DN
-        bands.append(shadows.usable_pixels(dn, valid, lit_threshold, saturation).astype(np.float32))
+    bands = [val, valid.astype(np.float32), wt] + ([usable.astype(np.float32)] if usable is not None else [])
     src = np.stack(bands)
     dst = np.zeros((len(bands), h, w), dtype=np.float32)
     reproject(
@@ -382,7 +453,7 @@ def _read_drg_once(info, profile, dst_transform, dst_shape, dst_crs, lit_thresho
     ok = dst[1] > 0.9999
     if not ok.any():
         return None
-    lit = ok & (dst[3] > 0.9999) if usable else ok
+    lit = ok & (dst[3] > 0.9999) if usable is not None else ok
     return dst[0], ok, np.where(ok, dst[2], 0.0).astype(np.float32), lit
 
 
