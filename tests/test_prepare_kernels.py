@@ -153,4 +153,7 @@ def test_cast_shadow_pixels_and_skipping_march_equal_the_full_march(sun_deg):
     assert np.array_equal(cast_shadow_mask(dem, tr, sun, (10, 80, 10, 80)), full)
     rows, cols = np.mgrid[10:80, 10:80]
     assert np.array_equal(cast_shadow_pixels(dem, tr, sun, rows.ravel(), cols.ravel()), full.ravel())
+    d32 = dem.astype(np.float32)  # the solver marches float32 heights: the answers of their float64 values
+    assert np.array_equal(cast_shadow_pixels(d32, tr, sun, rows.ravel(), cols.ravel()),
+                          cast_shadow_mask(d32.astype(np.float64), tr, sun, (10, 80, 10, 80), skip=False).ravel())
     assert _skip_steps(tr, dem.shape, 0.5 * np.radians(0.01) * MOON_RADIUS_KM, 8) >= 10  # the march does skip

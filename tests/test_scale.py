@@ -127,9 +127,18 @@ def test_blocks_bound_the_rows_held(tmp_path, monkeypatch):
                                                            for k in scene.tile_images[t])))
     assert 1 <= rows < tile.height
     assert rows * ((tile.width + 2) * observations.ROW_PIXEL_BYTES + width * observations.WINDOW_PIXEL_BYTES) <= 2**20
+    assert (rows + 1) * ((tile.width + 2) * observations.ROW_PIXEL_BYTES + width * observations.WINDOW_PIXEL_BYTES
+                         + max_width(scene, tile, t) * observations.READ_PIXEL_BYTES) > 2**20  # the most that fit
     blocks = observations.row_blocks(tile.height, rows)
     assert blocks[0][0] == 0 and blocks[-1][1] == tile.height
     assert all(b[1] == c[0] for b, c in zip(blocks, blocks[1:]))
+
+
+def max_width(scene, tile, t):
+    from lunaralbedo.engine.observations import image_window
+
+    return max(c1 - c0 for _, _, c0, c1 in filter(None, (image_window(tile, scene.images[k].lonlat_bounds)
+                                                         for k in scene.tile_images[t])))
 
 
 def rasterio_read(path):

@@ -22,8 +22,11 @@ halo its normals need (points and normals of a block: 48 bytes per pixel), and e
 block's observations are cached on their own (``tilework.prepare_tile``).  The block
 height follows from a budget, :data:`BLOCK_BYTES` (environment variable
 ``LUNARALBEDO_BLOCK_MB``, default 384 MiB per worker; ``LUNARALBEDO_BLOCK_ROWS`` forces
-a height): a tile that fits is one block.  Blocks give the bytes of one whole-tile block
-up to the float64 rounding of the sums that cross blocks (``tests/test_scale.py``).
+a height) and the measured bytes per pixel below: a tile that fits is one block.  Blocks
+give the observations and per-pixel arrays of one whole-tile block; only sums that cross
+blocks are added in another order (float64 rounding, ``tests/test_scale.py``).  Besides
+the block, a worker holds per tile the cast-shadow DEM (4 bytes per pixel with its
+margin) and, while writing the outputs, 8 bytes per tile pixel (docs/performance.md).
 """
 from __future__ import annotations
 
@@ -40,14 +43,17 @@ from .photometry import solver_model
 from .scene import Scene
 from .terrain import TileShadows
 
-#: Working memory of one block of a tile in the prepare step (bytes); ``LUNARALBEDO_BLOCK_MB`` overrides it.
+#: Working memory of one block of a tile in the prepare and iterate steps (bytes); ``LUNARALBEDO_BLOCK_MB`` overrides it.
 BLOCK_BYTES = 384 * 2**20
-#: Bytes per pixel of a block's full width (DEM, points, normals, per-pixel sums) ...
-ROW_PIXEL_BYTES = 80
-#: ... per pixel of every image window in the block (the kept observations) ...
-WINDOW_PIXEL_BYTES = 32
-#: ... and per pixel of the largest window (one image's bands and temporaries at a time).
-READ_PIXEL_BYTES = 160
+#: Bytes per pixel of a block's full width: DEM (and its reader's temporaries), points and normals,
+#: per-pixel sums ...
+ROW_PIXEL_BYTES = 96
+#: ... per pixel of every image window in the block: the kept observations (~20 bytes), the window's
+#: blending weights, the initialisation sums' and the iteration's temporaries ...
+WINDOW_PIXEL_BYTES = 56
+#: ... and per pixel of the largest window: one image's bands, blending-weight tents (float64),
+#: geometry and model layers, one image at a time.
+READ_PIXEL_BYTES = 200
 
 
 def image_window(tile, bounds) -> tuple[int, int, int, int] | None:
@@ -188,28 +194,24 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut):
     weights_sum32 = weights_sum.astype(np.float32)
     wblend_sum = np.zeros((h, w))
     names = model.layer_names + (("cos_i",) if with_cos_i else ())
-    parts: dict[str, list] = {n: [] for n in ("pix", "image", "weight", *names)}
-    for k, (r0, r1, c0, c1), wb, pix, val, weight, layers in kept:
+    counts = [len(e[3]) for e in kept]
+    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    obs = {n: np.empty(int(start[-1]), np.int32 if n == "pix" else np.float32) for n in ("pix", "image", "weight", *names)}
+    obs["index"] = np.array([e[0] for e in kept], np.int32)
+    obs["start"] = start
+    for i in range(len(kept)):  # copied into place one image at a time, each image's arrays freed after
+        k, (r0, r1, c0, c1), wb, pix, val, weight, layers = kept[i]
+        kept[i] = None
         if s.use_normalized_cost_fun:
             with np.errstate(invalid="ignore", divide="ignore"):
                 wb = np.where(wb > 0, wb / weights_sum32[r0:r1, c0:c1], 0.0).astype(np.float32)
                 weight = (weight / weights_sum32.ravel()[pix]).astype(np.float32)
         wblend_sum[r0:r1, c0:c1] += wb
-        parts["pix"].append(pix)
-        parts["image"].append(val)
-        parts["weight"].append(weight)
+        part = slice(start[i], start[i + 1])
+        obs["pix"][part], obs["image"][part], obs["weight"][part] = pix, val, weight
         for n in names:
-            parts[n].append(layers[n])
-    obs = {n: (np.concatenate(v) if v else np.zeros(0, np.int32 if n == "pix" else np.float32)) for n, v in parts.items()}
-    obs["image"] = obs["image"].astype(np.float32)
-    obs["index"] = np.array([k for k, *_ in kept], np.int32)
-    obs["start"] = np.concatenate([[0], np.cumsum([len(p) for p in parts["pix"]])]).astype(np.int64)
+            obs[n][part] = layers[n]
     per_pixel = {"weights_sum": weights_sum32, "wblend_sum": wblend_sum}
     if geo is not None:
         per_pixel["dem"] = geo.dem
     return obs, per_pixel
-
-
-def image_of_observation(obs) -> np.ndarray:
-    """Local image number (0..K-1) of every observation."""
-    return np.repeat(np.arange(len(obs["index"])), np.diff(obs["start"]))

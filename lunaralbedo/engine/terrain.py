@@ -22,10 +22,20 @@ from ..model.cast_shadows import MAX_REACH_KM, cast_shadow_pixels, near_maximum,
 FIRST_MARGIN_PX = 16
 
 
+#: Rows of the shadow DEM read at a time (bounds the reader's temporaries for big tiles).
+READ_ROWS = 256
+
+
 def _read(scene, tile, margin: int) -> tuple[np.ndarray, Affine]:
+    """The DEM (float32) around the tile with ``margin`` pixels, read in strips of :data:`READ_ROWS` rows."""
     transform = tile.transform @ Affine.translation(-margin, -margin)
-    shape = (tile.height + 2 * margin, tile.width + 2 * margin)
-    return read_dem_onto_grid(scene.dems, transform, shape, scene.crs, scene.settings.no_dem_data_val), transform
+    h, w = tile.height + 2 * margin, tile.width + 2 * margin
+    dem = np.empty((h, w), np.float32)
+    for r0 in range(0, h, READ_ROWS):
+        r1 = min(r0 + READ_ROWS, h)
+        dem[r0:r1] = read_dem_onto_grid(scene.dems, transform @ Affine.translation(0, r0), (r1 - r0, w), scene.crs,
+                                        scene.settings.no_dem_data_val)
+    return dem, transform
 
 
 def _pixel_km(tile) -> float:
@@ -62,7 +72,7 @@ class TileShadows:
             if need <= margin or margin >= max_margin:
                 break
             margin = min(max(need, 2 * margin), max_margin)
-        self.dem = np.ascontiguousarray(dem, dtype=np.float64)
+        self.dem = dem  # float32: the march gives the answers of float64 heights
         self.hmax = float(np.nanmax(self.dem))
         self.near = near_maximum(self.dem)
         self.transform, self.margin = transform, margin

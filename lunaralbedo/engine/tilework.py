@@ -128,9 +128,8 @@ def _blocks(folder: Path, meta: dict):
 def _init_sums(scene: Scene, obs, width: int) -> dict:
     s = scene.settings
     r = s.model.reflectance_from(obs, s.initial_params)
-    use = r > 0  # observations already have positive weight, value and geometry
-    k = len(obs["index"])
-    rs, n = exposure_init.mean_reflectance_sums(r, use, observations.image_of_observation(obs), k)
+    rs, n = exposure_init.mean_reflectance_sums(r, obs["start"])  # observations already have positive weight,
+    use = r > 0  # value and geometry; R > 0 remains
     ustart = np.concatenate([[0], np.cumsum(n)]).astype(np.int64)
     pairs = exposure_init.pair_sums(obs["pix"][use], ustart, obs["image"][use], r[use], obs["index"], width)
     return {"index": obs["index"].tolist(), "r_sum": rs.tolist(), "r_count": n.tolist(), "pairs": pairs}

@@ -26,14 +26,30 @@ import numpy as np
 from numba import njit
 
 
-def mean_reflectance_sums(r, usable, image_of_obs, k):
-    """Per-image ``(sum R, count)`` over a tile's usable observations (float64, shape ``(k,)``).
+def mean_reflectance_sums(r, start):
+    """Per-image ``(sum R, count)`` over a tile's observations with :math:`R > 0` (float64, shape ``(k,)``).
 
-    ``image_of_obs`` is the local image number (0..k-1) of every observation.
+    Image ``a`` owns observations ``start[a]:start[a+1]``; each sum runs in observation
+    order in float64 (numba, no temporaries).
     """
-    seg = np.asarray(image_of_obs)[usable]
-    rs = np.bincount(seg, weights=np.asarray(r)[usable].astype(np.float64), minlength=k)
-    return rs, np.bincount(seg, minlength=k).astype(np.float64)
+    return _segment_sums(np.asarray(r), np.asarray(start, dtype=np.int64))
+
+
+@njit(cache=True)
+def _segment_sums(r, start):
+    k = start.shape[0] - 1
+    rs = np.zeros(k)
+    n = np.zeros(k)
+    for a in range(k):
+        acc = 0.0
+        m = 0
+        for o in range(start[a], start[a + 1]):
+            if r[o] > 0:
+                acc += np.float64(r[o])
+                m += 1
+        rs[a] = acc
+        n[a] = m
+    return rs, n
 
 
 def seed_exposure(tr_const, r_sum, r_count, dtype=np.float64):
