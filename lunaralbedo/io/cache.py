@@ -76,6 +76,8 @@ def building(folder: str | Path):
         if folder.exists():
             shutil.rmtree(folder)
         os.replace(tmp, folder)
-    except BaseException:
+    except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, OSError) and str(tmp) in str(exc.filename or ""):  # name the entry, not the temporary
+            raise OSError(exc.errno, exc.strerror or str(exc), str(folder)) from exc
         raise
