@@ -95,12 +95,15 @@ class BlockGeometry:
     """DEM of rows ``b0:b1`` of the unpadded tile, with body-fixed points (one-pixel halo) and normals of its
     columns ``c0:c1`` (those the images cover: the DEM is read for every column, it is a tile output)."""
 
-    def __init__(self, scene: Scene, tile, b0: int, b1: int, c0: int = 0, c1: int | None = None):
+    def __init__(self, scene: Scene, tile, b0: int, b1: int, c0: int = 0, c1: int | None = None, shadows=None):
         s = scene.settings
         c1 = tile.width if c1 is None else c1
         transform = tile.transform @ tile.transform.translation(-1, b0 - 1)
         shape = (b1 - b0 + 2, tile.width + 2)
-        halo_dem = read_dem_onto_grid(scene.dems, transform, shape, scene.crs, s.no_dem_data_val)
+        if shadows is not None and shadows.dem is not None:  # the cast-shadow DEM holds these rows: not read twice
+            halo_dem = shadows.rows(b0 - 1, b1 + 1, -1, tile.width + 1)
+        else:
+            halo_dem = read_dem_onto_grid(scene.dems, transform, shape, scene.crs, s.no_dem_data_val)
         self.dem = halo_dem[1:-1, 1:-1]
         lon, lat = geometry.lonlat_axes(transform, shape)
         lon_r, lat_r = np.radians(lon[c0:c1 + 2]), np.radians(lat)
@@ -146,7 +149,7 @@ def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None):
     for b0, b1 in row_blocks(tile.height, block_rows(scene, t)):
         cols = [(w[2], w[3]) for _, w in windows if w is not None and w[0] < b1 and w[1] > b0]
         span = (min(c for c, _ in cols), max(c for _, c in cols)) if cols else (0, 0)
-        geo = BlockGeometry(scene, tile, b0, b1, *span) if geometry_needed else None
+        geo = BlockGeometry(scene, tile, b0, b1, *span, shadows=cast) if geometry_needed else None
         yield (b0, b1, *_gather_block(scene, tile, b0, b1, windows, geo, cast, model, lut))
 
 

@@ -77,6 +77,11 @@ class TileShadows:
         self.near = near_maximum(self.dem)
         self.transform, self.margin = transform, margin
 
+    def rows(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+        """The DEM (float32) of unpadded tile rows ``r0:r1``, columns ``c0:c1`` (may reach into the margin)."""
+        m = self.margin
+        return self.dem[r0 + m:r1 + m, c0 + m:c1 + m]
+
     def shadowed(self, k: int, rows, cols) -> np.ndarray:
         """True where unpadded tile pixel ``(rows[o], cols[o])`` is in image ``k``'s cast shadow."""
         if self.dem is None:
