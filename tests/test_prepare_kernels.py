@@ -114,7 +114,7 @@ def test_pair_sums_equal_a_pixel_by_pixel_count():
 
 def test_aligned_drg_is_copied_with_the_warper_values(tmp_path, monkeypatch):
     """A DRG on the tile grid: the direct copy gives GDAL's bilinear values; only weight-zero edges differ."""
-    from lunaralbedo.io import rasters
+    from lunaralbedo.io import drgs, rasters
     from lunaralbedo.model.weights import WeightProfile
 
     rng = np.random.default_rng(5)
@@ -128,10 +128,10 @@ def test_aligned_drg_is_copied_with_the_warper_values(tmp_path, monkeypatch):
     info = rasters.raster_info(path)
     profile = WeightProfile.full(h, w)
     dst = Affine(0.002, 0, 10.0, 0, -0.002, -1.0)  # the tile grid: the DRG starts at column 3, row 5
-    got = rasters.read_drg_onto_grid(info, profile, dst, (60, 50), rasters.MOON_CRS, 10.0)
+    got = drgs.read_drg_onto_grid(info, profile, dst, (60, 50), rasters.MOON_CRS, 10.0)
     assert rasters.aligned_offset(info.transform, dst, (60, 50)) == (-5, -3)
     monkeypatch.setattr(rasters, "ALIGNED_TOLERANCE_PX", -1.0)  # force GDAL's warper
-    ref = rasters.read_drg_onto_grid(info, profile, dst, (60, 50), rasters.MOON_CRS, 10.0)
+    ref = drgs.read_drg_onto_grid(info, profile, dst, (60, 50), rasters.MOON_CRS, 10.0)
     assert np.array_equal(got[1], ref[1]) and np.array_equal(got[3], ref[3])  # valid, lit
     assert np.array_equal(got[0], ref[0])  # values
     np.testing.assert_allclose(got[2], ref[2], rtol=1e-6, atol=1e-9)  # weights

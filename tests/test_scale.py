@@ -85,7 +85,6 @@ def test_row_blocks_give_the_results_of_whole_tiles(tmp_path, monkeypatch):
     exposures and albedo agree to float64 rounding carried through float32 (1e-6).
     """
     from lunaralbedo.engine.solve import solve
-    from lunaralbedo.io.cache import load_stack
     from lunaralbedo.simulate import SceneSpec, render_scene
 
     render_scene(tmp_path / "s", SceneSpec(n_images=4, image_px=60, seed=3, max_num_iter=2, cast_shadows=True))

@@ -36,7 +36,8 @@ import os
 import numpy as np
 
 from ..constants import MIN_COS_INCIDENCE_MODEL, MOON_RADIUS_KM
-from ..io.rasters import read_dem_onto_grid, read_drg_onto_grid
+from ..io.drgs import read_drg_onto_grid
+from ..io.rasters import read_dem_onto_grid
 from ..model import geometry, shadows
 from ..model.longitude import overlap_shifts
 from .photometry import solver_model
