@@ -14,7 +14,7 @@ the Sun and to the spacecraft; the phase angle is :math:`\alpha = \arccos(\mathb
 The solver's prepare step uses the numba kernels at the end of this module
 (:func:`surface_block`, :func:`observe_window`): the same formulas, pixel by pixel,
 evaluated in the same order as the NumPy functions, so they give the same bytes
-(``tests/test_geometry_kernels.py``); :func:`illumination` itself runs the one
+(``tests/test_prepare_kernels.py``); :func:`illumination` itself runs the one
 per-pixel kernel :func:`_illumination_at`.
 """
 from __future__ import annotations
