@@ -12,8 +12,9 @@ Prints, in one run on this machine:
 5. camera response fit (seed 002, ``--response``): seconds per million observations
    (one 8-image stack of ~1 M observations; ``benchmarks/response_bench.py`` has the
    accuracy comparison with OpenCV and more sizes);
-6-9. the scenes of issue 15 (``benchmarks/scale_bench.py``): the narrow strip at legacy tile
-   size, exposure initialisation for 10^3-10^5 images, orthoprojection, memory bandwidth.
+6-10. the scenes of issue 15 (``benchmarks/scale_bench.py``): the narrow strip at legacy tile
+   size, exposure initialisation for 10^3-10^5 images, orthoprojection, memory bandwidth,
+   peak memory of one 4000 x 4000 px tile under 16 images (blocks of rows).
 
 Scenes are rendered once into ``bench_out/`` and reused.  ``--quick`` uses smaller scenes
 (a smoke run, not the figures of docs/performance.md).
@@ -78,8 +79,8 @@ def main() -> int:
     ap.add_argument("--out", default="bench_out")
     ap.add_argument("--quick", action="store_true", help="small scenes (smoke run)")
     ap.add_argument("--json", default=None, help="also write the figures as JSON here")
-    ap.add_argument("--only", default="1,2,3,4,5,6,7,8,9", help="comma-separated items to run (3 comes with 1)")
-    ap.add_argument("--before", default=None, help="source tree of a previous implementation to measure too (items 6, 8)")
+    ap.add_argument("--only", default="1,2,3,4,5,6,7,8,9,10", help="comma-separated items to run (3 comes with 1)")
+    ap.add_argument("--before", default=None, help="source tree of a previous implementation to measure too (items 6, 8, 10)")
     args = ap.parse_args()
     root = (REPO / args.out).resolve()
     root.mkdir(exist_ok=True)
@@ -98,7 +99,7 @@ def main() -> int:
         convergence(root, q, figures)
     if 5 in only:
         response_fit(q, figures)
-    from scale_bench import run_scale_items  # noqa: E402  (items 6-9: issue 15)
+    from scale_bench import run_scale_items  # noqa: E402  (items 6-10: issue 15)
 
     run_scale_items(root, q, figures, only, Path(args.before).resolve() if args.before else None)
     if args.json:

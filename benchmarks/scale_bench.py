@@ -1,15 +1,19 @@
-"""Items 5-8 of ``make bench`` (issue 15): real tile sizes, 10^5 images, orthoprojection, memory bandwidth.
+"""Items 6-10 of ``make bench`` (issue 15): real tile sizes, 10^5 images, orthoprojection, memory bandwidth.
 
-5. the narrow-strip scene of issue 15: 24 DRGs of 320 x 2000 px, TILE_SIZE 4 at 0.002 deg/px
+6. the narrow-strip scene of issue 15: 24 DRGs of 320 x 2000 px, TILE_SIZE 4 at 0.002 deg/px
    (tiles of 2000 x 2000 px), Lunar-Lambert, 10 iterations, 1 worker: wall and CPU time (user +
    sys of the solving process), peak RSS, ns per observation to prepare and per observation and
    iteration to iterate, ratio to one plain read of the DRGs; ``--before SRC`` runs another
    checkout's solver on the same scene too;
-6. overlap exposure initialisation and tile x image search for synthetic catalogues of
+7. overlap exposure initialisation and tile x image search for synthetic catalogues of
    10^3 .. 10^5 footprints (sparse solve; the former dense solve up to 4000 images);
-7. orthoprojection output px/s (CPU time) of a NAC-like line scanner (5064 samples x 10000
+8. orthoprojection output px/s (CPU time) of a NAC-like line scanner (5064 samples x 10000
    lines at 0.5 m/px) and frame camera, and the former exact per-pixel projection on a part;
-8. the machine's memory bandwidth: one plain NumPy pass (sum) over 1 GB of float32.
+9. the machine's memory bandwidth: one plain NumPy pass (sum) over 1 GB of float32;
+10. bounded memory: one 4000 x 4000 px tile (TILE_SIZE 4 at 0.001 deg/px) under 16 images of
+   1000 x 4000 px (80 % overlap: ~5 images over each pixel, 64 M observations), 3 iterations,
+   1 worker: peak RSS (the budget of ``engine/observations.py``, blocks of rows), CPU time,
+   ns per observation to prepare.
 
 The machine may be shared: CPU times are the honest figure, wall times are printed too.
 """
@@ -156,6 +160,26 @@ def bandwidth(figures: dict) -> None:
     print(f"9. plain NumPy pass (float32 -> float64 sum over 1 GiB): {gbs:.1f} GB/s = {4 / gbs:.2f} ns per float32", flush=True)
 
 
+def big_tile(root: Path, q: bool, figures: dict, before: Path | None) -> None:
+    px, rows, res = (200, 800, 0.005) if q else (1000, 4000, 0.001)
+    spec = SceneSpec(n_images=16, image_px=px, image_rows=rows, res_deg=res, overlap=0.8, tile_size=4.0, lon0=8.0,
+                     lat0=-4.0, max_num_iter=3, seed=10)
+    d = scene(root, f"bigtile_{rows}", spec)
+    n_obs = spec.n_images * px * rows
+    out = {"images": spec.n_images, "image": f"{px} x {rows} px", "tile": f"{rows} x {rows} px", "observations": n_obs}
+    for name, src in (("before", before), ("after", None)):
+        if name == "before" and src is None:
+            continue
+        r = solve_child(d, root / f"out_big_{name}", max_iter=3, src=src)
+        tm = r["timings"]
+        r["prepare_ns_per_obs"] = 1e9 * tm["prepare"] / n_obs
+        out[name] = r
+        print(f"10. {rows} x {rows} px tile under {spec.n_images} images ({name}): peak {r['peak_mb']:.0f} MB, "
+              f"{r['cpu_s']:.1f} s CPU ({r['seconds']:.1f} s wall), prepare {r['prepare_ns_per_obs']:.0f} ns/obs wall "
+              f"(stages {tm})", flush=True)
+    figures["big_tile"] = out
+
+
 def run_scale_items(root: Path, q: bool, figures: dict, only: set, before: Path | None) -> None:
     if 6 in only:
         narrow_strip(root, q, figures, before)
@@ -165,6 +189,8 @@ def run_scale_items(root: Path, q: bool, figures: dict, only: set, before: Path 
         ortho(q, figures)
     if 9 in only:
         bandwidth(figures)
+    if 10 in only:
+        big_tile(root, q, figures, before)
 
 
 if __name__ == "__main__":

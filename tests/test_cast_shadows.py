@@ -144,7 +144,7 @@ def test_shortcuts_do_not_change_the_mask(lat, res, incidence, azimuth, relief):
     sun = _sun(20.0, lat, incidence, azimuth)
     window = (30, n - 30, 30, n - 30)
     fast = cast_shadow_mask(dem, transform, sun, window)
-    plain = cast_shadow_mask(dem, transform, sun, window, shortcuts=False)
+    plain = cast_shadow_mask(dem, transform, sun, window, skip=False)
     assert 0 <= plain.mean() < 0.9
     if incidence >= 70:
         assert plain.mean() > 0.05  # the low-Sun cases really cast shadows

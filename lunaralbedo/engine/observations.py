@@ -1,4 +1,4 @@
-"""Compact observations of one tile: only the pixels where an image has weight.
+"""Compact observations of one tile: only the pixels where an image has weight, block of rows by block.
 
 The former layout held every image's stack over the whole tile, so a narrow strip
 (Apollo Metric, NAC) over a 2000 x 2000 px tile was mostly zeros, and every
@@ -7,28 +7,54 @@ geometry computed, only over its own footprint window inside the tile (plus one
 pixel), and only observations with positive weight are kept, as 1-D arrays ordered
 by image and then by pixel:
 
-* ``pix`` (int32): flat index ``row * width + col`` into the unpadded tile;
+* ``pix`` (int32): flat index ``row * width + col`` into the block (rows ``b0:b1`` of the unpadded tile);
 * ``image``, ``weight`` and the photometric model's layers (float32);
 * ``index`` (global image ids) and ``start`` (offsets: image ``k`` owns
   ``start[k]:start[k+1]``).
 
-Per tile pixel: ``dem`` and ``weights_sum`` (float32) and ``wblend_sum`` (float64,
+Per block pixel: ``dem`` and ``weights_sum`` (float32) and ``wblend_sum`` (float64,
 the denominator of eq. 7).  Memory is ~20-28 bytes per observation plus ~14 bytes
-per tile pixel, whatever the tile size and the images' shapes.
+per pixel of the block.
+
+**Blocks of rows** bound the memory of a worker whatever TILE_SIZE and the number of
+images: a tile is processed in blocks of :func:`block_rows` rows, each with the one-row
+halo its normals need (points and normals of a block: 48 bytes per pixel), and each
+block's observations are cached on their own (``tilework.prepare_tile``).  The block
+height follows from a budget, :data:`BLOCK_BYTES` (environment variable
+``LUNARALBEDO_BLOCK_MB``, default 384 MiB per worker; ``LUNARALBEDO_BLOCK_ROWS`` forces
+a height) and the measured bytes per pixel below: a tile that fits is one block.  Blocks
+give the observations and per-pixel arrays of one whole-tile block; only sums that cross
+blocks are added in another order (float64 rounding, ``tests/test_scale.py``).  Besides
+the block, a worker holds per tile the cast-shadow DEM (4 bytes per pixel with its
+margin) and, while writing the outputs, 8 bytes per tile pixel (docs/performance.md).
 """
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 
-from ..constants import MIN_COS_INCIDENCE_MODEL
-from ..io.rasters import read_dem_onto_grid, read_drg_onto_grid
+from ..constants import MIN_COS_INCIDENCE_MODEL, MOON_RADIUS_KM
+from ..io.drgs import read_drg_onto_grid
+from ..io.rasters import read_dem_onto_grid
 from ..model import geometry, shadows
 from ..model.longitude import overlap_shifts
 from .photometry import solver_model
 from .scene import Scene
-from .terrain import cast_shadow_masks
+from .terrain import TileShadows
+
+#: Working memory of one block of a tile in the prepare and iterate steps (bytes); ``LUNARALBEDO_BLOCK_MB`` overrides it.
+BLOCK_BYTES = 384 * 2**20
+#: Bytes per pixel of a block's full width: DEM (and its reader's temporaries), points and normals,
+#: per-pixel sums ...
+ROW_PIXEL_BYTES = 96
+#: ... per pixel of every image window in the block: the kept observations (~20 bytes), the window's
+#: blending weights, the initialisation sums' and the iteration's temporaries ...
+WINDOW_PIXEL_BYTES = 56
+#: ... and per pixel of the largest window: one image's bands, blending-weight tents (float64),
+#: geometry and model layers, one image at a time.
+READ_PIXEL_BYTES = 200
 
 
 def image_window(tile, bounds) -> tuple[int, int, int, int] | None:
@@ -47,56 +73,57 @@ def image_window(tile, bounds) -> tuple[int, int, int, int] | None:
     return (r0, r1, c0, c1) if (r1 > r0 and c1 > c0) else None
 
 
-#: Points and normals of a whole tile (48 bytes per padded pixel) are computed once when they fit
-#: this budget; bigger tiles compute them per image window (more work, bounded memory).
-TILE_GEOMETRY_BYTES = 128 * 2**20
+def block_rows(scene: Scene, t: int) -> int:
+    """Rows per block of tile ``t``: the most that fit :data:`BLOCK_BYTES` (see module docstring)."""
+    forced = os.environ.get("LUNARALBEDO_BLOCK_ROWS")
+    tile = scene.tiles[t]
+    if forced:
+        return max(1, min(tile.height, int(forced)))
+    budget = float(os.environ.get("LUNARALBEDO_BLOCK_MB", BLOCK_BYTES / 2**20)) * 2**20
+    widths = [c1 - c0 for _, _, c0, c1 in filter(None, (image_window(tile, scene.images[k].lonlat_bounds)
+                                                         for k in scene.tile_images[t]))]
+    per_row = ((tile.width + 2) * ROW_PIXEL_BYTES + sum(widths) * WINDOW_PIXEL_BYTES
+               + max(widths, default=0) * READ_PIXEL_BYTES)
+    return max(1, min(tile.height, int(budget // per_row)))
 
 
-class _Geometry:
-    """The tile's DEM on the padded grid, and body-fixed points and normals per image window.
+def row_blocks(height: int, rows: int) -> list[tuple[int, int]]:
+    """``(b0, b1)`` row ranges of blocks of ``rows`` rows covering ``height`` rows."""
+    return [(b0, min(b0 + rows, height)) for b0 in range(0, height, rows)]
 
-    Both ways give the same bytes (normals use the same neighbours, one halo pixel
-    around a window); whole-tile geometry is computed once when it fits
-    :data:`TILE_GEOMETRY_BYTES`, since images that cover most of a tile would repeat it.
-    """
 
-    def __init__(self, scene: Scene, tile):
+class BlockGeometry:
+    """DEM of rows ``b0:b1`` of the unpadded tile, with body-fixed points (one-pixel halo) and normals of its
+    columns ``c0:c1`` (those the images cover: the DEM is read for every column, it is a tile output)."""
+
+    def __init__(self, scene: Scene, tile, b0: int, b1: int, c0: int = 0, c1: int | None = None, shadows=None):
         s = scene.settings
-        self.tile = tile
-        self.dem = read_dem_onto_grid(scene.dems, tile.padded_transform, tile.padded_shape, scene.crs, s.no_dem_data_val)
-        self.lon, self.lat = geometry.lonlat_grid(tile.padded_transform, tile.padded_shape)
-        self.whole = None
-        if 48 * self.dem.size <= TILE_GEOMETRY_BYTES:
-            pts = self._points(slice(None), slice(None))
-            self.whole = (pts, geometry.dem_normals(pts))
+        c1 = tile.width if c1 is None else c1
+        transform = tile.transform @ tile.transform.translation(-1, b0 - 1)
+        shape = (b1 - b0 + 2, tile.width + 2)
+        if shadows is not None and shadows.dem is not None:  # the cast-shadow DEM holds these rows: not read twice
+            halo_dem = shadows.rows(b0 - 1, b1 + 1, -1, tile.width + 1)
+        else:
+            halo_dem = read_dem_onto_grid(scene.dems, transform, shape, scene.crs, s.no_dem_data_val)
+        self.dem = halo_dem[1:-1, 1:-1]
+        lon, lat = geometry.lonlat_axes(transform, shape)
+        lon_r, lat_r = np.radians(lon[c0:c1 + 2]), np.radians(lat)
+        self.points, self.normals = geometry.surface_block(np.cos(lon_r), np.sin(lon_r), np.cos(lat_r), np.sin(lat_r),
+                                                           np.ascontiguousarray(halo_dem[:, c0:c1 + 2]), MOON_RADIUS_KM)
+        self.lon, self.lat = lon[1:-1], lat[1:-1]  # of the block's columns and rows
+        self.c0 = c0
 
-    def _points(self, rs, cs):
-        return geometry.body_fixed(self.lon[rs, cs], self.lat[rs, cs], np.nan_to_num(self.dem[rs, cs], nan=0.0))
-
-    def window(self, r0, r1, c0, c1):
-        """Points (km), normals and no-DEM mask of unpadded window rows r0:r1, cols c0:c1."""
-        p = self.tile.pad
-        rs, cs = slice(r0 + p, r1 + p), slice(c0 + p, c1 + p)
-        bad = ~np.isfinite(self.dem[rs, cs])
-        if self.whole is not None:
-            return self.whole[0][rs, cs], self.whole[1][rs, cs], bad
-        pts = self._points(slice(r0 + p - 1, r1 + p + 1), slice(c0 + p - 1, c1 + p + 1))
-        return pts[1:-1, 1:-1], geometry.dem_normals(pts)[1:-1, 1:-1], bad
-
-    def inner_dem(self, tile):
-        return self.dem[tile.inner]
-
-    def lonlat(self, r0, r1, c0, c1):
-        """Longitude and latitude (degrees) of unpadded window rows r0:r1, cols c0:c1."""
-        p = self.tile.pad
-        return self.lon[r0 + p:r1 + p, c0 + p:c1 + p], self.lat[r0 + p:r1 + p, c0 + p:c1 + p]
+    def observe(self, use, r0: int, c0: int, sun, spacecraft):
+        """Candidate observations of a window at block row ``r0``, column ``c0`` (:func:`geometry.observe_window`)."""
+        return geometry.observe_window(use, self.dem[:, self.c0:], self.points, self.normals, r0, c0 - self.c0,
+                                       np.asarray(sun, np.float64), np.asarray(spacecraft, np.float64),
+                                       MIN_COS_INCIDENCE_MODEL)
 
 
 def tile_geometry(scene: Scene, tile):
     """DEM (m), body-fixed points (km), normals and the no-DEM mask of the whole unpadded tile."""
-    geo = _Geometry(scene, tile)
-    pts, normals, bad = geo.window(0, tile.height, 0, tile.width)
-    return geo.inner_dem(tile), pts, normals, bad
+    geo = BlockGeometry(scene, tile, 0, tile.height)
+    return geo.dem, geo.points[1:-1, 1:-1], geo.normals, ~np.isfinite(geo.dem)
 
 
 def saturation_of(dtype: str) -> float | None:
@@ -105,79 +132,90 @@ def saturation_of(dtype: str) -> float | None:
     return float(np.iinfo(dt).max) if dt.kind in "ui" else None
 
 
-def gather(scene: Scene, t: int, lut: np.ndarray | None = None) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """Read and reduce every image over tile ``t``: ``(observations, per-pixel arrays)`` (see module docstring).
+def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None):
+    """Read and reduce every image over tile ``t``, block by block: yields ``(b0, b1, observations, per-pixel arrays)``.
 
-    The ``usable`` flag (valid, lit, not saturated, not in a cast shadow, DEM, incidence
-    <= 85 degrees and cos e > 0) and the blending weight are folded into ``weight``;
-    observations with zero weight are dropped.  ``lut``: camera response g over 0..255
-    (seed 002), applied to each DRG's DN before it is resampled onto the tile grid.
+    See the module docstring for the arrays.  The ``usable`` flag (valid, lit, not
+    saturated, not in a cast shadow, DEM, incidence <= 85 degrees and cos e > 0) and the
+    blending weight are folded into ``weight``; observations with zero weight are
+    dropped.  ``lut``: camera response g over 0..255 (seed 002), applied to each DRG's DN
+    before it is resampled onto the tile grid.
     """
     s = scene.settings
     model = solver_model(s)
     tile = scene.tiles[t]
-    h, w = tile.height, tile.width
-    geo = _Geometry(scene, tile) if model.needs_geometry else None
+    geometry_needed = model.needs_geometry
+    cast = TileShadows(scene, tile, scene.tile_images[t]) if geometry_needed and s.uses_cast_shadows else None
+    windows = [(int(k), image_window(tile, scene.images[int(k)].lonlat_bounds)) for k in scene.tile_images[t]]
+    for b0, b1 in row_blocks(tile.height, block_rows(scene, t)):
+        cols = [(w[2], w[3]) for _, w in windows if w is not None and w[0] < b1 and w[1] > b0]
+        span = (min(c for c, _ in cols), max(c for _, c in cols)) if cols else (0, 0)
+        geo = BlockGeometry(scene, tile, b0, b1, *span, shadows=cast) if geometry_needed else None
+        yield (b0, b1, *_gather_block(scene, tile, b0, b1, windows, geo, cast, model, lut))
+
+
+def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut):
+    s = scene.settings
+    h, w = b1 - b0, tile.width
     thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
     with_cos_i = geo is not None and s.shadow_type == shadows.LAMBERT_RATIO
-    windows = {int(k): win for k in scene.tile_images[t] if (win := image_window(tile, scene.images[k].lonlat_bounds))}
-    cast = cast_shadow_masks(scene, tile, windows) if geo is not None and s.uses_cast_shadows else {}
-    kept = []  # (k, window, window blending weights, then the observations: pix, value, weight, layers)
+    kept = []  # (k, window in block rows, window blending weights, then the observations: pix, value, weight, layers)
     weights_sum = np.zeros((h, w))
-    for k, win in windows.items():
-        r0, r1, c0, c1 = win
-        sub = tile.transform @ tile.transform.translation(c0, r0)
+    for k, win in windows:
+        if win is None or win[1] <= b0 or win[0] >= b1:
+            continue
+        r0, r1, c0, c1 = max(win[0], b0), min(win[1], b1), win[2], win[3]
         info = scene.images[k]
-        got = read_drg_onto_grid(info, scene.profiles[k], sub, (r1 - r0, c1 - c0), scene.crs, thresh,
-                                 saturation=saturation_of(info.dtype), lut=lut)
+        got = read_drg_onto_grid(info, scene.profiles[k], tile.transform @ tile.transform.translation(c0, r0),
+                                 (r1 - r0, c1 - c0), scene.crs, thresh, saturation=saturation_of(info.dtype), lut=lut)
         if got is None:
             continue
         val, ok, wt, use = got
         use &= val > 0
-        if k in cast:
-            use &= ~cast[k]
+        wb = (wt if s.use_weights else ok).astype(np.float32)
         layers = {}
         if geo is not None:
-            pts, normals, bad = geo.window(*win)
-            ci, ce, al = geometry.illumination(pts, normals, scene.sun[k], scene.spacecraft[k])
-            use &= ~bad & (ci >= MIN_COS_INCIDENCE_MODEL) & (ce > 0)
-            lon, lat = geo.lonlat(*win)
-            layers = model.layers(ci, ce, al, lon=lon, lat=lat)
+            rows, cols, ci, ce, al = geo.observe(use, r0 - b0, c0, scene.sun[k], scene.spacecraft[k])
+            if cast is not None and len(rows):
+                lit = ~cast.shadowed(k, rows + r0, cols + c0)
+                rows, cols, ci, ce, al = rows[lit], cols[lit], ci[lit], ce[lit], al[lit]
+            if not len(rows):
+                continue
+            take = wb[rows, cols] > 0
+            rows, cols, ci, ce, al = rows[take], cols[take], ci[take], ce[take], al[take]
+            layers = model.layers(ci, ce, al, lon=geo.lon[c0 + cols], lat=geo.lat[r0 - b0 + rows])
             if with_cos_i:
                 layers["cos_i"] = ci
-        wb = (wt if s.use_weights else ok).astype(np.float32)
-        sel = np.nonzero(use & (wb > 0))
-        if not use.any():
-            continue
-        weights_sum[r0:r1, c0:c1] += wb  # float64, images in tile order
-        pix = ((sel[0] + r0) * w + (sel[1] + c0)).astype(np.int32)
+        else:
+            if not use.any():
+                continue
+            rows, cols = np.nonzero(use & (wb > 0))
+        weights_sum[r0 - b0:r1 - b0, c0:c1] += wb  # float64, images in tile order
+        pix = ((rows + (r0 - b0)) * w + (cols + c0)).astype(np.int32)
         # compact at once: only the window's blending weights stay (for eq. 7's denominator)
-        kept.append((int(k), win, wb, pix, val[sel], wb[sel], {n: np.asarray(layers[n])[sel].astype(np.float32) for n in layers}))
+        kept.append((k, (r0 - b0, r1 - b0, c0, c1), wb, pix, val[rows, cols], wb[rows, cols],
+                     {n: np.asarray(layers[n]).astype(np.float32) for n in layers}))
     weights_sum32 = weights_sum.astype(np.float32)
     wblend_sum = np.zeros((h, w))
     names = model.layer_names + (("cos_i",) if with_cos_i else ())
-    parts: dict[str, list] = {n: [] for n in ("pix", "image", "weight", *names)}
-    for k, (r0, r1, c0, c1), wb, pix, val, weight, layers in kept:
+    counts = [len(e[3]) for e in kept]
+    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    obs = {n: np.empty(int(start[-1]), np.int32 if n == "pix" else np.float32) for n in ("pix", "image", "weight", *names)}
+    obs["index"] = np.array([e[0] for e in kept], np.int32)
+    obs["start"] = start
+    for i in range(len(kept)):  # copied into place one image at a time, each image's arrays freed after
+        k, (r0, r1, c0, c1), wb, pix, val, weight, layers = kept[i]
+        kept[i] = None
         if s.use_normalized_cost_fun:
             with np.errstate(invalid="ignore", divide="ignore"):
                 wb = np.where(wb > 0, wb / weights_sum32[r0:r1, c0:c1], 0.0).astype(np.float32)
                 weight = (weight / weights_sum32.ravel()[pix]).astype(np.float32)
         wblend_sum[r0:r1, c0:c1] += wb
-        parts["pix"].append(pix)
-        parts["image"].append(val)
-        parts["weight"].append(weight)
+        part = slice(start[i], start[i + 1])
+        obs["pix"][part], obs["image"][part], obs["weight"][part] = pix, val, weight
         for n in names:
-            parts[n].append(layers[n])
-    obs = {n: (np.concatenate(v) if v else np.zeros(0, np.int32 if n == "pix" else np.float32)) for n, v in parts.items()}
-    obs["image"] = obs["image"].astype(np.float32)
-    obs["index"] = np.array([k for k, *_ in kept], np.int32)
-    obs["start"] = np.concatenate([[0], np.cumsum([len(p) for p in parts["pix"]])]).astype(np.int64)
+            obs[n][part] = layers[n]
     per_pixel = {"weights_sum": weights_sum32, "wblend_sum": wblend_sum}
     if geo is not None:
-        per_pixel["dem"] = geo.inner_dem(tile)
+        per_pixel["dem"] = geo.dem
     return obs, per_pixel
-
-
-def image_of_observation(obs) -> np.ndarray:
-    """Local image number (0..K-1) of every observation."""
-    return np.repeat(np.arange(len(obs["index"])), np.diff(obs["start"]))

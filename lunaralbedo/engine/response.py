@@ -8,7 +8,7 @@ observations: integer DN on the tile grid), computes the reflectance model R of 
 any worker count) and fits g, the albedo (the seed's r, with c = R) and, unless
 ``--exposure-times`` gives them, the exposures by
 :func:`lunaralbedo.model.response_fit.fit_response`.  The prepare pass then applies g to
-each DRG's DN *before* resampling (:func:`lunaralbedo.io.rasters.read_drg_onto_grid`),
+each DRG's DN *before* resampling (:func:`lunaralbedo.io.drgs.read_drg_onto_grid`),
 and the usual albedo/exposure solve runs on the linearised values.
 
 ``--response FILE`` loads a ``response.csv`` instead.  The estimated response, its plots
@@ -27,7 +27,7 @@ from rasterio.enums import Resampling
 from ..constants import MIN_COS_INCIDENCE_MODEL
 from ..errors import InputError, ResumeError
 from ..io import response as rio
-from ..io.rasters import read_drg_onto_grid
+from ..io.drgs import read_drg_onto_grid
 from ..model import geometry, shadows
 from ..model.response import Observations
 from ..model.response_fit import fit_response

@@ -5,6 +5,13 @@ Each task is a plain function of (scene, tile index, small state) that a Dask wo
 compact observations (:mod:`.observations`) inside OUTDIR; ``iterate`` computes one
 iteration's partial sums from them in one fused pass (:mod:`.kernels`); ``finalise`` writes the tile's outputs.  Global couplings
 (exposures, phase coefficients, Q) leave a task only as small float64 sums.
+
+Cache layout of a tile (``OUTDIR/checkpoint/cache/<tile>/``): one folder per block of
+rows, ``block_0000/`` ... (a :func:`~lunaralbedo.io.cache.save_stack` entry each: the
+block's observations and ``tile_*`` per-pixel arrays, ``pix`` relative to the block),
+then ``meta.json`` (written last: the tile is complete) with the initialisation sums and
+``blocks``, the ``[b0, b1]`` rows of each block.  Iterate and finalise read one block at a
+time (:func:`iterate_block` is one block's work), so memory is bounded by a block.
 """
 from __future__ import annotations
 
@@ -13,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.cache import load_stack, save_stack
+from ..io.cache import building, load_stack, save_meta, save_stack
 from ..io.rasters import write_geotiff
 from ..model import exposure_init, shadows
 from . import kernels, observations
@@ -64,19 +71,46 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | No
     ``lut``: camera response g over 0..255 (seed 002), applied to each DRG's DN before
     it is resampled onto the tile grid; None keeps the DN (linear response).
 
-    Returns the tile's initialisation sums (also stored in the cache's meta, so a
-    resumed run does not recompute them): per-image reflectance sums for the seed
-    exposure, and pairwise log-ratio sums for the overlap exposure.
+    The tile is done block of rows by block (:func:`observations.gather_blocks`), each
+    block cached as it is done (into a temporary folder renamed once the tile is complete).  Returns the tile's initialisation sums (also stored in
+    the cache's meta, so a resumed run does not recompute them): per-image reflectance
+    sums for the seed exposure, and pairwise log-ratio sums for the overlap exposure,
+    added block by block in block order.
     """
     folder = _cache_dir(cache_root, scene, t)
     cached = load_stack(folder)
     if cached is not None:
         return {**cached[1], "reused": True}
-    obs, per_pixel = observations.gather(scene, t, lut)
-    meta = _init_sums(scene, obs)
-    meta["tile"] = scene.tiles[t].name
-    save_stack(folder, {**obs, **{f"tile_{k}": v for k, v in per_pixel.items()}}, meta)
+    with building(folder) as tmp:  # the tile's folder appears when all its blocks are written
+        meta = _prepare_blocks(scene, t, lut, tmp)
     return {**meta, "reused": False}
+
+
+def _prepare_blocks(scene: Scene, t: int, lut, folder: Path) -> dict:
+    r_sums: dict[int, list] = {}
+    pairs: dict = {}
+    blocks = []
+    for b0, b1, obs, per_pixel in observations.gather_blocks(scene, t, lut):
+        part = _init_sums(scene, obs, scene.tiles[t].width)
+        for k, rs, n in zip(part["index"], part["r_sum"], part["r_count"]):
+            acc = r_sums.setdefault(k, [0.0, 0.0])
+            acc[0] += rs
+            acc[1] += n
+        exposure_init.merge_pair_sums(pairs, part["pairs"])
+        save_stack(folder / f"block_{len(blocks):04d}", {**obs, **{f"tile_{k}": v for k, v in per_pixel.items()}},
+                   {"rows": [b0, b1]})
+        blocks.append([b0, b1])
+    index = [int(k) for k in scene.tile_images[t] if int(k) in r_sums]  # tile order
+    meta = {
+        "index": index,
+        "r_sum": [r_sums[k][0] for k in index],
+        "r_count": [r_sums[k][1] for k in index],
+        "pairs": [[j, k, n_, d] for (j, k), (n_, d) in sorted(pairs.items())],
+        "tile": scene.tiles[t].name,
+        "blocks": blocks,
+    }
+    save_meta(folder, meta)
+    return meta
 
 
 def _split(arrays) -> tuple[dict, dict]:
@@ -85,20 +119,20 @@ def _split(arrays) -> tuple[dict, dict]:
     return obs, {k[5:]: v for k, v in arrays.items() if k.startswith("tile_")}
 
 
-def _init_sums(scene: Scene, obs) -> dict:
+def _blocks(folder: Path, meta: dict):
+    """``(b0, b1, observations, per-pixel arrays)`` of every cached block of a tile, in order (one in memory at a time)."""
+    for i, (b0, b1) in enumerate(meta["blocks"]):
+        yield (b0, b1, *_split(load_stack(folder / f"block_{i:04d}")[0]))
+
+
+def _init_sums(scene: Scene, obs, width: int) -> dict:
     s = scene.settings
     r = s.model.reflectance_from(obs, s.initial_params)
-    use = r > 0  # observations already have positive weight, value and geometry
-    k = len(obs["index"])
-    rs, n = exposure_init.mean_reflectance_sums(r, use, observations.image_of_observation(obs), k)
+    rs, n = exposure_init.mean_reflectance_sums(r, obs["start"])  # observations already have positive weight,
+    use = r > 0  # value and geometry; R > 0 remains
     ustart = np.concatenate([[0], np.cumsum(n)]).astype(np.int64)
-    pairs = exposure_init.pair_sums(obs["pix"][use], ustart, obs["image"][use], r[use], obs["index"])
-    return {
-        "index": obs["index"].tolist(),
-        "r_sum": rs.tolist(),
-        "r_count": n.tolist(),
-        "pairs": [[j, k, n_, d] for (j, k), (n_, d) in sorted(pairs.items())],
-    }
+    pairs = exposure_init.pair_sums(obs["pix"][use], ustart, obs["image"][use], r[use], obs["index"], width)
+    return {"index": obs["index"].tolist(), "r_sum": rs.tolist(), "r_count": n.tolist(), "pairs": pairs}
 
 
 # --------------------------------------------------------------------------- iterate
@@ -119,15 +153,35 @@ def tile_model(scene: Scene, obs, state: SolveState, npix: int):
 
 
 def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> TileSums:
-    """Partial sums of one iteration over tile ``t`` (eqs. 1, 3, 4, 5) in one fused pass."""
-    obs, _ = _split(load_stack(_cache_dir(cache_root, scene, t))[0])
+    """Partial sums of one iteration over tile ``t`` (eqs. 1, 3, 4, 5): its blocks' sums added in block order."""
+    folder = _cache_dir(cache_root, scene, t)
+    meta = load_stack(folder)[1]
+    idx = np.asarray(meta["index"], np.int32)
+    n_params = len(scene.settings.model.parameters)
+    out = TileSums(index=idx, n_params=n_params, exp_num=np.zeros(len(idx)), exp_den=np.zeros(len(idx)))
+    pos = {k: i for i, k in enumerate(idx.tolist())}
+    width = scene.tiles[t].width
+    for b0, b1, obs, _ in _blocks(folder, meta):
+        part = iterate_block(scene, obs, state, want_phase, (b1 - b0) * width)
+        at = np.array([pos[k] for k in part.index.tolist()], np.intp)
+        out.q += part.q
+        out.exp_num[at] += part.exp_num
+        out.exp_den[at] += part.exp_den
+        out.jtj += part.jtj
+        out.jtr += part.jtr
+        out.alpha_min, out.alpha_max = min(out.alpha_min, part.alpha_min), max(out.alpha_max, part.alpha_max)
+        out.n_obs += part.n_obs
+    return out
+
+
+def iterate_block(scene: Scene, obs, state: SolveState, want_phase: bool, npix: int) -> TileSums:
+    """Partial sums of one iteration over one block's observations (eqs. 1, 3, 4, 5) in one fused pass."""
     idx = obs["index"]
     model = scene.settings.model
     out = TileSums(index=idx, n_params=len(model.parameters), exp_num=np.zeros(len(idx)), exp_den=np.zeros(len(idx)))
     if len(idx) == 0:
         return out
-    tile = scene.tiles[t]
-    alb, r, w, t_obs = tile_model(scene, obs, state, tile.height * tile.width)
+    alb, r, w, t_obs = tile_model(scene, obs, state, npix)
     phase = want_phase and bool(model.parameters)
     dr = np.stack([np.asarray(d, np.float32) for d in model.derivatives_from(obs, state.params)]) if phase else np.zeros((0, len(r)), np.float32)
     if not phase:
@@ -159,12 +213,15 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     """Write the albedo, error, DEM and weight-sum tiles of tile ``t``; return a small report.
 
     ``weightsSum`` is written last, so with ``skip_done`` (a resumed run whose final
-    state was already fixed) a tile that has it is complete and is not redone.
+    state was already fixed) a tile that has it is complete and is not redone.  The
+    blocks are read one at a time; a whole-tile raster is held for each output while it
+    is written (4 bytes per pixel, 8 for albedo and error together).
     """
     s = scene.settings
     tile = scene.tiles[t]
-    obs, per_pixel = _split(load_stack(_cache_dir(cache_root, scene, t))[0])
-    idx = obs["index"]
+    folder = _cache_dir(cache_root, scene, t)
+    meta = load_stack(folder)[1]
+    idx = np.asarray(meta["index"], np.int32)
     h, w_ = tile.height, tile.width
     name = f"{tile.name}.tif"
     if skip_done and (out_dir / "weightsSum" / name).exists():
@@ -173,22 +230,39 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
         with rasterio.open(out_dir / "albedo" / name) as ds:
             valid = int(np.count_nonzero(np.isfinite(ds.read(1))))
         return {**_tile_images(scene, t, idx), "valid_pixels": valid, "reused": True}
-    if len(idx):
-        alb, r, w, t_obs = tile_model(scene, obs, state, h * w_)
-    else:
-        alb = np.full(h * w_, np.nan, np.float32)
-    write_geotiff(out_dir / "albedo" / name, alb.reshape(h, w_), tile.transform, scene.crs, nodata=float("nan"))
-    if s.compute_errors and len(idx):
-        num = kernels.error_numerator(obs["pix"], obs["image"], t_obs * r, w, alb, h * w_)
-        den = per_pixel["wblend_sum"].ravel()
-        with np.errstate(divide="ignore", invalid="ignore"):
-            err = np.where(den > 0, num / den, np.nan).astype(np.float32)
-        write_geotiff(out_dir / "error" / name, err.reshape(h, w_), tile.transform, scene.crs, nodata=float("nan"))
-    if "dem" in per_pixel:
-        write_geotiff(out_dir / "DEM" / name, np.asarray(per_pixel["dem"]), tile.transform, scene.crs, nodata=float("nan"))
-    write_geotiff(out_dir / "weightsSum" / name, np.asarray(per_pixel["weights_sum"]), tile.transform, scene.crs)
-    return {
-        **_tile_images(scene, t, idx),
-        "valid_pixels": int(np.count_nonzero(np.isfinite(alb))),
-        "reused": False,
-    }
+    alb = np.full((h, w_), np.nan, np.float32)
+    want_err = s.compute_errors and len(idx)
+    err = np.full((h, w_), np.nan, np.float32) if want_err else None
+    has_dem = False
+    for b0, b1, obs, per_pixel in _blocks(folder, meta):
+        has_dem = "dem" in per_pixel
+        if not len(obs["index"]):
+            continue
+        npix = (b1 - b0) * w_
+        a, r, w, t_obs = tile_model(scene, obs, state, npix)
+        alb[b0:b1] = a.reshape(b1 - b0, w_)
+        if want_err:
+            num = kernels.error_numerator(obs["pix"], obs["image"], t_obs * r, w, a, npix)
+            den = per_pixel["wblend_sum"].ravel()
+            with np.errstate(divide="ignore", invalid="ignore"):
+                err[b0:b1] = np.where(den > 0, num / den, np.nan).astype(np.float32).reshape(b1 - b0, w_)
+    write_geotiff(out_dir / "albedo" / name, alb, tile.transform, scene.crs, nodata=float("nan"))
+    valid = int(np.count_nonzero(np.isfinite(alb)))
+    del alb
+    if want_err:
+        write_geotiff(out_dir / "error" / name, err, tile.transform, scene.crs, nodata=float("nan"))
+        del err
+    if has_dem:
+        write_geotiff(out_dir / "DEM" / name, _per_pixel_tile(folder, meta, "dem", (h, w_)), tile.transform, scene.crs,
+                      nodata=float("nan"))
+    write_geotiff(out_dir / "weightsSum" / name, _per_pixel_tile(folder, meta, "weights_sum", (h, w_)), tile.transform,
+                  scene.crs)
+    return {**_tile_images(scene, t, idx), "valid_pixels": valid, "reused": False}
+
+
+def _per_pixel_tile(folder: Path, meta: dict, name: str, shape) -> np.ndarray:
+    """One cached per-pixel array of a tile, assembled from its blocks (float32)."""
+    out = np.empty(shape, np.float32)
+    for i, (b0, b1) in enumerate(meta["blocks"]):
+        out[b0:b1] = load_stack(folder / f"block_{i:04d}")[0][f"tile_{name}"]
+    return out

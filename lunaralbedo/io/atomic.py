@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
 from pathlib import Path
 from typing import Iterator
@@ -53,10 +54,13 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
 
 
 def remove_stale_temporaries(folder: str | Path) -> int:
-    """Delete leftover ``.tmp-*`` files below ``folder`` (from a killed run); return how many."""
+    """Delete leftover ``.tmp-*`` files and folders below ``folder`` (from a killed run); return how many."""
     n = 0
-    for p in Path(folder).rglob(TMP_PREFIX + "*"):
+    for p in sorted(Path(folder).rglob(TMP_PREFIX + "*")):
         with contextlib.suppress(OSError):
-            p.unlink()
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p)
+            else:
+                p.unlink()
             n += 1
     return n

@@ -11,6 +11,7 @@ import json
 import os
 import shutil
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -44,3 +45,39 @@ def load_stack(folder: str | Path, mmap: bool = True) -> tuple[dict[str, np.ndar
     meta = json.loads(meta_path.read_text())
     arrays = {p.stem: np.load(p, mmap_mode="r" if mmap else None, allow_pickle=False) for p in sorted(folder.glob("*.npy"))}
     return arrays, meta
+
+
+def save_meta(folder: str | Path, meta: dict) -> None:
+    """Write ``meta.json`` into an existing cache folder atomically (it marks the entry complete)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=folder)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(json.dumps(meta))
+        os.replace(tmp, folder / "meta.json")
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+@contextmanager
+def building(folder: str | Path):
+    """A temporary folder next to ``folder`` to fill (blocks, ``meta.json``), renamed to ``folder`` on success.
+
+    The entry appears complete or not at all, as with :func:`save_stack`; on error the
+    temporary folder is removed.
+    """
+    folder = Path(folder)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=folder.parent))
+    try:
+        yield tmp
+        if folder.exists():
+            shutil.rmtree(folder)
+        os.replace(tmp, folder)
+    except BaseException as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, OSError) and str(tmp) in str(exc.filename or ""):  # name the entry, not the temporary
+            raise OSError(exc.errno, exc.strerror or str(exc), str(folder)) from exc
+        raise

@@ -194,6 +194,35 @@ def _grid_shifts(info: RasterInfo, dst_transform: Affine, dst_shape: tuple[int, 
     return [Affine.translation(-s, 0.0) @ dst_transform for s in shifts]
 
 
+#: A DRG whose grid matches the target's pixel size and lies an integer number of pixels from it
+#: within this fraction of a pixel is copied pixel for pixel instead of warped (bilinear weights
+#: would be (1, 0) up to this fraction).  Ingest writes DRGs on the DEM's grid, so this is the usual case.
+ALIGNED_TOLERANCE_PX = 1e-6
+
+
+def aligned_offset(src_transform: Affine, dst_transform: Affine, shape: tuple[int, int],
+                   tol: float | None = None) -> tuple[int, int] | None:
+    """``(row, col)`` of the target grid's first pixel on the source grid when both grids are aligned, else None.
+
+    Aligned: no rotation, the same pixel size (within ``tol`` pixel over ``shape``) and an
+    integer offset (within ``tol`` pixel, default :data:`ALIGNED_TOLERANCE_PX`; negative: never aligned).
+    """
+    tol = ALIGNED_TOLERANCE_PX if tol is None else tol
+    s, d = src_transform, dst_transform
+    if tol < 0:
+        return None
+    if s.b or s.d or d.b or d.d or not s.a or not s.e:
+        return None
+    h, w = shape
+    if abs(d.a - s.a) * max(w, 1) > tol * abs(s.a) or abs(d.e - s.e) * max(h, 1) > tol * abs(s.e):
+        return None
+    col, row = (d.c - s.c) / s.a, (d.f - s.f) / s.e
+    ci, ri = round(col), round(row)
+    if abs(col - ci) > tol or abs(row - ri) > tol:
+        return None
+    return int(ri), int(ci)
+
+
 def read_onto_grid(
     info: RasterInfo,
     band: int,
@@ -206,7 +235,8 @@ def read_onto_grid(
     """Resample one band of ``info`` onto a target grid; float32 with NaN where no data.
 
     Only the window of the source that covers the target (plus a 2-pixel margin for
-    interpolation) is read.  ``nodata`` overrides the file's own value when the file
+    interpolation) is read; a source on the target's grid (:func:`aligned_offset`) is
+    copied pixel for pixel instead of warped.  ``nodata`` overrides the file's own value when the file
     has none.
     """
     out = np.full(dst_shape, np.nan, dtype=np.float32)
@@ -221,6 +251,20 @@ def _read_onto_grid_once(info, band, dst_transform, dst_shape, dst_crs, resampli
     src_nodata = info.nodata if info.nodata is not None else nodata
     out = np.full(dst_shape, np.nan, dtype=np.float32)
     with raster_errors(info.path), rasterio.open(info.path) as ds:
+        same_crs = dst_crs is None or ds.crs is None or ds.crs == dst_crs
+        off = aligned_offset(ds.transform, dst_transform, dst_shape) if same_crs else None
+        if off is not None:  # the target's pixels are source pixels: copy them
+            r, c = off
+            r0, r1, c0, c1 = max(r, 0), min(r + dst_shape[0], ds.height), max(c, 0), min(c + dst_shape[1], ds.width)
+            if r1 > r0 and c1 > c0:
+                src = ds.read(band, window=Window(c0, r0, c1 - c0, r1 - r0), out_dtype=np.float32, masked=False)
+                if src_nodata is not None:
+                    src[src == np.float32(src_nodata)] = np.nan
+                scale, offset = ds.scales[band - 1], ds.offsets[band - 1]
+                if (scale, offset) != (1.0, 0.0):
+                    src = (src.astype(np.float64) * scale + offset).astype(np.float32)
+                out[r0 - r:r1 - r, c0 - c:c1 - c] = src
+            return out
         win = _source_window(ds, dst_transform, dst_shape, dst_crs)
         win = Window(win.col_off - 2, win.row_off - 2, win.width + 4, win.height + 4).round_offsets().round_lengths()
         win = win.intersection(Window(0, 0, ds.width, ds.height)) if _overlaps(win, ds) else None
@@ -301,89 +345,6 @@ def write_geotiff(
                 dst.set_band_description(k + 1, text)
             for k, band_tags in enumerate(tags or ()):
                 dst.update_tags(k + 1, **band_tags)
-
-
-def read_drg_onto_grid(
-    info: RasterInfo,
-    profile,
-    dst_transform: Affine,
-    dst_shape: tuple[int, int],
-    dst_crs: CRS | None,
-    lit_threshold: float | None = None,
-    saturation: float | None = None,
-    lut: np.ndarray | None = None,
-    resampling: Resampling = Resampling.bilinear,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-    """Resample one DRG onto a target grid: ``(value, valid, weight, lit)`` or None if it misses the grid.
-
-    ``value`` is band 1 (float32, bilinear); ``valid`` is True where all four
-    bilinear neighbours are valid (alpha band > 0 and not nodata); ``weight`` the
-    blending weight of :func:`lunaralbedo.model.weights.source_weights` (computed from
-    ``profile`` on the source grid, then resampled); ``lit`` is True where all four
-    neighbours are usable by :func:`lunaralbedo.model.shadows.usable_pixels`: lit with the
-    threshold ``lit_threshold`` (shadow type 1; always lit when it is None) and, when
-    ``saturation`` is given, below it (saturated pixels are left out).  Only the
-    covering window (plus a 2-pixel margin) of the source is read.
-
-    ``lut`` (a camera response g over 0..255, NaN where undefined; seed 002) maps the DN
-    to sensor exposure *before* resampling, so the result interpolates exposures (the
-    seed's virtual observations, eq. 15); the lit test still uses the DN.
-    """
-    got = None
-    for t in _grid_shifts(info, dst_transform, dst_shape, dst_crs):
-        part = _read_drg_once(info, profile, t, dst_shape, dst_crs, lit_threshold, saturation, lut, resampling)
-        if got is None or part is None:
-            got = got or part
-            continue
-        take = part[1] & ~got[1]  # pixels only this side of the antimeridian has
-        got = tuple(np.where(take, b, a) for a, b in zip(got, part))
-    return got
-
-
-def _read_drg_once(info, profile, dst_transform, dst_shape, dst_crs, lit_threshold, saturation, lut, resampling):
-    from ..model import shadows
-    from ..model.weights import source_weights
-
-    h, w = dst_shape
-    with raster_errors(info.path), rasterio.open(info.path) as ds:
-        win = _source_window(ds, dst_transform, dst_shape, dst_crs)
-        win = Window(win.col_off - 2, win.row_off - 2, win.width + 4, win.height + 4).round_offsets().round_lengths()
-        if not _overlaps(win, ds):
-            return None
-        win = win.intersection(Window(0, 0, ds.width, ds.height))
-        value = ds.read(1, window=win, out_dtype=np.float32)
-        valid = np.isfinite(value)
-        if info.nodata is not None:
-            valid &= value != np.float32(info.nodata)
-        if info.has_alpha:
-            valid &= ds.read(2, window=win) > 0
-        src_transform = ds.window_transform(win)
-        src_crs = ds.crs or dst_crs
-    r0, c0 = int(win.row_off), int(win.col_off)
-    dn = value
-    if lut is not None:
-        value = np.asarray(lut, np.float32)[np.clip(np.nan_to_num(value), 0, len(lut) - 1).astype(np.intp)]
-        valid &= np.isfinite(value)
-    bands = [np.where(valid, value, 0.0).astype(np.float32), valid.astype(np.float32), source_weights(profile, r0, c0, valid)]
-    usable = lit_threshold is not None or saturation is not None
-    if usable:  # lit and saturated are decided on the DN
-        bands.append(shadows.usable_pixels(dn, valid, lit_threshold, saturation).astype(np.float32))
-    src = np.stack(bands)
-    dst = np.zeros((len(bands), h, w), dtype=np.float32)
-    reproject(
-        source=src,
-        destination=dst,
-        src_transform=src_transform,
-        src_crs=src_crs,
-        dst_transform=dst_transform,
-        dst_crs=dst_crs or src_crs,
-        resampling=resampling,
-    )
-    ok = dst[1] > 0.9999
-    if not ok.any():
-        return None
-    lit = ok & (dst[3] > 0.9999) if usable else ok
-    return dst[0], ok, np.where(ok, dst[2], 0.0).astype(np.float32), lit
 
 
 def read_dem_onto_grid(

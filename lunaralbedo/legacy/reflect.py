@@ -10,7 +10,7 @@ Conventions (SOURCES.md and the legacy numerics):
   stored as float32 (as the legacy images were), zero where ``cos i < 0.3``; ``c1``,
   ``c2`` rounded to float32 as the legacy parser stored them;
 * illumination angles (cos i, cos e, phase) are :func:`lunaralbedo.model.geometry.illumination`
-  with ``summation="sum"`` (the legacy order of the dot-product sums);
+  (its sums run left to right, the legacy order);
 * Sun and spacecraft positions are given in km and used in metres.
 """
 from __future__ import annotations
@@ -53,7 +53,7 @@ def reflectance(kind: int, points, normals, sun_km, sc_km, c1: float, c2: float)
     have = np.all(np.isfinite(normals), axis=-1)
     nrm = np.where(have[..., None], normals, 0.0)
     sun_m, sc_m = (np.asarray(p, dtype=np.float64) * 1000.0 for p in (sun_km, sc_km))
-    mu0, mu, alpha = geometry.illumination(points, nrm, sun_m, sc_m, summation="sum")
+    mu0, mu, alpha = geometry.illumination(points, nrm, sun_m, sc_m)
     if kind == LAMBERT:
         return np.where(have, mu0, 0.0).astype(np.float32), np.zeros(shape, dtype=np.float32)
     mu = np.maximum(mu, 0.0)

@@ -60,39 +60,16 @@ def shadow_reach_km(relief_m: float, elevation_rad: float, max_km: float = MAX_R
     return min(s, max_km)
 
 
-#: Side of the blocks (pixels) whose maximum height lets a ray skip terrain it is already above.
-BLOCK_PX = 8
+#: Cells (pixels) of the coarse maximum-height grid the march uses to skip steps that cannot be blocked.
+CELL_PX = 8
 #: Safety factor on the terrain's slope bound (second-order effects of the lon/lat grid over the reach).
 SLOPE_SAFETY = 1.05
 
 
 @njit(cache=True)
-def _block_max(dem, b):
-    """Max height (NaN ignored, -inf if none) over each ``b`` x ``b`` block and its 8 neighbour blocks."""
-    h_, w_ = dem.shape
-    nr, nc = (h_ + b - 1) // b, (w_ + b - 1) // b
-    own = np.full((nr, nc), -np.inf)
-    for i in range(h_):
-        for j in range(w_):
-            v = dem[i, j]
-            if v == v and v > own[i // b, j // b]:
-                own[i // b, j // b] = v
-    out = np.full((nr, nc), -np.inf)
-    for bi in range(nr):
-        for bj in range(nc):
-            m = -np.inf
-            for di in range(max(bi - 1, 0), min(bi + 2, nr)):
-                for dj in range(max(bj - 1, 0), min(bj + 2, nc)):
-                    if own[di, dj] > m:
-                        m = own[di, dj]
-            out[bi, bj] = m
-    return out
-
-
-@njit(cache=True)
 def _slope_bound(dem, px_x_km, px_y_km):
-    """Upper bound of the bilinear terrain's rise per km of ground distance (m/km): max |dh| between
-    neighbours along x over the smallest x pixel, plus the same along y (NaN neighbours ignored)."""
+    """Upper bound of the bilinear terrain's rise per km of ground distance (m/km): the largest |dh|
+    between neighbours along x over the smallest x pixel, plus the same along y (NaN neighbours ignored)."""
     h_, w_ = dem.shape
     gx = 0.0
     gy = 0.0
@@ -108,66 +85,158 @@ def _slope_bound(dem, px_x_km, px_y_km):
     return gx / px_x_km + gy / px_y_km
 
 
-@njit(cache=True)
-def _march(dem, lon0, dlon, lat0, dlat, sun, r0, r1, c0, c1, step_km, max_steps, hmax_m, tol_m, radius,
-           slope, bmax, block, skip):
-    """March every window pixel's ray to the Sun (see the module docstring); True where it is blocked.
+def slope_bound(dem_m, transform) -> float:
+    r"""The steepest rise (m per km of ground) the bilinear terrain can have anywhere on the grid, x 1.05.
 
-    Two shortcuts that never change the answer: a pixel whose Sun is higher than the terrain's
-    steepest possible rise (``slope``, m/km; 0 disables) cannot be shadowed; and while the ray
-    is above ``bmax`` (the maximum over its ``block``-pixel block and the blocks around it) and
-    rising, the next ``skip`` steps (which stay within that neighbourhood) cannot be blocked.
+    A ray whose Sun is higher than this (:math:`	an\epsilon \ge` bound / 1000) cannot be
+    blocked: it rises at least :math:`s\sin\epsilon` over a ground distance of at most
+    :math:`s\cos\epsilon`, along which the terrain rises at most bound x distance.  0 when
+    the grid reaches a pole (no bound).
+    """
+    dem = _as_heights(dem_m)
+    h = dem.shape[0]
+    km_per_deg = math.radians(1.0) * (MOON_RADIUS_KM - 20.0)  # the lowest radius a sample can have
+    far = max(abs(transform.f), abs(transform.f + transform.e * h))
+    if far >= 89.0 or h < 2:
+        return 0.0
+    px_x = km_per_deg * abs(transform.a) * math.cos(math.radians(far))
+    return SLOPE_SAFETY * float(_slope_bound(dem, px_x, km_per_deg * abs(transform.e)))
+
+
+@njit(cache=True)
+def _cell_max(dem, cell):
+    """Highest height of every ``cell`` x ``cell`` block plus its next row and column (bilinear neighbours),
+    then the maximum over the 3 x 3 blocks around it; -inf where no height."""
+    h_, w_ = dem.shape
+    ni, nj = (h_ + cell - 1) // cell, (w_ + cell - 1) // cell
+    cm = np.full((ni, nj), -np.inf)
+    for i in range(h_):
+        for j in range(w_):
+            v = dem[i, j]
+            if v != v:
+                continue
+            for bi in range(max(i - 1, 0) // cell, i // cell + 1):
+                for bj in range(max(j - 1, 0) // cell, j // cell + 1):
+                    if v > cm[bi, bj]:
+                        cm[bi, bj] = v
+    dm = np.full((ni, nj), -np.inf)
+    for bi in range(ni):
+        for bj in range(nj):
+            m = -np.inf
+            for ii in range(max(bi - 1, 0), min(bi + 2, ni)):
+                for jj in range(max(bj - 1, 0), min(bj + 2, nj)):
+                    m = max(m, cm[ii, jj])
+            dm[bi, bj] = m
+    return dm
+
+
+@njit(cache=True, inline="always")
+def _shadowed(dem, lon0, dlon, lat0, dlat, sun, i, j, step_km, max_steps, hmax_m, tol_m, radius, lon_mid,
+              near_max, cell, skip, slope):
+    """Is DEM pixel ``(i, j)`` in the cast shadow (the one march of every caller)?
+
+    Steps whose ray is above every height within ``cell`` pixels (``near_max``, the 3 x 3
+    cells around the sample) cannot be blocked, nor can the next ``skip`` steps, which stay
+    within those cells while the ray keeps rising (Sun above the point's horizon): they are
+    skipped, so the answer is the full march's at a fraction of the steps.  A ray whose Sun
+    is higher than the terrain's steepest rise (``slope``, m/km, :func:`slope_bound`; 0: no
+    bound) cannot be blocked and is not marched at all.
     """
     h_, w_ = dem.shape
-    out = np.zeros((r1 - r0, c1 - c0), np.bool_)
     d2r = math.pi / 180.0
-    lon_mid = lon0 + dlon * w_ / 2.0
+    h = dem[i, j]
+    if not np.isfinite(h):
+        return False
+    lat = (lat0 + (i + 0.5) * dlat) * d2r
+    lon = (lon0 + (j + 0.5) * dlon) * d2r
+    r = radius + h / 1000.0
+    px, py, pz = r * math.cos(lat) * math.cos(lon), r * math.cos(lat) * math.sin(lon), r * math.sin(lat)
+    lx, ly, lz = sun[0] - px, sun[1] - py, sun[2] - pz
+    n = math.sqrt(lx * lx + ly * ly + lz * lz)
+    lx, ly, lz = lx / n, ly / n, lz / n
+    sin_e = (px * lx + py * ly + pz * lz) / r  # the Sun's elevation above the point's horizon
+    if slope > 0.0 and sin_e > 0.0 and sin_e >= 0.001 * slope * math.sqrt(max(1.0 - sin_e * sin_e, 0.0)):
+        return False  # tan(e) >= the steepest rise of the terrain
+    rising = skip > 0 and sin_e >= 0.0  # |p + s l| grows with s
+    s = 1
+    while s <= max_steps:
+        qx, qy, qz = px + s * step_km * lx, py + s * step_km * ly, pz + s * step_km * lz
+        rq = math.sqrt(qx * qx + qy * qy + qz * qz)
+        hray = (rq - radius) * 1000.0
+        if hray > hmax_m:
+            return False
+        lonq = math.atan2(qy, qx) / d2r
+        lonq = lon_mid + ((lonq - lon_mid + 180.0) % 360.0 - 180.0)
+        latq = math.asin(qz / rq) / d2r
+        x = (lonq - lon0) / dlon - 0.5
+        y = (latq - lat0) / dlat - 0.5
+        if x < 0.0 or y < 0.0 or x > w_ - 1 or y > h_ - 1:
+            return False
+        ix, iy = min(int(x), w_ - 2), min(int(y), h_ - 2)
+        fx, fy = x - ix, y - iy
+        z = ((dem[iy, ix] * (1 - fx) + dem[iy, ix + 1] * fx) * (1 - fy)
+             + (dem[iy + 1, ix] * (1 - fx) + dem[iy + 1, ix + 1] * fx) * fy)
+        if np.isfinite(z) and hray < z - tol_m:
+            return True
+        if rising and hray >= near_max[iy // cell, ix // cell] - tol_m:
+            s += skip
+        s += 1
+    return False
+
+
+@njit(cache=True)
+def _march(dem, lon0, dlon, lat0, dlat, sun, r0, r1, c0, c1, step_km, max_steps, hmax_m, tol_m, radius,
+           near_max, cell, skip, slope):
+    out = np.zeros((r1 - r0, c1 - c0), np.bool_)
+    lon_mid = lon0 + dlon * dem.shape[1] / 2.0
     for i in range(r0, r1):
-        lat = (lat0 + (i + 0.5) * dlat) * d2r
         for j in range(c0, c1):
-            h = dem[i, j]
-            if not np.isfinite(h):
-                continue
-            lon = (lon0 + (j + 0.5) * dlon) * d2r
-            r = radius + h / 1000.0
-            px, py, pz = r * math.cos(lat) * math.cos(lon), r * math.cos(lat) * math.sin(lon), r * math.sin(lat)
-            lx, ly, lz = sun[0] - px, sun[1] - py, sun[2] - pz
-            n = math.sqrt(lx * lx + ly * ly + lz * lz)
-            lx, ly, lz = lx / n, ly / n, lz / n
-            sin_e = (px * lx + py * ly + pz * lz) / r  # the ray's elevation above the sphere's horizon
-            rising = sin_e > 0.0
-            if slope > 0.0 and rising and sin_e >= 0.001 * slope * math.sqrt(max(1.0 - sin_e * sin_e, 0.0)):
-                continue  # tan(e) >= the steepest rise of the terrain: nothing can block this ray
-            s = 1
-            while s <= max_steps:
-                qx, qy, qz = px + s * step_km * lx, py + s * step_km * ly, pz + s * step_km * lz
-                rq = math.sqrt(qx * qx + qy * qy + qz * qz)
-                hray = (rq - radius) * 1000.0
-                if hray > hmax_m:
-                    break
-                lonq = math.atan2(qy, qx) / d2r
-                lonq = lon_mid + ((lonq - lon_mid + 180.0) % 360.0 - 180.0)
-                latq = math.asin(qz / rq) / d2r
-                x = (lonq - lon0) / dlon - 0.5
-                y = (latq - lat0) / dlat - 0.5
-                if x < 0.0 or y < 0.0 or x > w_ - 1 or y > h_ - 1:
-                    break
-                ix, iy = min(int(x), w_ - 2), min(int(y), h_ - 2)
-                if skip > 1 and rising and hray >= bmax[iy // block, ix // block] - tol_m:
-                    s += skip  # above all terrain within reach of the next `skip` steps
-                    continue
-                fx, fy = x - ix, y - iy
-                z = ((dem[iy, ix] * (1 - fx) + dem[iy, ix + 1] * fx) * (1 - fy)
-                     + (dem[iy + 1, ix] * (1 - fx) + dem[iy + 1, ix + 1] * fx) * fy)
-                if np.isfinite(z) and hray < z - tol_m:
-                    out[i - r0, j - c0] = True
-                    break
-                s += 1
+            out[i - r0, j - c0] = _shadowed(dem, lon0, dlon, lat0, dlat, sun, i, j, step_km, max_steps, hmax_m,
+                                            tol_m, radius, lon_mid, near_max, cell, skip, slope)
     return out
 
 
+@njit(cache=True)
+def _march_pixels(dem, lon0, dlon, lat0, dlat, sun, rows, cols, step_km, max_steps, hmax_m, tol_m, radius,
+                  near_max, cell, skip, slope):
+    out = np.zeros(rows.shape[0], np.bool_)
+    lon_mid = lon0 + dlon * dem.shape[1] / 2.0
+    for o in range(rows.shape[0]):
+        out[o] = _shadowed(dem, lon0, dlon, lat0, dlat, sun, rows[o], cols[o], step_km, max_steps, hmax_m,
+                           tol_m, radius, lon_mid, near_max, cell, skip, slope)
+    return out
+
+
+def _skip_steps(transform, shape, step_km: float, cell: int) -> int:
+    """Steps that certainly stay within ``cell - 1`` pixels of the grid (0: never skip)."""
+    h, w = shape
+    lats = (transform.f, transform.f + transform.e * h)
+    far = max(abs(v) for v in lats)
+    if cell < 2 or far >= 89.0:
+        return 0
+    low = MOON_RADIUS_KM - 20.0  # lowest radius a sample can have (km): below every lunar height
+    px_km = math.radians(1.0) * low * min(abs(transform.a) * math.cos(math.radians(far)), abs(transform.e))
+    return max(0, int((cell - 1) / (1.01 * step_km / px_km)) - 1)
+
+
+def _as_heights(dem_m) -> np.ndarray:
+    """Heights as a C-contiguous float32 or float64 array (float32 is marched as is: the same answers, half the memory)."""
+    dem = np.asarray(dem_m)
+    return np.ascontiguousarray(dem, dtype=dem.dtype if dem.dtype in (np.float32, np.float64) else np.float64)
+
+
+def _march_args(dem_m, transform, step_px, max_reach_km):
+    dem = _as_heights(dem_m)
+    h, w = dem.shape
+    lat_mid = math.radians(transform.f + transform.e * h / 2.0)
+    px_km = math.radians(1.0) * MOON_RADIUS_KM * min(abs(transform.a) * max(math.cos(lat_mid), 1e-3), abs(transform.e))
+    step_km = step_px * px_km
+    max_steps = max(1, int(math.ceil(max_reach_km / step_km)))
+    return dem, (float(transform.c), float(transform.a), float(transform.f), float(transform.e)), step_km, max_steps
+
+
 def cast_shadow_mask(dem_m, transform, sun_km, window=None, *, max_reach_km: float = MAX_REACH_KM,
-                     step_px: float = STEP_PX, tolerance_m: float = TOLERANCE_M, shortcuts: bool = True) -> np.ndarray:
+                     step_px: float = STEP_PX, tolerance_m: float = TOLERANCE_M, skip: bool = True) -> np.ndarray:
     """True where a DEM pixel centre is in the cast shadow of the terrain for the Sun at ``sun_km``.
 
     ``dem_m``: heights (metres above the 1737.4 km sphere, NaN where unknown) on the
@@ -176,33 +245,48 @@ def cast_shadow_mask(dem_m, transform, sun_km, window=None, *, max_reach_km: flo
     decide (default: all; the rest of the grid is the margin that can cast shadows
     into it).  Returns a bool array of the window's shape.  Pixels whose own height is
     NaN are reported lit (they have no ground point); NaN terrain blocks nothing.
-
-    ``shortcuts`` (default) skips rays that the terrain's steepest slope cannot block and
-    steps over terrain the ray is already above (:func:`_march`); the mask is the same
-    without them, only slower (``tests/test_cast_shadows.py`` compares both).
+    ``skip=False`` marches every step of every ray (the reference the shortcuts are tested against).
     """
-    dem = np.ascontiguousarray(dem_m, dtype=np.float64)
-    h, w = dem.shape
+    h, w = np.shape(dem_m)
     r0, r1, c0, c1 = window if window is not None else (0, h, 0, w)
-    if h < 2 or w < 2 or not np.isfinite(dem).any():
+    if h < 2 or w < 2 or not np.isfinite(dem_m).any():
         return np.zeros((r1 - r0, c1 - c0), bool)
-    lat_mid = math.radians(transform.f + transform.e * h / 2.0)
-    km_per_deg = math.radians(1.0) * MOON_RADIUS_KM
-    px_km = km_per_deg * min(abs(transform.a) * max(math.cos(lat_mid), 1e-3), abs(transform.e))
-    step_km = step_px * px_km
-    max_steps = max(1, int(math.ceil(max_reach_km / step_km)))
-    hmax = float(np.nanmax(dem))
-    # the smallest pixel anywhere on the grid (longitude pixels shrink towards the poles)
-    lat_far = max(abs(transform.f), abs(transform.f + transform.e * h))
-    px_x_min = km_per_deg * abs(transform.a) * math.cos(math.radians(min(lat_far, 90.0)))
-    px_y = km_per_deg * abs(transform.e)
-    slope, bmax, skip = 0.0, np.zeros((1, 1)), 0
-    if shortcuts and px_x_min > 1e-9:
-        slope = SLOPE_SAFETY * _slope_bound(dem, px_x_min, px_y)
-        bmax = _block_max(dem, BLOCK_PX)
-        # one step moves the ray at most step_km / min(px_x_min, px_y) pixels over the ground; positions
-        # within BLOCK_PX - 1 pixels of the current one interpolate inside the block neighbourhood of bmax
-        skip = int(math.floor((BLOCK_PX - 1) * min(px_x_min, px_y) / (SLOPE_SAFETY * step_km)))
-    return _march(dem, float(transform.c), float(transform.a), float(transform.f), float(transform.e),
-                  np.asarray(sun_km, dtype=np.float64), int(r0), int(r1), int(c0), int(c1), step_km, max_steps,
-                  hmax, float(tolerance_m), MOON_RADIUS_KM, slope, bmax, BLOCK_PX, skip)
+    dem, grid, step_km, max_steps = _march_args(dem_m, transform, step_px, max_reach_km)
+    near, n_skip = near_maximum(dem), (_skip_steps(transform, dem.shape, step_km, CELL_PX) if skip else 0)
+    return _march(dem, *grid, np.asarray(sun_km, dtype=np.float64), int(r0), int(r1), int(c0), int(c1), step_km,
+                  max_steps, float(np.nanmax(dem)), float(tolerance_m), MOON_RADIUS_KM, near, CELL_PX, n_skip,
+                  slope_bound(dem, transform) if skip else 0.0)
+
+
+def near_maximum(dem_m) -> np.ndarray:
+    """The coarse maximum-height grid of a DEM that lets the march skip steps (:data:`CELL_PX` pixel cells)."""
+    return _cell_max(_as_heights(dem_m), CELL_PX)
+
+
+def cast_shadow_pixels(dem_m, transform, sun_km, rows, cols, *, hmax_m: float | None = None, near_max=None,
+                       slope: float | None = None,
+                       max_reach_km: float = MAX_REACH_KM, step_px: float = STEP_PX,
+                       tolerance_m: float = TOLERANCE_M) -> np.ndarray:
+    """:func:`cast_shadow_mask` of the DEM pixels ``(rows[o], cols[o])`` only (1-D bool).
+
+    The same march pixel by pixel, so the answers equal the mask's at those pixels; the
+    solver asks only for pixels that would otherwise be observations.  ``dem_m`` should
+    already be float32 or float64 and C-contiguous (it is not copied then); ``hmax_m``: its maximum
+    (finite) height, ``near_max`` its :func:`near_maximum` and ``slope`` its :func:`slope_bound`, when the
+    caller has them.
+    """
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    cols = np.ascontiguousarray(cols, dtype=np.int64)
+    h, w = np.shape(dem_m)
+    if h < 2 or w < 2 or rows.size == 0:
+        return np.zeros(rows.shape, bool)
+    dem, grid, step_km, max_steps = _march_args(dem_m, transform, step_px, max_reach_km)
+    if hmax_m is None:
+        if not np.isfinite(dem).any():
+            return np.zeros(rows.shape, bool)
+        hmax_m = float(np.nanmax(dem))
+    near = near_maximum(dem) if near_max is None else near_max
+    return _march_pixels(dem, *grid, np.asarray(sun_km, dtype=np.float64), rows, cols, step_km, max_steps,
+                         float(hmax_m), float(tolerance_m), MOON_RADIUS_KM, near, CELL_PX,
+                         _skip_steps(transform, dem.shape, step_km, CELL_PX),
+                         slope_bound(dem, transform) if slope is None else float(slope))

@@ -23,16 +23,33 @@ Each tile contributes :math:`(n_{jk}, \sum d_{jk})` sums that a driver adds up.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 
-def mean_reflectance_sums(r, usable, image_of_obs, k):
-    """Per-image ``(sum R, count)`` over a tile's usable observations (float64, shape ``(k,)``).
+def mean_reflectance_sums(r, start):
+    """Per-image ``(sum R, count)`` over a tile's observations with :math:`R > 0` (float64, shape ``(k,)``).
 
-    ``image_of_obs`` is the local image number (0..k-1) of every observation.
+    Image ``a`` owns observations ``start[a]:start[a+1]``; each sum runs in observation
+    order in float64 (numba, no temporaries).
     """
-    seg = np.asarray(image_of_obs)[usable]
-    rs = np.bincount(seg, weights=np.asarray(r)[usable].astype(np.float64), minlength=k)
-    return rs, np.bincount(seg, minlength=k).astype(np.float64)
+    return _segment_sums(np.asarray(r), np.asarray(start, dtype=np.int64))
+
+
+@njit(cache=True)
+def _segment_sums(r, start):
+    k = start.shape[0] - 1
+    rs = np.zeros(k)
+    n = np.zeros(k)
+    for a in range(k):
+        acc = 0.0
+        m = 0
+        for o in range(start[a], start[a + 1]):
+            if r[o] > 0:
+                acc += np.float64(r[o])
+                m += 1
+        rs[a] = acc
+        n[a] = m
+    return rs, n
 
 
 def seed_exposure(tr_const, r_sum, r_count, dtype=np.float64):
@@ -63,36 +80,74 @@ def log_ratio_sums(image, r, usable, index):
     return pair_sums(pix, start, image.reshape(flat.shape)[flat], r.reshape(flat.shape)[flat], index)
 
 
-def pair_sums(pix, start, image, r, index):
+def pair_sums(pix, start, image, r, index, width=None):
     """Pairwise ``{(j, k): (n, sum d_jk)}`` from compact usable observations.
 
     Image ``a`` owns observations ``start[a]:start[a+1]`` with increasing pixel numbers
-    ``pix``; ``index`` maps ``a`` to the global image id.  Shared pixels are found by a
-    sorted search; the differences are summed in pixel order (float32 terms, float64 sum).
+    ``pix``; ``index`` maps ``a`` to the global image id.  Shared pixels are found by
+    merging the two sorted pixel lists (numba); the differences are formed in float32
+    and summed in float64 in pixel order.  ``width`` (the grid's row length, when
+    ``pix`` is ``row * width + col``) lets pairs whose column ranges do not meet be skipped.
     """
     with np.errstate(divide="ignore", invalid="ignore"):
         logq = (np.log(image) - np.log(r)).astype(np.float32)
+    pix = np.ascontiguousarray(pix, dtype=np.int64)
+    a, b, n, d = _pair_sums(pix, np.asarray(start, dtype=np.int64), logq, int(width or 0))
     out = {}
-    k_count = len(start) - 1
-    seg = [(int(start[a]), int(start[a + 1])) for a in range(k_count)]
-    lo = [pix[s0] if s1 > s0 else 0 for s0, s1 in seg]
-    hi = [pix[s1 - 1] if s1 > s0 else -1 for s0, s1 in seg]
-    for a in range(k_count):
-        pa = pix[seg[a][0]:seg[a][1]]
-        for b in range(a + 1, k_count):
-            if hi[b] < lo[a] or hi[a] < lo[b] or not len(pa):
-                continue
-            pb = pix[seg[b][0]:seg[b][1]]
-            ib = np.minimum(np.searchsorted(pb, pa), len(pb) - 1)
-            both = pb[ib] == pa
-            n = int(np.count_nonzero(both))
-            if n == 0:
-                continue
-            ia = np.flatnonzero(both)
-            d = float(np.sum(logq[seg[a][0] + ia] - logq[seg[b][0] + ib[both]], dtype=np.float64))
-            j, k = int(index[a]), int(index[b])
-            out[(j, k) if j < k else (k, j)] = (n, d if j < k else -d)
+    for aa, bb, nn, dd in zip(a.tolist(), b.tolist(), n.tolist(), d.tolist()):
+        j, k = int(index[aa]), int(index[bb])
+        out[(j, k) if j < k else (k, j)] = (nn, dd if j < k else -dd)
     return out
+
+
+@njit(cache=True)
+def _pair_sums(pix, start, logq, width):
+    """Shared pixels of every pair of images by a merge of their sorted pixel lists: ``(a, b, n, sum d)``."""
+    k_count = start.shape[0] - 1
+    lo = np.zeros(k_count, np.int64)
+    hi = np.full(k_count, -1, np.int64)
+    clo = np.zeros(k_count, np.int64)
+    chi = np.full(k_count, -1, np.int64)
+    for a in range(k_count):
+        if start[a + 1] > start[a]:
+            lo[a], hi[a] = pix[start[a]], pix[start[a + 1] - 1]
+            if width > 0:
+                cmin, cmax = width, -1
+                for o in range(start[a], start[a + 1]):
+                    c = pix[o] % width
+                    cmin = min(cmin, c)
+                    cmax = max(cmax, c)
+                clo[a], chi[a] = cmin, cmax
+    npair = k_count * (k_count - 1) // 2
+    out_a = np.empty(npair, np.int64)
+    out_b = np.empty(npair, np.int64)
+    out_n = np.empty(npair, np.int64)
+    out_d = np.empty(npair, np.float64)
+    m = 0
+    for a in range(k_count):
+        for b in range(a + 1, k_count):
+            if hi[b] < lo[a] or hi[a] < lo[b] or start[a + 1] == start[a] or start[b + 1] == start[b]:
+                continue
+            if width > 0 and (chi[b] < clo[a] or chi[a] < clo[b]):
+                continue
+            i, j = start[a], start[b]
+            ie, je = start[a + 1], start[b + 1]
+            n = 0
+            d = 0.0
+            while i < ie and j < je:
+                if pix[i] < pix[j]:
+                    i += 1
+                elif pix[j] < pix[i]:
+                    j += 1
+                else:
+                    d += logq[i] - logq[j]
+                    n += 1
+                    i += 1
+                    j += 1
+            if n:
+                out_a[m], out_b[m], out_n[m], out_d[m] = a, b, n, d
+                m += 1
+    return out_a[:m], out_b[:m], out_n[:m], out_d[:m]
 
 
 def merge_pair_sums(total, part):

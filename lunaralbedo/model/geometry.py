@@ -9,11 +9,20 @@ the 1737.4 km sphere) is the point
 Normals come from the 3-D points of neighbouring DEM pixels (central differences),
 so they are correct at any latitude, and :math:`\cos i = \mathbf{n}\cdot\mathbf{l}`,
 :math:`\cos e = \mathbf{n}\cdot\mathbf{v}` (seed 001 eqs. 4-5) with unit vectors to
-the Sun and to the spacecraft.
+the Sun and to the spacecraft; the phase angle is :math:`\alpha = \arccos(\mathbf{l}\cdot\mathbf{v})`.
+
+The solver's prepare step uses the numba kernels at the end of this module
+(:func:`surface_block`, :func:`observe_window`): the same formulas, pixel by pixel,
+evaluated in the same order as the NumPy functions, so they give the same bytes
+(``tests/test_prepare_kernels.py``); :func:`illumination` itself runs the one
+per-pixel kernel :func:`_illumination_at`.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 from ..constants import MOON_RADIUS_KM, MOON_RADIUS_M
 
@@ -58,26 +67,6 @@ def lonlat_height(points_km):
     return lon, lat, (r - MOON_RADIUS_KM) * 1000.0
 
 
-#: How :func:`illumination` sums the three products of a dot product: ``"einsum"`` (the
-#: solver and the forward models) or ``"sum"`` (``np.sum`` over the last axis, x + y + z
-#: left to right: the legacy mode's numerics, which differ from einsum's in the last bit).
-SUMMATIONS = ("einsum", "sum")
-
-
-def _dot(a, b, summation: str = "einsum"):
-    """Row-wise dot product of ``(..., 3)`` arrays, summed as ``summation`` says (see :data:`SUMMATIONS`)."""
-    if summation == "einsum":
-        return np.einsum("...i,...i->...", a, b)
-    if summation == "sum":
-        return np.sum(a * b, axis=-1)
-    raise ValueError(f"summation must be one of {', '.join(SUMMATIONS)}, got {summation!r}")
-
-
-def _unit(v, summation: str = "einsum"):
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return v / np.sqrt(_dot(v, v, summation))[..., None]
-
-
 def _central_difference(a, axis):
     """``np.gradient`` along ``axis`` of a 2-D array (central inside, one-sided at the edges)."""
     g = np.empty_like(a)
@@ -119,20 +108,49 @@ def dem_normals(points_km, differences: str = "central"):
         return np.stack([nx / norm, ny / norm, nz / norm], axis=-1)
 
 
-def illumination(points_km, normals, sun_km, spacecraft_km, summation: str = "einsum"):
+def illumination(points_km, normals, sun_km, spacecraft_km):
     r"""``(cos i, cos e, alpha)`` per pixel; alpha (phase angle) in radians (seed 001 eqs. 4-5).
 
     :math:`\cos i = \mathbf{n}\cdot\mathbf{l}`, :math:`\cos e = \mathbf{n}\cdot\mathbf{v}`,
     :math:`\cos\alpha = \mathbf{l}\cdot\mathbf{v}` with unit vectors from the points to
     the Sun and the spacecraft.  ``sun_km`` and ``spacecraft_km`` are body-fixed positions
     of one image, in the unit of ``points_km`` (km here; the legacy mode passes metres).
-    ``summation="sum"`` sums the dot products (and the norms) as the legacy mode did
-    (:data:`SUMMATIONS`); the default keeps the solver's numerics.
+    Runs :func:`_illumination_at`, the per-point kernel the solver's prepare step also uses;
+    its sums run left to right (x, y, z), the legacy mode's order.
     """
-    l = _unit(np.asarray(sun_km, dtype=np.float64) - points_km, summation)
-    v = _unit(np.asarray(spacecraft_km, dtype=np.float64) - points_km, summation)
-    return (_dot(normals, l, summation), _dot(normals, v, summation),
-            np.arccos(np.clip(_dot(l, v, summation), -1.0, 1.0)))
+    p = np.asarray(points_km, dtype=np.float64)
+    n = np.broadcast_to(np.asarray(normals, dtype=np.float64), p.shape)
+    shape = p.shape[:-1]
+    ci, ce, al = _illumination_flat(np.ascontiguousarray(p.reshape(-1, 3)), np.ascontiguousarray(n.reshape(-1, 3)),
+                                    np.asarray(sun_km, dtype=np.float64), np.asarray(spacecraft_km, dtype=np.float64))
+    return ci.reshape(shape), ce.reshape(shape), al.reshape(shape)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _illumination_at(px, py, pz, nx, ny, nz, sun, sc):
+    r"""Seed 001 eqs. 4-5 at one point: :math:`\cos i = \mathbf{n}\cdot\mathbf{l}`, :math:`\cos e =
+    \mathbf{n}\cdot\mathbf{v}`, :math:`\alpha = \arccos(\mathbf{l}\cdot\mathbf{v})` (the one implementation)."""
+    lx, ly, lz = sun[0] - px, sun[1] - py, sun[2] - pz
+    ln = math.sqrt(lx * lx + ly * ly + lz * lz)
+    lx, ly, lz = lx / ln, ly / ln, lz / ln
+    vx, vy, vz = sc[0] - px, sc[1] - py, sc[2] - pz
+    vn = math.sqrt(vx * vx + vy * vy + vz * vz)
+    vx, vy, vz = vx / vn, vy / vn, vz / vn
+    c = lx * vx + ly * vy + lz * vz
+    if c > 1.0:
+        c = 1.0
+    elif c < -1.0:
+        c = -1.0
+    return nx * lx + ny * ly + nz * lz, nx * vx + ny * vy + nz * vz, math.acos(c)
+
+
+@njit(cache=True, error_model="numpy")
+def _illumination_flat(p, n, sun, sc):
+    m = p.shape[0]
+    ci, ce, al = np.empty(m), np.empty(m), np.empty(m)
+    for o in range(m):
+        ci[o], ce[o], al[o] = _illumination_at(p[o, 0], p[o, 1], p[o, 2], n[o, 0], n[o, 1], n[o, 2], sun, sc)
+    return ci, ce, al
 
 
 def merge_dem_layers(layers, shape) -> np.ndarray:
@@ -167,3 +185,83 @@ def radius_to_height(values_m: np.ndarray, mode: str = "auto") -> tuple[np.ndarr
     finite = values_m[np.isfinite(values_m)]
     is_radius = mode == "radius" or (mode == "auto" and finite.size and float(np.median(finite)) > RADIUS_THRESHOLD_M)
     return (values_m - MOON_RADIUS_M if is_radius else values_m), bool(is_radius)
+
+
+# --------------------------------------------------------------------------- kernels of the solver's prepare step
+def lonlat_axes(transform, shape):
+    """Longitude of every column and latitude of every row (degrees) of a north-up grid (see :func:`lonlat_grid`)."""
+    h, w = shape
+    return transform.c + transform.a * (np.arange(w) + 0.5), transform.f + transform.e * (np.arange(h) + 0.5)
+
+
+@njit(cache=True, error_model="numpy")
+def surface_block(coslon, sinlon, coslat, sinlat, height_m, radius_km):
+    """Points (km) of a DEM block with a one-pixel halo, and the normals of its inner pixels.
+
+    ``height_m`` ``(H+2, W+2)`` (NaN counts as 0, as :func:`body_fixed` of ``nan_to_num``
+    heights), trigonometric values of each column's longitude and each row's latitude.
+    Returns points ``(H+2, W+2, 3)`` and normals ``(H, W, 3)``: :func:`body_fixed` and
+    :func:`dem_normals` (central differences) evaluated in the same order.
+    """
+    hh, ww = height_m.shape
+    pts = np.empty((hh, ww, 3))
+    for i in range(hh):
+        for j in range(ww):
+            h = np.float64(height_m[i, j])
+            if h != h:
+                h = 0.0
+            r = radius_km + h / 1000.0
+            rc = r * coslat[i]
+            pts[i, j, 0] = rc * coslon[j]
+            pts[i, j, 1] = rc * sinlon[j]
+            pts[i, j, 2] = r * sinlat[i]
+    nrm = np.empty((hh - 2, ww - 2, 3))
+    for i in range(1, hh - 1):
+        for j in range(1, ww - 1):
+            rx = (pts[i + 1, j, 0] - pts[i - 1, j, 0]) * 0.5
+            ry = (pts[i + 1, j, 1] - pts[i - 1, j, 1]) * 0.5
+            rz = (pts[i + 1, j, 2] - pts[i - 1, j, 2]) * 0.5
+            cx = (pts[i, j + 1, 0] - pts[i, j - 1, 0]) * 0.5
+            cy = (pts[i, j + 1, 1] - pts[i, j - 1, 1]) * 0.5
+            cz = (pts[i, j + 1, 2] - pts[i, j - 1, 2]) * 0.5
+            nx, ny, nz = ry * cz - rz * cy, rz * cx - rx * cz, rx * cy - ry * cx
+            norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+            if nx * pts[i, j, 0] + ny * pts[i, j, 1] + nz * pts[i, j, 2] < 0:
+                norm = -norm
+            nrm[i - 1, j - 1, 0] = nx / norm
+            nrm[i - 1, j - 1, 1] = ny / norm
+            nrm[i - 1, j - 1, 2] = nz / norm
+    return pts, nrm
+
+
+@njit(cache=True, error_model="numpy")
+def observe_window(use, height_m, pts, nrm, r_off, c_off, sun, sc, min_cos_i):
+    """Candidate observations of one image window: pixels ``use`` with a DEM, cos i >= ``min_cos_i``, cos e > 0.
+
+    ``use`` ``(h, w)`` bool over the window; ``height_m``, ``nrm`` cover the block
+    (inner pixels), ``pts`` with its halo: window pixel ``(r, c)`` is block pixel
+    ``(r + r_off, c + c_off)``.  Returns window rows and columns (int64) and
+    ``cos i``, ``cos e``, ``alpha`` (float64) of the candidates, in row-major order.
+    """
+    h, w = use.shape
+    n = 0
+    for r in range(h):
+        for c in range(w):
+            n += use[r, c]
+    rows = np.empty(n, np.int64)
+    cols = np.empty(n, np.int64)
+    ci, ce, al = np.empty(n), np.empty(n), np.empty(n)
+    m = 0
+    for r in range(h):
+        for c in range(w):
+            if not use[r, c]:
+                continue
+            i, j = r + r_off, c + c_off
+            if not np.isfinite(height_m[i, j]):
+                continue
+            a, b, g = _illumination_at(pts[i + 1, j + 1, 0], pts[i + 1, j + 1, 1], pts[i + 1, j + 1, 2],
+                                       nrm[i, j, 0], nrm[i, j, 1], nrm[i, j, 2], sun, sc)
+            if a >= min_cos_i and b > 0:
+                rows[m], cols[m], ci[m], ce[m], al[m] = r, c, a, b, g
+                m += 1
+    return rows[:m], cols[:m], ci[:m], ce[:m], al[:m]

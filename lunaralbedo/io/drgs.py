@@ -1,0 +1,129 @@
+"""DRGs resampled onto a tile grid with their validity, blending weight and usable flags.
+
+The solver reads every image over each tile it meets (only the window that covers the
+tile).  A DRG on the tile grid (:func:`~lunaralbedo.io.rasters.aligned_offset`: same pixel
+size, integer offset; ingest writes DRGs on the DEM's grid) is copied pixel for pixel;
+other grids go through GDAL's warper (bilinear).
+"""
+from __future__ import annotations
+
+import numpy as np
+import rasterio
+from rasterio.crs import CRS
+from rasterio.enums import Resampling
+from rasterio.transform import Affine
+from rasterio.warp import reproject
+from rasterio.windows import Window
+
+from .guard import raster_errors
+from .rasters import RasterInfo, _grid_shifts, _overlaps, _source_window, aligned_offset
+
+
+def read_drg_onto_grid(
+    info: RasterInfo,
+    profile,
+    dst_transform: Affine,
+    dst_shape: tuple[int, int],
+    dst_crs: CRS | None,
+    lit_threshold: float | None = None,
+    saturation: float | None = None,
+    lut: np.ndarray | None = None,
+    resampling: Resampling = Resampling.bilinear,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """Resample one DRG onto a target grid: ``(value, valid, weight, lit)`` or None if it misses the grid.
+
+    ``value`` is band 1 (float32, bilinear); ``valid`` is True where all four
+    bilinear neighbours are valid (alpha band > 0 and not nodata); ``weight`` the
+    blending weight of :func:`lunaralbedo.model.weights.source_weights` (computed from
+    ``profile`` on the source grid, then resampled); ``lit`` is True where all four
+    neighbours are usable by :func:`lunaralbedo.model.shadows.usable_pixels`: lit with the
+    threshold ``lit_threshold`` (shadow type 1; always lit when it is None) and, when
+    ``saturation`` is given, below it (saturated pixels are left out).  Only the
+    covering window (plus a 2-pixel margin) of the source is read.  A DRG on the target's
+    grid (:func:`aligned_offset`: same pixel size, integer offset; ingest writes DRGs on the
+    DEM's grid) is copied pixel for pixel instead of warped: the same values, and the
+    outermost valid pixels keep their exact zero blending weight (GDAL's bilinear gave them
+    ~1e-13 from the rounding of its coordinates).
+
+    ``lut`` (a camera response g over 0..255, NaN where undefined; seed 002) maps the DN
+    to sensor exposure *before* resampling, so the result interpolates exposures (the
+    seed's virtual observations, eq. 15); the lit test still uses the DN.
+    """
+    got = None
+    for t in _grid_shifts(info, dst_transform, dst_shape, dst_crs):
+        part = _read_drg_once(info, profile, t, dst_shape, dst_crs, lit_threshold, saturation, lut, resampling)
+        if got is None or part is None:
+            got = got or part
+            continue
+        take = part[1] & ~got[1]  # pixels only this side of the antimeridian has
+        got = tuple(np.where(take, b, a) for a, b in zip(got, part))
+    return got
+
+
+def _drg_bands(ds, info, profile, win, lit_threshold, saturation, lut):
+    """The four source bands of a DRG window: value (0 where invalid), valid, blending weight, usable (or None)."""
+    from ..model import shadows
+    from ..model.weights import source_weights
+
+    value = ds.read(1, window=win, out_dtype=np.float32)
+    valid = np.isfinite(value)
+    if info.nodata is not None:
+        valid &= value != np.float32(info.nodata)
+    if info.has_alpha:
+        valid &= ds.read(2, window=win) > 0
+    dn = value
+    if lut is not None:
+        value = np.asarray(lut, np.float32)[np.clip(np.nan_to_num(value), 0, len(lut) - 1).astype(np.intp)]
+        valid &= np.isfinite(value)
+    r0, c0 = int(win.row_off), int(win.col_off)
+    usable = None
+    if lit_threshold is not None or saturation is not None:  # lit and saturated are decided on the DN
+        usable = shadows.usable_pixels(dn, valid, lit_threshold, saturation)
+    return np.where(valid, value, np.float32(0.0)).astype(np.float32), valid, source_weights(profile, r0, c0, valid), usable
+
+
+def _read_drg_once(info, profile, dst_transform, dst_shape, dst_crs, lit_threshold, saturation, lut, resampling):
+    h, w = dst_shape
+    with raster_errors(info.path), rasterio.open(info.path) as ds:
+        src_crs = ds.crs or dst_crs
+        same_crs = dst_crs is None or ds.crs is None or ds.crs == dst_crs
+        off = aligned_offset(ds.transform, dst_transform, dst_shape) if same_crs else None
+        if off is not None:  # the target's pixels are source pixels: copy them
+            r, c = off
+            r0, r1, c0, c1 = max(r, 0), min(r + h, ds.height), max(c, 0), min(c + w, ds.width)
+            if r1 <= r0 or c1 <= c0:
+                return None
+            win = Window(c0, r0, c1 - c0, r1 - r0)
+            val, valid, wt, usable = _drg_bands(ds, info, profile, win, lit_threshold, saturation, lut)
+            if not valid.any():
+                return None
+            out = (np.zeros(dst_shape, np.float32), np.zeros(dst_shape, bool), np.zeros(dst_shape, np.float32),
+                   np.zeros(dst_shape, bool))
+            inner = (slice(r0 - r, r1 - r), slice(c0 - c, c1 - c))
+            out[0][inner], out[1][inner], out[2][inner] = np.where(valid, val, 0), valid, np.where(valid, wt, 0)
+            out[3][inner] = valid & usable if usable is not None else valid
+            return out
+        win = _source_window(ds, dst_transform, dst_shape, dst_crs)
+        win = Window(win.col_off - 2, win.row_off - 2, win.width + 4, win.height + 4).round_offsets().round_lengths()
+        if not _overlaps(win, ds):
+            return None
+        win = win.intersection(Window(0, 0, ds.width, ds.height))
+        val, valid, wt, usable = _drg_bands(ds, info, profile, win, lit_threshold, saturation, lut)
+        src_transform = ds.window_transform(win)
+    bands = [val, valid.astype(np.float32), wt] + ([usable.astype(np.float32)] if usable is not None else [])
+    src = np.stack(bands)
+    dst = np.zeros((len(bands), h, w), dtype=np.float32)
+    reproject(
+        source=src,
+        destination=dst,
+        src_transform=src_transform,
+        src_crs=src_crs,
+        dst_transform=dst_transform,
+        dst_crs=dst_crs or src_crs,
+        resampling=resampling,
+    )
+    ok = dst[1] > 0.9999
+    if not ok.any():
+        return None
+    lit = ok & (dst[3] > 0.9999) if usable is not None else ok
+    return dst[0], ok, np.where(ok, dst[2], 0.0).astype(np.float32), lit

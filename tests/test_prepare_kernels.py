@@ -1,0 +1,159 @@
+"""The prepare step's kernels against the NumPy formulas they replace (issue 15).
+
+Geometry (points, normals, cos i, cos e, phase angle), the pair sums of the overlap
+exposure initialisation, the direct copy of DRGs on the tile grid and the cast-shadow
+march on pixel lists each give the numbers of the reference implementation.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from rasterio.transform import Affine
+
+from lunaralbedo.constants import MOON_RADIUS_KM
+from lunaralbedo.model import exposure_init, geometry
+
+
+def _dem(rng, h, w):
+    dem = rng.normal(0, 300, (h, w)).astype(np.float32)
+    dem[3, 4] = np.nan  # no DEM here: height 0 for the neighbours' normals, no observation itself
+    return dem
+
+
+def test_surface_block_gives_the_bytes_of_body_fixed_and_dem_normals():
+    rng = np.random.default_rng(1)
+    tr = Affine(0.002, 0, 8.0, 0, -0.002, -4.0)
+    dem = _dem(rng, 41, 57)
+    lon, lat = geometry.lonlat_axes(tr, dem.shape)
+    lr, br = np.radians(lon), np.radians(lat)
+    pts, nrm = geometry.surface_block(np.cos(lr), np.sin(lr), np.cos(br), np.sin(br), dem, MOON_RADIUS_KM)
+    ref = geometry.body_fixed(*geometry.lonlat_grid(tr, dem.shape), np.nan_to_num(dem, nan=0.0))
+    assert np.array_equal(pts, ref)
+    assert np.array_equal(nrm, geometry.dem_normals(ref)[1:-1, 1:-1])
+
+
+def _illumination_numpy(p, n, sun, sc):
+    """The former NumPy formula of seed 001 eqs. 4-5 (unit vectors, dot products, arccos)."""
+    l = np.asarray(sun) - p
+    l = l / np.sqrt(np.einsum("...i,...i->...", l, l))[..., None]
+    v = np.asarray(sc) - p
+    v = v / np.sqrt(np.einsum("...i,...i->...", v, v))[..., None]
+    dot = lambda a, b: np.einsum("...i,...i->...", a, b)  # noqa: E731
+    return dot(n, l), dot(n, v), np.arccos(np.clip(dot(l, v), -1, 1))
+
+
+def test_illumination_kernel_equals_the_numpy_formula():
+    rng = np.random.default_rng(2)
+    tr = Affine(0.01, 0, 20.0, 0, -0.01, 5.0)
+    dem = _dem(rng, 30, 30)
+    pts = geometry.body_fixed(*geometry.lonlat_grid(tr, dem.shape), np.nan_to_num(dem))
+    nrm = geometry.dem_normals(pts)
+    sun = geometry.body_fixed(60.0, 10.0, 0.0) * 1e5
+    sc = geometry.body_fixed(20.2, 4.7, 100e3)
+    got = geometry.illumination(pts, nrm, sun, sc)
+    want = _illumination_numpy(pts, nrm, sun, sc)
+    for g, w in zip(got, want):
+        assert g.shape == dem.shape
+        np.testing.assert_allclose(g, w, rtol=0, atol=1e-14)
+    assert 0.2 < np.mean(got[0]) < 0.9 and np.all(got[2] > 0)  # a real geometry, not zeros
+
+
+def test_observe_window_selects_what_the_masks_select():
+    rng = np.random.default_rng(3)
+    tr = Affine(0.01, 0, 20.0, 0, -0.01, 5.0)
+    dem = _dem(rng, 32, 40) * 8  # steep: some pixels face away from the Sun
+    lon, lat = geometry.lonlat_axes(tr, dem.shape)
+    lr, br = np.radians(lon), np.radians(lat)
+    pts, nrm = geometry.surface_block(np.cos(lr), np.sin(lr), np.cos(br), np.sin(br), dem, MOON_RADIUS_KM)
+    inner = dem[1:-1, 1:-1]
+    sun = geometry.body_fixed(20.2 + 60, 4.8, 0.0) * 1e5  # low Sun from the east
+    sc = geometry.body_fixed(20.2, 4.8, 100e3)
+    use = rng.random((10, 12)) > 0.2  # a window at block row 5, column 7
+    rows, cols, ci, ce, al = geometry.observe_window(use, inner, pts, nrm, 5, 7, sun, sc, 0.087)
+    p, n = pts[6:16, 8:20], nrm[5:15, 7:19]
+    wci, wce, wal = geometry.illumination(p, n, sun, sc)
+    mask = use & np.isfinite(inner[5:15, 7:19]) & (wci >= 0.087) & (wce > 0)
+    assert 0 < mask.sum() < use.sum()
+    r, c = np.nonzero(mask)
+    assert np.array_equal(rows, r) and np.array_equal(cols, c)
+    assert np.array_equal(ci, wci[mask]) and np.array_equal(ce, wce[mask]) and np.array_equal(al, wal[mask])
+
+
+def test_pair_sums_equal_a_pixel_by_pixel_count():
+    rng = np.random.default_rng(4)
+    width, k = 60, 5
+    pix, image, r, start = [], [], [], [0]
+    for a in range(k):  # image a covers columns 8a .. 8a+19 of 30 rows, with holes
+        rows, cols = np.mgrid[0:30, 8 * a:8 * a + 20]
+        p = (rows * width + cols).ravel()
+        p = p[rng.random(p.size) > 0.1]
+        pix.append(p)
+        image.append(rng.uniform(10, 200, p.size).astype(np.float32))
+        r.append(rng.uniform(0.1, 1.0, p.size).astype(np.float32))
+        start.append(start[-1] + p.size)
+    index = np.array([7, 3, 9, 1, 4])
+    got = exposure_init.pair_sums(np.concatenate(pix), np.array(start), np.concatenate(image), np.concatenate(r),
+                                  index, width)
+    logq = [(np.log(i) - np.log(x)).astype(np.float32) for i, x in zip(image, r)]
+    want = {}
+    for a in range(k):
+        for b in range(a + 1, k):
+            da = dict(zip(pix[a].tolist(), logq[a]))
+            common = [(da[p], q) for p, q in zip(pix[b].tolist(), logq[b]) if p in da]
+            if common:
+                d = float(np.sum([np.float32(x - y) for x, y in common], dtype=np.float64))
+                j, i = int(index[a]), int(index[b])
+                want[(min(j, i), max(j, i))] = (len(common), d if j < i else -d)
+    assert got.keys() == want.keys() and len(want) == 7  # neighbours and next-but-one neighbours overlap
+    for key in want:
+        assert got[key][0] == want[key][0]
+        assert got[key][1] == pytest.approx(want[key][1], rel=1e-12, abs=1e-9)
+    assert exposure_init.pair_sums(np.concatenate(pix), np.array(start), np.concatenate(image), np.concatenate(r),
+                                   index) == got  # without the column test: the same
+
+
+def test_aligned_drg_is_copied_with_the_warper_values(tmp_path, monkeypatch):
+    """A DRG on the tile grid: the direct copy gives GDAL's bilinear values; only weight-zero edges differ."""
+    from lunaralbedo.io import drgs, rasters
+    from lunaralbedo.model.weights import WeightProfile
+
+    rng = np.random.default_rng(5)
+    h, w = 40, 30
+    dn = rng.integers(1, 255, (h, w)).astype(np.uint8)
+    alpha = np.full((h, w), 255, np.uint8)
+    alpha[:, :2] = 0  # an invalid margin, as orthoprojected DRGs have
+    tr = Affine(0.002, 0, 10.0 + 3 * 0.002, 0, -0.002, -1.0 - 5 * 0.002)
+    path = tmp_path / "A_drg.tif"
+    rasters.write_geotiff(path, np.stack([dn, alpha]), tr, rasters.MOON_CRS)
+    info = rasters.raster_info(path)
+    profile = WeightProfile.full(h, w)
+    dst = Affine(0.002, 0, 10.0, 0, -0.002, -1.0)  # the tile grid: the DRG starts at column 3, row 5
+    got = drgs.read_drg_onto_grid(info, profile, dst, (60, 50), rasters.MOON_CRS, 10.0)
+    assert rasters.aligned_offset(info.transform, dst, (60, 50)) == (-5, -3)
+    monkeypatch.setattr(rasters, "ALIGNED_TOLERANCE_PX", -1.0)  # force GDAL's warper
+    ref = drgs.read_drg_onto_grid(info, profile, dst, (60, 50), rasters.MOON_CRS, 10.0)
+    assert np.array_equal(got[1], ref[1]) and np.array_equal(got[3], ref[3])  # valid, lit
+    assert np.array_equal(got[0], ref[0])  # values
+    np.testing.assert_allclose(got[2], ref[2], rtol=1e-6, atol=1e-9)  # weights
+    assert got[1][5:45, 5:33].all() and not got[1][5:45, 3:5].any() and not got[1][:5].any()
+
+
+@pytest.mark.parametrize("sun_deg", [(80.0, 4.7), (20.3, -60.0), (40.0, 30.0)])
+def test_cast_shadow_pixels_and_skipping_march_equal_the_full_march(sun_deg):
+    """Low Suns from the east and the south, a higher one from the north-east, rough terrain: the same mask."""
+    from lunaralbedo.model.cast_shadows import _skip_steps, cast_shadow_mask, cast_shadow_pixels
+
+    rng = np.random.default_rng(6)
+    tr = Affine(0.01, 0, 20.0, 0, -0.01, 5.0)
+    dem = (rng.normal(0, 1, (90, 90)).cumsum(0).cumsum(1) * 20).astype(np.float64)
+    dem[40:44, 50:53] = np.nan
+    sun = geometry.body_fixed(20.3 + sun_deg[0], 4.7 + sun_deg[1], 0.0) * 1e5
+    full = cast_shadow_mask(dem, tr, sun, (10, 80, 10, 80), skip=False)
+    assert 0.02 < full.mean() < 0.95
+    assert np.array_equal(cast_shadow_mask(dem, tr, sun, (10, 80, 10, 80)), full)
+    rows, cols = np.mgrid[10:80, 10:80]
+    assert np.array_equal(cast_shadow_pixels(dem, tr, sun, rows.ravel(), cols.ravel()), full.ravel())
+    d32 = dem.astype(np.float32)  # the solver marches float32 heights: the answers of their float64 values
+    assert np.array_equal(cast_shadow_pixels(d32, tr, sun, rows.ravel(), cols.ravel()),
+                          cast_shadow_mask(d32.astype(np.float64), tr, sun, (10, 80, 10, 80), skip=False).ravel())
+    assert _skip_steps(tr, dem.shape, 0.5 * np.radians(0.01) * MOON_RADIUS_KM, 8) >= 10  # the march does skip
