@@ -40,14 +40,14 @@ def _compact(wt, **arrays):
     return obs
 
 
-def _run(pm, point, layers, params, t, n_par, shadow=kernels.NO_SHADOW_TEST, ratio=None, thresh=0.0, alpha=None):
+def _run(pm, kind, layers, params, t, n_par, shadow=kernels.NO_SHADOW_TEST, ratio=None, thresh=0.0, alpha=None):
     k = len(t)
     n_cols = n_par + 1 if n_par else 0
     en, ed, jtj, jtr = np.zeros(k), np.zeros(k), np.zeros((n_cols, n_cols)), np.zeros(n_cols)
     alb = np.empty(len(pm["pixels"]), np.float32)
     empty = pm["image"][:0]
     q, n_obs, amin, amax = kernels.iterate_pixels(
-        point, pm["offsets"], pm["image_of"], pm["image"], pm["weight"], *layers, np.asarray(params, np.float32), t,
+        kind, pm["offsets"], pm["image_of"], pm["image"], pm["weight"], *layers, np.asarray(params, np.float32), t,
         n_par, n_cols, shadow, empty if ratio is None else ratio, np.float32(thresh), empty if alpha is None else alpha,
         en, ed, jtj, jtr, alb)
     full = np.full(pm["npix"], np.nan, np.float32)
@@ -80,7 +80,7 @@ def test_fused_kernel_equals_the_numpy_formulas():
 
     obs = _compact(wt, image=image, weight=wt, r=r, d0=dr[0], d1=dr[1])
     pm = {**kernels.pixel_major(obs, h * w, ["image", "weight", "r", "d0", "d1"]), "npix": h * w}
-    got = _run(pm, kernels.given, (pm["r"], pm["d0"], pm["d1"]), (), t, 2)
+    got = _run(pm, 0, (pm["r"], pm["d0"], pm["d1"]), (), t, 2)
     # per-pixel sums run over the images in the same order as NumPy's axis-0 sum: identical bytes
     np.testing.assert_array_equal(got["alb"].reshape(h, w), alb)
     t_obs = np.repeat(t, np.diff(obs["start"]))
@@ -93,7 +93,7 @@ def test_fused_kernel_equals_the_numpy_formulas():
     np.testing.assert_allclose(got["jtj"], jtj, rtol=1e-11)
     np.testing.assert_allclose(got["jtr"], jtr, rtol=1e-9, atol=1e-9 * np.abs(jtr).max())
     # one parameter: its column then R
-    one = _run(pm, kernels.given, (pm["r"], pm["d0"], pm["d0"]), (), t, 1)
+    one = _run(pm, 0, (pm["r"], pm["d0"], pm["d0"]), (), t, 1)
     jtj1, jtr1 = updates.phase_sums(res, alb, t, [dr[0]], r, wt)
     np.testing.assert_allclose(one["jtj"], jtj1, rtol=1e-11)
     np.testing.assert_allclose(one["jtr"], jtr1, rtol=1e-9, atol=1e-9 * np.abs(jtr1).max())
@@ -112,7 +112,7 @@ def test_dynamic_shadow_test_is_dynamic_lit():
         assert 0 < np.count_nonzero(lit & (wt > 0)) < np.count_nonzero(wt)
         wl = np.where(lit, wt, 0).astype(np.float32)
         alb = updates.albedo(image, t[:, None, None] * r, wl)
-        got = _run(pm, kernels.given, (pm["r"],) * 3, (), t, 0, mode, pm["cos_i"], thresh)
+        got = _run(pm, 0, (pm["r"],) * 3, (), t, 0, mode, pm["cos_i"], thresh)
         np.testing.assert_array_equal(got["alb"].reshape(h, w), alb)
         assert got["n_obs"] == np.count_nonzero(wl)
         np.testing.assert_allclose(got["q"], updates.cost(updates.residuals(image, alb, t[:, None, None] * r, wl), wl), rtol=1e-12)
@@ -122,8 +122,19 @@ def _point_models():
     return [m for m in REGISTRY.values() if m.point is not None]
 
 
-def test_the_fitted_model_has_a_kernel():
-    assert REGISTRY["lunar-lambert"].point is lunar_lambert.point
+def test_the_fitted_model_has_a_kernel_also_on_a_worker(tmp_path):
+    """A model sent to a Dask worker carries a copy of its numba ``point``: the kernel still knows it."""
+    import subprocess
+    import sys
+
+    import cloudpickle
+
+    (tmp_path / "model.pkl").write_bytes(cloudpickle.dumps(REGISTRY["lunar-lambert"]))
+    code = ("import pickle, sys; from lunaralbedo.engine import kernels; from lunaralbedo.model.photometry import lunar_lambert; "
+            "m = pickle.loads(open(sys.argv[1], 'rb').read()); "
+            "print(m.point is lunar_lambert.point, kernels.point_kind(m.point))")
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "model.pkl")], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "1"]  # another dispatcher object, the same kernel branch
 
 
 @pytest.mark.parametrize("model", _point_models(), ids=lambda m: m.name)
@@ -143,8 +154,10 @@ def test_fused_model_point_equals_its_numpy_functions(model):
     dr = model.derivatives_from(pm, params)
     assert r.dtype == np.float32 and all(d.dtype == np.float32 for d in dr)
     ls = [pm[n] for n in model.point_layers]
-    fused = _run(pm, model.point, ls + ls[:1] * (3 - len(ls)), params, t, n_par, alpha=pm.get("alpha"))
-    generic = _run(pm, kernels.given, (r, *dr, *([r] * (2 - len(dr)))), (), t, n_par, alpha=pm.get("alpha"))
+    kind = kernels.point_kind(model.point)
+    assert kind  # every model with a point is inlined by the kernel
+    fused = _run(pm, kind, ls + ls[:1] * (3 - len(ls)), params, t, n_par, alpha=pm.get("alpha"))
+    generic = _run(pm, 0, (r, *dr, *([r] * (2 - len(dr)))), (), t, n_par, alpha=pm.get("alpha"))
     for name in ("alb", "q", "en", "ed", "jtj", "jtr", "n_obs", "amin", "amax"):
         np.testing.assert_array_equal(fused[name], generic[name], err_msg=name)
 
@@ -226,7 +239,7 @@ def test_sums_do_not_depend_on_anything_but_the_data():
     for _ in range(2):
         pm = {**kernels.pixel_major({n: v.copy() for n, v in obs.items()}, wt[0].size, ["image", "weight", "r", "d0"]),
               "npix": wt[0].size}
-        got = _run(pm, kernels.given, (pm["r"], pm["d0"], pm["d0"]), (), t, 1)
+        got = _run(pm, 0, (pm["r"], pm["d0"], pm["d0"]), (), t, 1)
         outs.append(tuple(np.asarray(v).tobytes() for v in got.values()))
     assert outs[0] == outs[1]
 
@@ -254,5 +267,6 @@ def test_memory_cache_keeps_within_budget_and_never_serves_a_replaced_entry(tmp_
     other = tmp_path / "other" / "cache"
     entry(other / "a", 5)
     cache.get(other / "a", build)  # another run's entries make room for the new one
-    assert str(other / "a") in cache._entries and cache.nbytes <= cache.budget
+    cache.get(other / "a", build)
+    assert built.count(5) == 1 and cache.nbytes <= cache.budget  # kept: served from memory the second time
     assert cache.get(tmp_path / "missing", build) is None

@@ -15,6 +15,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..model.photometry import lunar_lambert
+
 
 #: Dynamic shadow test of :func:`iterate_pixels` (eq. 1's mask of shadow types 2 and 3,
 #: :func:`lunaralbedo.model.shadows.dynamic_lit`): none, on the model's R, on a given layer.
@@ -76,10 +78,25 @@ def pixel_major(obs, npix: int, names) -> dict:
     return out
 
 
+#: The models' ``point`` functions the iterate kernel inlines, by number (0: none, R and dR/dp
+#: come as arrays).  They are reached as globals of :func:`_point`: a numba function passed as
+#: an argument would make its caller compile again in every process (the argument's type
+#: names the object).  A model that gets a ``point`` adds one line here and a branch there.
+POINT_KINDS = {"lunaralbedo.model.photometry.lunar_lambert.point": 1}
+
+
+def point_kind(point) -> int | None:
+    """The number of a model's ``point`` in :data:`POINT_KINDS` (None: not inlined by the kernel)."""
+    f = getattr(point, "py_func", point)
+    return POINT_KINDS.get(f"{getattr(f, '__module__', '')}.{getattr(f, '__qualname__', '')}")
+
+
 @njit(cache=True)
-def given(r, dr0, dr1, params):
-    """The ``point`` of models without one: R and its derivatives were computed beforehand."""
-    return r, dr0, dr1
+def _point(kind, l0, l1, l2, params):
+    """R and dR/dp of one observation: the model's ``point`` of :data:`POINT_KINDS`, or the layers."""
+    if kind == 1:
+        return lunar_lambert.point(l0, l1, l2, params)
+    return l0, l1, l2
 
 
 #: Observations per chunk of :func:`iterate_pixels` (whole pixels; buffers stay in L1/L2).
@@ -87,24 +104,24 @@ CHUNK = 4096
 
 
 @njit(cache=True)
-def _points(point, l0, l1, l2, params, s0, s1, R, D0, D1):
-    """``point`` over observations ``s0:s1`` into chunk buffers (a tight loop: no sums live across ``exp``)."""
+def _points(kind, l0, l1, l2, params, s0, s1, R, D0, D1):
+    """R and dR/dp of observations ``s0:s1`` into chunk buffers (a tight loop: no sums live across ``exp``)."""
     for o in range(s0, s1):
-        r, d0, d1 = point(l0[o], l1[o], l2[o], params)
+        r, d0, d1 = _point(kind, l0[o], l1[o], l2[o], params)
         R[o - s0] = r
         D0[o - s0] = d0
         D1[o - s0] = d1
 
 
 @njit(cache=True, error_model="numpy")  # IEEE division: I / 0 is inf (lit), 0 / 0 NaN (shadow)
-def iterate_pixels(point, offsets, image_of, image, w, l0, l1, l2, params, texp, n_par, n_cols,
+def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, n_par, n_cols,
                    shadow, ratio, thresh, alpha, exp_num, exp_den, jtj, jtr, alb):
     r"""One iteration over pixel-major observations: albedo (eq. 3), then Q (eq. 1), the exposure
     sums (eq. 4) and the parameters' normal equations (eq. 5), pixel by pixel.
 
-    ``point(l0, l1, l2, params) -> (R, dR/dp_0, dR/dp_1)`` is the model's scalar form
-    (:mod:`lunaralbedo.model.photometry.pointwise`), or :func:`given` with R and its derivatives
-    as layers; ``params`` and the layers are float32.  ``texp`` (float32) are the exposures of the
+    ``kind`` picks the model's ``point(l0, l1, l2, params) -> (R, dR/dp_0, dR/dp_1)``
+    (:data:`POINT_KINDS`, :mod:`lunaralbedo.model.photometry.pointwise`); 0: the layers are R
+    and its derivatives.  ``params`` and the layers are float32.  ``texp`` (float32) are the exposures of the
     local images ``image_of``.  ``shadow``/``ratio``/``thresh``: dynamic shadow test
     :math:`I/(\rho T) \ge t` on R or on the layer ``ratio`` (:data:`SHADOW_ON_R`, ...).
     ``n_cols`` Jacobian columns (``n_par`` derivatives, then R; 0: no parameter sums); ``alpha``
@@ -112,7 +129,7 @@ def iterate_pixels(point, offsets, image_of, image, w, l0, l1, l2, params, texp,
     ``exp_den``, ``jtj``, ``jtr`` (float64) are filled; ``alb`` (float32 per pixel, or size 0)
     gets the albedo.  Returns ``(Q, n_obs, alpha_min, alpha_max)``.
 
-    Observations go in chunks of whole pixels: first ``point`` over the chunk (:func:`_points`),
+    Observations go in chunks of whole pixels: first R and dR/dp over the chunk (:func:`_points`),
     then per pixel the albedo and the sums.  The float32 products are those of the former
     image-major NumPy/numba code: the albedo equals :func:`albedo`'s bit for bit (each pixel sums
     its images in tile order) and so do the exposure sums for the same R (each image sums its
@@ -142,7 +159,7 @@ def iterate_pixels(point, offsets, image_of, image, w, l0, l1, l2, params, texp,
         j1 = j0 + 1
         while j1 < npx and offsets[j1 + 1] - s0 <= CHUNK:
             j1 += 1
-        _points(point, l0, l1, l2, params, s0, offsets[j1], R, D0, D1)
+        _points(kind, l0, l1, l2, params, s0, offsets[j1], R, D0, D1)
         for j in range(j0, j1):
             s = offsets[j] - s0
             e = offsets[j + 1] - s0

@@ -153,19 +153,21 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
 def iterate_block(arrays: dict, s, state: SolveState, phase: bool, out: TileSums) -> None:
     """Add one block of pixel-major observations (all of a tile, or rows of it) to ``out``.
 
-    The model's ``point`` runs inside the kernel; a model without one gives R and its
-    derivatives as NumPy arrays (also when it fits more than two parameters: then the
-    normal equations are NumPy sums).
+    The model's ``point`` runs inside the kernel (:data:`.kernels.POINT_KINDS`); a model without
+    one gives R and its derivatives as NumPy arrays (also when it fits more than two parameters:
+    then the normal equations are NumPy sums).
     """
     model = s.model
     n_par = len(model.parameters) if phase else 0
     params = np.asarray(state.params, np.float32)
-    if model.point is not None and len(model.parameters) <= 2:
-        point, layers = model.point, [arrays[n] for n in model.point_layers]
+    kind = kernels.point_kind(model.point) if (model.point is not None and len(model.parameters) <= 2) else None
+    if kind is not None:
+        layers = [arrays[n] for n in model.point_layers]
     else:
+        kind = 0
         r = np.asarray(model.reflectance_from(arrays, state.params), np.float32)
         dr = [np.asarray(d, np.float32) for d in model.derivatives_from(arrays, state.params)] if n_par else []
-        point, layers = kernels.given, [r, *dr[:2]]
+        layers = [r, *dr[:2]]
     layers += [layers[0] if layers else arrays["image"]] * (3 - len(layers))
     n_cols = n_par + 1 if 0 < n_par <= 2 else 0
     texp = np.asarray(state.exposure, np.float64)[arrays["index"]].astype(np.float32)
@@ -179,7 +181,7 @@ def iterate_block(arrays: dict, s, state: SolveState, phase: bool, out: TileSums
     alb = np.empty(len(arrays["pixels"]) if n_par > 2 else 0, np.float32)
     jtj, jtr = np.zeros((n_cols, n_cols)), np.zeros(n_cols)
     q, n_obs, amin, amax = kernels.iterate_pixels(
-        point, arrays["offsets"], arrays["image_of"], arrays["image"], arrays["weight"], *layers, params, texp,
+        kind, arrays["offsets"], arrays["image_of"], arrays["image"], arrays["weight"], *layers, params, texp,
         n_par, n_cols, shadow, ratio, np.float32(s.shadow_thresh), alpha, out.exp_num, out.exp_den, jtj, jtr, alb)
     if n_par > 2:  # no such model yet: the normal equations in NumPy
         jtj, jtr = _normal_equations(arrays, alb, texp, layers[0], dr, ratio if shadow == kernels.SHADOW_ON_LAYER else None,

@@ -64,10 +64,23 @@ def point(g, alpha, _unused, c):
     return (e + c[1]) * g, -alpha * e * g, g
 
 
+@njit(cache=True)
+def _over_arrays(g, alpha, unused, c, out):
+    """:func:`point` over arrays (:func:`.pointwise.evaluate`): rows R, dR/dc1, dR/dc2 of ``out``."""
+    m = out.shape[0]
+    for o in range(g.shape[0]):
+        r, d1, d2 = point(g[o], alpha[o], unused[o], c)
+        out[0, o] = r
+        if m > 1:
+            out[1, o] = d1
+        if m > 2:
+            out[2, o] = d2
+
+
 def _phase(alpha, c1, c2, n_out):
     a = np.asarray(alpha)
     one = np.ones((), np.float32 if a.dtype == np.float32 else np.float64)
-    return evaluate(point, (one, a), (c1, c2), n_out)
+    return evaluate(_over_arrays, (one, a), (c1, c2), n_out)
 
 
 def phase_factor(alpha_rad, c1, c2):
@@ -88,12 +101,12 @@ def layers(cos_i, cos_e, alpha, lon=None, lat=None):
 
 def reflectance_from(arrays, params):
     """:math:`R = P(\\alpha)\\,G` from the cached layers (dtype of the layers)."""
-    return evaluate(point, (arrays["geometric"], arrays["alpha"]), params)[0]
+    return evaluate(_over_arrays, (arrays["geometric"], arrays["alpha"]), params)[0]
 
 
 def derivatives_from(arrays, params):
     r""":math:`(\partial R/\partial c_1, \partial R/\partial c_2) = (-\alpha e^{-c_1\alpha} G,\; G)`."""
-    out = evaluate(point, (arrays["geometric"], arrays["alpha"]), params, 3)
+    out = evaluate(_over_arrays, (arrays["geometric"], arrays["alpha"]), params, 3)
     return out[1], out[2]
 
 
