@@ -127,26 +127,29 @@ print(int(hwm.split()[1]) // 1024)
 """
 
 
-def _peak_mb(settings: Path, out: Path) -> int:
-    res = subprocess.run([sys.executable, "-c", PEAK_RSS, str(settings), str(out)], capture_output=True, text=True)
+def _peak_mb(settings: Path, out: Path, stack_memory_mb: int | None = None) -> int:
+    env = {**os.environ, **({"LUNARALBEDO_STACK_MEMORY_MB": str(stack_memory_mb)} if stack_memory_mb is not None else {})}
+    res = subprocess.run([sys.executable, "-c", PEAK_RSS, str(settings), str(out)], capture_output=True, text=True, env=env)
     assert res.returncode == 0, res.stderr
     return int(res.stdout.split()[-1])
 
 
 def test_memory_depends_on_the_tile_not_on_the_number_of_images(tmp_path):
-    """A 4x longer strip (4x the images, 4x the observations) must not need more memory."""
+    """A 4x longer strip (4x the images, 4x the observations) must not need more memory than the
+    stacks kept in memory between iterations (here a budget of 8 MB, below the ~100 MB they take)."""
+    budget = 8
     peaks, obs = {}, {}
     px = 500
     for n in (6, 24):
         d = tmp_path / f"s{n}"
         render_scene(d, SceneSpec(n_images=n, image_px=px, res_deg=0.0025, tile_size=0.5, max_num_iter=2, seed=n))
-        peaks[n] = _peak_mb(d / "settings.txt", tmp_path / f"o{n}")
+        peaks[n] = _peak_mb(d / "settings.txt", tmp_path / f"o{n}", budget)
         # what holding every observation in memory would take: image, weight, mask, geometry, alpha
         # (4 + 4 + 1 + 4 + 4 bytes per observation), as a whole-scene implementation must
         obs[n] = n * px * px * 17 / 2**20
-    # flat: the long strip needs at most 20 MB more, while a whole-scene stack would need ~80 MB more
+    # flat: the long strip needs at most 20 MB (+ the budget) more, while a whole-scene stack would need ~80 MB more
     assert obs[24] - obs[6] > 70  # MB
-    assert peaks[24] - peaks[6] < 20, (peaks, obs)
+    assert peaks[24] - peaks[6] < 20 + budget, (peaks, obs)
     assert peaks[24] < peaks[6] + 0.25 * (obs[24] - obs[6]), (peaks, obs)
 
 

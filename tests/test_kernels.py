@@ -1,10 +1,17 @@
-"""The fused numba kernels give the sums of the NumPy stack formulas of model/updates.py."""
+"""The fused numba kernels give the sums of the NumPy stack formulas of model/updates.py, and a
+model's numba ``point`` gives what its NumPy functions give."""
 from __future__ import annotations
 
-import numpy as np
+import dataclasses
+from types import SimpleNamespace
 
-from lunaralbedo.engine import kernels
-from lunaralbedo.model import updates
+import numpy as np
+import pytest
+
+from lunaralbedo.engine import kernels, tilework
+from lunaralbedo.io.cache import MemoryCache, save_stack
+from lunaralbedo.model import shadows, updates
+from lunaralbedo.model.photometry import REGISTRY, lunar_lambert
 
 
 def _stacks(seed=2, k=5, h=40, w=30):
@@ -17,20 +24,51 @@ def _stacks(seed=2, k=5, h=40, w=30):
         wt[i, :, : 5 * i] = 0
         wt[i, :, 5 * i + 12:] = 0
     wt[:, :3] = 0  # rows without any observation: albedo NaN
+    r[1, 5, :] = 0  # R = 0 with weight: no albedo term, but a residual I in Q
     t = rng.uniform(0.5, 2.0, k).astype(np.float32)
     return image, r, dr, wt, t
 
 
-def _compact(wt, *arrays):
+def _compact(wt, **arrays):
+    """Image-major compact observations (as engine/observations.py caches them)."""
     k = wt.shape[0]
     sel = [np.flatnonzero(wt[i] > 0) for i in range(k)]
-    start = np.concatenate([[0], np.cumsum([len(s) for s in sel])]).astype(np.int64)
-    pix = np.concatenate(sel).astype(np.int32)
-    flat = [np.concatenate([a[i].ravel()[sel[i]] for i in range(k)]) for a in arrays]
-    return pix, start, flat
+    obs = {"pix": np.concatenate(sel).astype(np.int32), "index": np.arange(k, dtype=np.int32),
+           "start": np.concatenate([[0], np.cumsum([len(s) for s in sel])]).astype(np.int64)}
+    for n, a in arrays.items():
+        obs[n] = np.concatenate([a[i].ravel()[sel[i]] for i in range(k)])
+    return obs
 
 
-def test_kernels_equal_the_numpy_formulas():
+def _run(pm, kind, layers, params, t, n_par, shadow=kernels.NO_SHADOW_TEST, ratio=None, thresh=0.0, alpha=None):
+    k = len(t)
+    n_cols = n_par + 1 if n_par else 0
+    en, ed, jtj, jtr = np.zeros(k), np.zeros(k), np.zeros((n_cols, n_cols)), np.zeros(n_cols)
+    alb = np.empty(len(pm["pixels"]), np.float32)
+    empty = pm["image"][:0]
+    q, n_obs, amin, amax = kernels.iterate_pixels(
+        kind, pm["offsets"], pm["image_of"], pm["image"], pm["weight"], *layers, np.asarray(params, np.float32), t,
+        n_par, n_cols, shadow, empty if ratio is None else ratio, np.float32(thresh), empty if alpha is None else alpha,
+        en, ed, jtj, jtr, alb)
+    full = np.full(pm["npix"], np.nan, np.float32)
+    full[pm["pixels"]] = alb
+    return dict(alb=full, q=q, n_obs=n_obs, en=en, ed=ed, jtj=jtj, jtr=jtr, amin=amin, amax=amax)
+
+
+def test_pixel_major_order_is_stable_and_complete():
+    image, r, dr, wt, t = _stacks()
+    obs = _compact(wt, image=image, weight=wt)
+    pm = kernels.pixel_major(obs, wt[0].size, ["image", "weight"])
+    counts = np.diff(pm["offsets"])
+    pix = np.repeat(pm["pixels"], counts)
+    assert np.all(np.diff(pm["pixels"]) > 0) and counts.sum() == len(obs["pix"])
+    # within a pixel, images in tile order; every observation once, with its own value
+    key = pix.astype(np.int64) * len(t) + pm["image_of"]
+    assert np.all(np.diff(key) > 0)
+    np.testing.assert_array_equal(pm["image"], image[pm["image_of"], pix // wt.shape[2], pix % wt.shape[2]])
+
+
+def test_fused_kernel_equals_the_numpy_formulas():
     image, r, dr, wt, t = _stacks()
     k, h, w = image.shape
     tr = t[:, None, None] * r
@@ -39,53 +77,196 @@ def test_kernels_equal_the_numpy_formulas():
     q = updates.cost(res, wt)
     en, ed = updates.exposure_sums(image, alb, r, wt)
     jtj, jtr = updates.phase_sums(res, alb, t, list(dr), r, wt)
-    err = updates.error_map(image, alb, tr, wt, wt)
 
-    pix, start, (ci, cr, cw, cd1, cd2) = _compact(wt, image, r, wt, dr[0], dr[1])
-    t_obs = np.repeat(t, np.diff(start))
-    c_alb = kernels.albedo(pix, ci, t_obs * cr, cw, h * w)
+    obs = _compact(wt, image=image, weight=wt, r=r, d0=dr[0], d1=dr[1])
+    pm = {**kernels.pixel_major(obs, h * w, ["image", "weight", "r", "d0", "d1"]), "npix": h * w}
+    got = _run(pm, 0, (pm["r"], pm["d0"], pm["d1"]), (), t, 2)
     # per-pixel sums run over the images in the same order as NumPy's axis-0 sum: identical bytes
-    np.testing.assert_array_equal(c_alb.reshape(h, w), alb)
-    c_jtj, c_jtr, c_en, c_ed = np.zeros((3, 3)), np.zeros(3), np.zeros(k), np.zeros(k)
-    c_q, n_obs = kernels.iteration_sums(pix, start, ci, cr, cw, t_obs, c_alb, np.stack([cd1, cd2]), c_jtj, c_jtr, c_en, c_ed)
-    assert n_obs == np.count_nonzero(wt)
+    np.testing.assert_array_equal(got["alb"].reshape(h, w), alb)
+    t_obs = np.repeat(t, np.diff(obs["start"]))
+    np.testing.assert_array_equal(got["alb"], kernels.albedo(obs["pix"], obs["image"], t_obs * obs["r"], obs["weight"], h * w))
+    assert got["n_obs"] == np.count_nonzero(wt)
     # whole-tile sums: other summation order, float64 -> equal to ~1e-12
-    np.testing.assert_allclose(c_q, q, rtol=1e-12)
-    np.testing.assert_allclose(c_en, en, rtol=1e-12)
-    np.testing.assert_allclose(c_ed, ed, rtol=1e-12)
-    np.testing.assert_allclose(c_jtj, jtj, rtol=1e-11)
-    np.testing.assert_allclose(c_jtr, jtr, rtol=1e-9, atol=1e-9 * np.abs(jtr).max())
-    num = kernels.error_numerator(pix, ci, t_obs * cr, cw, c_alb, h * w).reshape(h, w)
-    den = wt.sum(axis=0, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        c_err = np.where(den > 0, num / den, np.nan).astype(np.float32)
-    np.testing.assert_array_equal(c_err, err)
+    np.testing.assert_allclose(got["q"], q, rtol=1e-12)
+    np.testing.assert_allclose(got["en"], en, rtol=1e-12)
+    np.testing.assert_allclose(got["ed"], ed, rtol=1e-12)
+    np.testing.assert_allclose(got["jtj"], jtj, rtol=1e-11)
+    np.testing.assert_allclose(got["jtr"], jtr, rtol=1e-9, atol=1e-9 * np.abs(jtr).max())
+    # one parameter: its column then R
+    one = _run(pm, 0, (pm["r"], pm["d0"], pm["d0"]), (), t, 1)
+    jtj1, jtr1 = updates.phase_sums(res, alb, t, [dr[0]], r, wt)
+    np.testing.assert_allclose(one["jtj"], jtj1, rtol=1e-11)
+    np.testing.assert_allclose(one["jtr"], jtr1, rtol=1e-9, atol=1e-9 * np.abs(jtr1).max())
+
+
+def test_dynamic_shadow_test_is_dynamic_lit():
+    image, r, _, wt, t = _stacks(seed=3)
+    thresh = 0.7  # float32(0.7) < 0.7: NumPy compares the float32 ratios with float32(0.7), so must the kernel
+    k, h, w = image.shape
+    image[:, 10:20] = (np.float32(thresh) * (t[:, None, None] * r))[:, 10:20]  # ratios on the threshold
+    cos_i = np.random.default_rng(0).uniform(0.05, 1.0, image.shape).astype(np.float32)
+    obs = _compact(wt, image=image, weight=wt, r=r, cos_i=cos_i)
+    pm = {**kernels.pixel_major(obs, h * w, ["image", "weight", "r", "cos_i"]), "npix": h * w}
+    for mode, rho in ((kernels.SHADOW_ON_R, r), (kernels.SHADOW_ON_LAYER, cos_i)):
+        lit = shadows.dynamic_lit(image, rho, t[:, None, None], thresh)
+        assert 0 < np.count_nonzero(lit & (wt > 0)) < np.count_nonzero(wt)
+        wl = np.where(lit, wt, 0).astype(np.float32)
+        alb = updates.albedo(image, t[:, None, None] * r, wl)
+        got = _run(pm, 0, (pm["r"],) * 3, (), t, 0, mode, pm["cos_i"], thresh)
+        np.testing.assert_array_equal(got["alb"].reshape(h, w), alb)
+        assert got["n_obs"] == np.count_nonzero(wl)
+        np.testing.assert_allclose(got["q"], updates.cost(updates.residuals(image, alb, t[:, None, None] * r, wl), wl), rtol=1e-12)
+
+
+def _point_models():
+    return [m for m in REGISTRY.values() if m.point is not None]
+
+
+def test_the_fitted_model_has_a_kernel_also_on_a_worker(tmp_path):
+    """A model sent to a Dask worker carries a copy of its numba ``point``: the kernel still knows it."""
+    import subprocess
+    import sys
+
+    import cloudpickle
+
+    (tmp_path / "model.pkl").write_bytes(cloudpickle.dumps(REGISTRY["lunar-lambert"]))
+    code = ("import pickle, sys; from lunaralbedo.engine import kernels; from lunaralbedo.model.photometry import lunar_lambert; "
+            "m = pickle.loads(open(sys.argv[1], 'rb').read()); "
+            "print(m.point is lunar_lambert.point, kernels.point_kind(m.point))")
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "model.pkl")], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "1"]  # another dispatcher object, the same kernel branch
+
+
+@pytest.mark.parametrize("model", _point_models(), ids=lambda m: m.name)
+def test_fused_model_point_equals_its_numpy_functions(model):
+    """The kernel with the model's ``point`` inline == the kernel fed the model's NumPy R and dR/dp."""
+    image, _, _, wt, t = _stacks(seed=4)
+    k, h, w = image.shape
+    rng = np.random.default_rng(9)
+    ci, ce = rng.uniform(0.1, 1.0, (2, *image.shape))
+    alpha = rng.uniform(0.05, 1.4, image.shape)
+    layers = {n: np.asarray(v, np.float32) for n, v in model.layers(ci, ce, alpha).items()}
+    obs = _compact(wt, image=image, weight=wt, **layers)
+    pm = {**kernels.pixel_major(obs, h * w, ["image", "weight", *layers]), "npix": h * w}
+    params = np.array([1.2, 0.4][: len(model.parameters)])
+    n_par = len(model.parameters)
+    r = model.reflectance_from(pm, params)
+    dr = model.derivatives_from(pm, params)
+    assert r.dtype == np.float32 and all(d.dtype == np.float32 for d in dr)
+    ls = [pm[n] for n in model.point_layers]
+    kind = kernels.point_kind(model.point)
+    assert kind  # every model with a point is inlined by the kernel
+    fused = _run(pm, kind, ls + ls[:1] * (3 - len(ls)), params, t, n_par, alpha=pm.get("alpha"))
+    generic = _run(pm, 0, (r, *dr, *([r] * (2 - len(dr)))), (), t, n_par, alpha=pm.get("alpha"))
+    for name in ("alb", "q", "en", "ed", "jtj", "jtr", "n_obs", "amin", "amax"):
+        np.testing.assert_array_equal(fused[name], generic[name], err_msg=name)
+
+
+def test_lunar_lambert_point_is_eq2():
+    """R = (exp(-c1 alpha) + c2) G and its derivatives, float32 in, float32 out, to float32 rounding."""
+    rng = np.random.default_rng(1)
+    g = rng.uniform(0.0, 1.2, 10000).astype(np.float32)
+    a = rng.uniform(0.0, 1.5, 10000).astype(np.float32)
+    c1, c2 = 1.37, 0.48
+    e = np.exp(np.float32(-c1) * a)
+    r = lunar_lambert.reflectance_from({"geometric": g, "alpha": a}, (c1, c2))
+    d1, d2 = lunar_lambert.derivatives_from({"geometric": g, "alpha": a}, (c1, c2))
+    assert r.dtype == d1.dtype == d2.dtype == np.float32
+    np.testing.assert_allclose(r, (e + np.float32(c2)) * g, rtol=3e-7)  # 1 ulp of exp (NumPy SIMD vs libm), then 2 products
+    np.testing.assert_allclose(d1, -a * e * g, rtol=3e-7, atol=1e-38)
+    np.testing.assert_array_equal(d2, g)
+    # float64 (the forward model) stays float64
+    r64 = lunar_lambert.reflectance_from({"geometric": g.astype(float), "alpha": a.astype(float)}, (c1, c2))
+    np.testing.assert_allclose(r64, (np.exp(-c1 * a.astype(float)) + c2) * g, rtol=1e-15)
+    assert lunar_lambert.phase_factor(np.float32(0.5), c1, c2).dtype == np.float32
+
+
+class _ThreeParams:
+    """A model without ``point``, fitting three parameters: R = (p0 + p1 x + p2 x^2) G."""
+
+    @staticmethod
+    def model():
+        def r_from(arrays, p):
+            x, g = arrays["alpha"], arrays["geometric"]
+            f = x.dtype.type
+            return (f(p[0]) + f(p[1]) * x + f(p[2]) * x * x) * g
+
+        def d_from(arrays, p):
+            x, g = arrays["alpha"], arrays["geometric"]
+            return g, x * g, x * x * g
+
+        base = REGISTRY["lunar-lambert"]
+        return dataclasses.replace(base, name="quad", reflectance_from=r_from, derivatives_from=d_from,
+                                   parameters=("p0", "p1", "p2"), point=None, point_layers=())
+
+
+def test_models_without_point_and_more_parameters_take_the_generic_path():
+    image, _, _, wt, t = _stacks(seed=8)
+    k, h, w = image.shape
+    rng = np.random.default_rng(2)
+    layers = {"geometric": rng.uniform(0.2, 1.0, image.shape).astype(np.float32),
+              "alpha": rng.uniform(0.1, 1.2, image.shape).astype(np.float32)}
+    model = _ThreeParams.model()
+    params = np.array([0.9, -0.2, 0.05])
+    r = model.reflectance_from(layers, params)
+    dr = list(model.derivatives_from(layers, params))
+    tr = t[:, None, None] * r
+    alb = updates.albedo(image, tr, wt)
+    res = updates.residuals(image, alb, tr, wt)
+    jtj, jtr = updates.phase_sums(res, alb, t, dr, r, wt)
+    en, ed = updates.exposure_sums(image, alb, r, wt)
+
+    obs = _compact(wt, image=image, weight=wt, **layers)
+    pm = kernels.pixel_major(obs, h * w, ["image", "weight", *layers])
+    s = SimpleNamespace(model=model, shadow_type=shadows.NONE, shadow_thresh=0.0)
+    state = tilework.SolveState(t.astype(np.float64), params)
+    out = tilework.TileSums(index=pm["index"], n_params=3, exp_num=np.zeros(k), exp_den=np.zeros(k))
+    tilework.iterate_block(pm, s, state, True, out)
+    np.testing.assert_allclose(out.q, updates.cost(res, wt), rtol=1e-12)
+    np.testing.assert_allclose(out.exp_num, en, rtol=1e-12)
+    np.testing.assert_allclose(out.exp_den, ed, rtol=1e-12)
+    np.testing.assert_allclose(out.jtj, jtj, rtol=1e-6)
+    np.testing.assert_allclose(out.jtr, jtr, rtol=1e-5, atol=1e-6 * np.abs(jtr).max())
+    used = layers["alpha"][wt > 0]
+    assert (out.alpha_min, out.alpha_max) == (used.min(), used.max())
 
 
 def test_sums_do_not_depend_on_anything_but_the_data():
-    """Same inputs in a fresh array -> identical bytes (no threads, no reassociation)."""
+    """Same inputs in fresh arrays -> identical bytes (no threads, no reassociation)."""
     image, r, dr, wt, t = _stacks(seed=5)
-    pix, start, (ci, cr, cw, cd1) = _compact(wt, image, r, wt, dr[0])
-    t_obs = np.repeat(t, np.diff(start))
+    obs = _compact(wt, image=image, weight=wt, r=r, d0=dr[0])
     outs = []
     for _ in range(2):
-        alb = kernels.albedo(pix.copy(), ci.copy(), t_obs * cr, cw.copy(), wt[0].size)
-        jtj, jtr, en, ed = np.zeros((2, 2)), np.zeros(2), np.zeros(len(t)), np.zeros(len(t))
-        q, _ = kernels.iteration_sums(pix, start, ci, cr, cw, t_obs, alb, cd1[None], jtj, jtr, en, ed)
-        outs.append((alb.tobytes(), q, jtj.tobytes(), jtr.tobytes(), en.tobytes(), ed.tobytes()))
+        pm = {**kernels.pixel_major({n: v.copy() for n, v in obs.items()}, wt[0].size, ["image", "weight", "r", "d0"]),
+              "npix": wt[0].size}
+        got = _run(pm, 0, (pm["r"], pm["d0"], pm["d0"]), (), t, 1)
+        outs.append(tuple(np.asarray(v).tobytes() for v in got.values()))
     assert outs[0] == outs[1]
 
 
-def test_three_parameters_take_the_numpy_normal_equations():
-    image, r, _, wt, t = _stacks(seed=8)
-    dr = np.random.default_rng(1).normal(size=(3, *image.shape)).astype(np.float32)
-    tr = t[:, None, None] * r
-    alb = updates.albedo(image, tr, wt)
-    jtj, jtr = updates.phase_sums(updates.residuals(image, alb, tr, wt), alb, t, list(dr), r, wt)
-    pix, start, (ci, cr, cw, d0, d1, d2) = _compact(wt, image, r, wt, *dr)
-    t_obs = np.repeat(t, np.diff(start))
-    c_alb = kernels.albedo(pix, ci, t_obs * cr, cw, wt[0].size)
-    c_jtj, c_jtr = np.zeros((4, 4)), np.zeros(4)
-    kernels.iteration_sums(pix, start, ci, cr, cw, t_obs, c_alb, np.stack([d0, d1, d2]), c_jtj, c_jtr, np.zeros(len(t)), np.zeros(len(t)))
-    np.testing.assert_allclose(c_jtj, jtj, rtol=1e-6)
-    np.testing.assert_allclose(c_jtr, jtr, rtol=1e-5, atol=1e-6 * np.abs(jtr).max())
+def test_memory_cache_keeps_within_budget_and_never_serves_a_replaced_entry(tmp_path):
+    def entry(folder, value, n=1000):
+        save_stack(folder, {"x": np.full(n, value, np.float32)}, {"v": value})
+
+    built = []
+
+    def build(arrays, meta):
+        built.append(meta["v"])
+        return {"x": np.array(arrays["x"])}
+
+    run = tmp_path / "run" / "cache"
+    cache = MemoryCache(budget=10_000)  # two entries of 4000 bytes fit, not three
+    for name, v in (("a", 1), ("b", 2), ("c", 3)):
+        entry(run / name, v)
+    for _ in range(2):
+        for name in "abc":
+            cache.get(run / name, build)
+    assert built == [1, 2, 3, 3] and cache.nbytes == 8000  # a, b kept; c (over budget) rebuilt, not kept
+    entry(run / "a", 7)  # re-prepared (a resumed or new run): rebuilt, never the old arrays
+    assert cache.get(run / "a", build)["x"][0] == 7 and built[-1] == 7
+    other = tmp_path / "other" / "cache"
+    entry(other / "a", 5)
+    cache.get(other / "a", build)  # another run's entries make room for the new one
+    cache.get(other / "a", build)
+    assert built.count(5) == 1 and cache.nbytes <= cache.budget  # kept: served from memory the second time
+    assert cache.get(tmp_path / "missing", build) is None

@@ -15,14 +15,15 @@ time (:func:`iterate_block` is one block's work), so memory is bounded by a bloc
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..io.cache import building, load_stack, save_meta, save_stack
+from ..io.cache import MemoryCache, building, load_stack, save_meta, save_stack
 from ..io.rasters import write_geotiff
-from ..model import exposure_init, shadows
+from ..model import exposure_init, shadows, updates
 from . import kernels, observations
 from .scene import Scene
 
@@ -152,50 +153,111 @@ def tile_model(scene: Scene, obs, state: SolveState, npix: int):
     return alb, r, w, t_obs
 
 
+#: Pixel-major observations of the tiles this process iterates stay in memory within this
+#: budget (bytes; environment variable ``LUNARALBEDO_STACK_MEMORY_MB``, default 512); tiles
+#: beyond it are read again from the (memory-mapped) cache and reordered every iteration.
+STACKS = MemoryCache(int(float(os.environ.get("LUNARALBEDO_STACK_MEMORY_MB", "512")) * 2**20))
+
+
+def pixel_stack(folder: Path, npix: int, cache_root: Path) -> dict:
+    """The observations of one cached block in pixel-major order (:func:`.kernels.pixel_major`), from :data:`STACKS`."""
+
+    def build(arrays, meta):
+        obs, _ = _split(arrays)
+        names = [n for n in obs if n not in ("pix", "start", "index")]
+        return kernels.pixel_major(obs, npix, names)
+
+    return STACKS.get(folder, build, group=cache_root)
+
+
 def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> TileSums:
-    """Partial sums of one iteration over tile ``t`` (eqs. 1, 3, 4, 5): its blocks' sums added in block order."""
+    """Partial sums of one iteration over tile ``t`` (eqs. 1, 3, 4, 5): its blocks' sums added in block order.
+
+    Each block's observations, in pixel-major order, come from :data:`STACKS` (kept in memory
+    across iterations within its budget) and run through one fused kernel (:func:`iterate_block`).
+    """
     folder = _cache_dir(cache_root, scene, t)
     meta = load_stack(folder)[1]
     idx = np.asarray(meta["index"], np.int32)
-    n_params = len(scene.settings.model.parameters)
-    out = TileSums(index=idx, n_params=n_params, exp_num=np.zeros(len(idx)), exp_den=np.zeros(len(idx)))
+    model = scene.settings.model
+    phase = want_phase and bool(model.parameters)
+    out = TileSums(index=idx, n_params=len(model.parameters), exp_num=np.zeros(len(idx)), exp_den=np.zeros(len(idx)))
     pos = {k: i for i, k in enumerate(idx.tolist())}
     width = scene.tiles[t].width
-    for b0, b1, obs, _ in _blocks(folder, meta):
-        part = iterate_block(scene, obs, state, want_phase, (b1 - b0) * width)
+    for i, (b0, b1) in enumerate(meta["blocks"]):
+        arrays = pixel_stack(folder / f"block_{i:04d}", (b1 - b0) * width, cache_root)
+        if not len(arrays["index"]):
+            continue
+        part = TileSums(index=arrays["index"], n_params=out.n_params, exp_num=np.zeros(len(arrays["index"])),
+                        exp_den=np.zeros(len(arrays["index"])))
+        iterate_block(arrays, scene.settings, state, phase, part)
         at = np.array([pos[k] for k in part.index.tolist()], np.intp)
         out.q += part.q
         out.exp_num[at] += part.exp_num
         out.exp_den[at] += part.exp_den
-        out.jtj += part.jtj
-        out.jtr += part.jtr
-        out.alpha_min, out.alpha_max = min(out.alpha_min, part.alpha_min), max(out.alpha_max, part.alpha_max)
+        if phase:
+            out.jtj += part.jtj
+            out.jtr += part.jtr
+            out.alpha_min, out.alpha_max = min(out.alpha_min, part.alpha_min), max(out.alpha_max, part.alpha_max)
         out.n_obs += part.n_obs
-    return out
-
-
-def iterate_block(scene: Scene, obs, state: SolveState, want_phase: bool, npix: int) -> TileSums:
-    """Partial sums of one iteration over one block's observations (eqs. 1, 3, 4, 5) in one fused pass."""
-    idx = obs["index"]
-    model = scene.settings.model
-    out = TileSums(index=idx, n_params=len(model.parameters), exp_num=np.zeros(len(idx)), exp_den=np.zeros(len(idx)))
-    if len(idx) == 0:
-        return out
-    alb, r, w, t_obs = tile_model(scene, obs, state, npix)
-    phase = want_phase and bool(model.parameters)
-    dr = np.stack([np.asarray(d, np.float32) for d in model.derivatives_from(obs, state.params)]) if phase else np.zeros((0, len(r)), np.float32)
-    if not phase:
-        out.jtj, out.jtr = np.zeros((0, 0)), np.zeros(0)
-    q, out.n_obs = kernels.iteration_sums(obs["pix"], obs["start"], obs["image"], r, w, t_obs, alb, dr,
-                                          out.jtj, out.jtr, out.exp_num, out.exp_den)
-    out.q = float(q)
     if not phase:
         out.jtj, out.jtr = np.zeros((out.n_params + 1,) * 2), np.zeros(out.n_params + 1)
-    elif "alpha" in obs:
-        used = obs["alpha"][w > 0]
-        if used.size:
-            out.alpha_min, out.alpha_max = float(used.min()), float(used.max())
     return out
+
+
+def iterate_block(arrays: dict, s, state: SolveState, phase: bool, out: TileSums) -> None:
+    """Add one block of pixel-major observations (all of a tile, or rows of it) to ``out``.
+
+    The model's ``point`` runs inside the kernel (:data:`.kernels.POINT_KINDS`); a model without
+    one gives R and its derivatives as NumPy arrays (also when it fits more than two parameters:
+    then the normal equations are NumPy sums).
+    """
+    model = s.model
+    n_par = len(model.parameters) if phase else 0
+    params = np.asarray(state.params, np.float32)
+    kind = kernels.point_kind(model.point) if (model.point is not None and len(model.parameters) <= 2) else None
+    if kind is not None:
+        layers = [arrays[n] for n in model.point_layers]
+    else:
+        kind = 0
+        r = np.asarray(model.reflectance_from(arrays, state.params), np.float32)
+        dr = [np.asarray(d, np.float32) for d in model.derivatives_from(arrays, state.params)] if n_par else []
+        layers = [r, *dr[:2]]
+    layers += [layers[0] if layers else arrays["image"]] * (3 - len(layers))
+    n_cols = n_par + 1 if 0 < n_par <= 2 else 0
+    texp = np.asarray(state.exposure, np.float64)[arrays["index"]].astype(np.float32)
+    shadow, ratio = kernels.NO_SHADOW_TEST, arrays["image"][:0]
+    if s.shadow_type in (shadows.LAMBERT_RATIO, shadows.LUNAR_LAMBERT_RATIO) and model.needs_geometry:
+        if s.shadow_type == shadows.LAMBERT_RATIO and "cos_i" in arrays:
+            shadow, ratio = kernels.SHADOW_ON_LAYER, arrays["cos_i"]
+        else:
+            shadow = kernels.SHADOW_ON_R
+    alpha = arrays["alpha"] if (n_par and "alpha" in arrays) else arrays["image"][:0]
+    alb = np.empty(len(arrays["pixels"]) if n_par > 2 else 0, np.float32)
+    jtj, jtr = np.zeros((n_cols, n_cols)), np.zeros(n_cols)
+    q, n_obs, amin, amax = kernels.iterate_pixels(
+        kind, arrays["offsets"], arrays["image_of"], arrays["image"], arrays["weight"], *layers, params, texp,
+        n_par, n_cols, shadow, ratio, np.float32(s.shadow_thresh), alpha, out.exp_num, out.exp_den, jtj, jtr, alb)
+    if n_par > 2:  # no such model yet: the normal equations in NumPy
+        jtj, jtr = _normal_equations(arrays, alb, texp, layers[0], dr, ratio if shadow == kernels.SHADOW_ON_LAYER else None,
+                                     s.shadow_thresh if shadow != kernels.NO_SHADOW_TEST else None)
+    if n_par:
+        out.jtj += jtj
+        out.jtr += jtr
+        out.alpha_min, out.alpha_max = min(out.alpha_min, amin), max(out.alpha_max, amax)
+    out.q += float(q)
+    out.n_obs += int(n_obs)
+
+
+def _normal_equations(arrays, alb, texp, r, dr, ratio, thresh):
+    """Eq. 5's sums in NumPy (pixel-major observations; ``thresh`` None: no dynamic shadow test)."""
+    a = np.repeat(np.nan_to_num(alb), np.diff(arrays["offsets"]))
+    t_obs = texp[arrays["image_of"]]
+    w = arrays["weight"]
+    if thresh is not None:
+        w = np.where(shadows.dynamic_lit(arrays["image"], r if ratio is None else ratio, t_obs, thresh), w, 0).astype(np.float32)
+    res = arrays["image"] - a * (t_obs * r)
+    return updates.phase_sums(res, (a * t_obs)[None], np.ones(1, np.float32), list(dr), r, w)
 
 
 # --------------------------------------------------------------------------- finalise
@@ -222,6 +284,8 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     folder = _cache_dir(cache_root, scene, t)
     meta = load_stack(folder)[1]
     idx = np.asarray(meta["index"], np.int32)
+    for i in range(len(meta["blocks"])):
+        STACKS.discard(folder / f"block_{i:04d}")  # the iterations are over: free the memory
     h, w_ = tile.height, tile.width
     name = f"{tile.name}.tif"
     if skip_done and (out_dir / "weightsSum" / name).exists():

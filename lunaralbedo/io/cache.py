@@ -2,8 +2,9 @@
 
 A tile's stack is a folder of ``.npy`` arrays written to a temporary folder and
 renamed into place, so a cache entry is either complete or absent.  Arrays are
-loaded memory-mapped: iterations read them from the page cache without holding
-every tile in memory, and a resumed run skips tiles already prepared.
+loaded memory-mapped, and a resumed run skips tiles already prepared.
+:class:`MemoryCache` keeps arrays derived from entries in memory within a byte budget
+(the solver's iterations), so that they are not re-read every pass.
 """
 from __future__ import annotations
 
@@ -11,8 +12,11 @@ import json
 import os
 import shutil
 import tempfile
+import threading
+from collections import OrderedDict
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -81,3 +85,77 @@ def building(folder: str | Path):
         if isinstance(exc, OSError) and str(tmp) in str(exc.filename or ""):  # name the entry, not the temporary
             raise OSError(exc.errno, exc.strerror or str(exc), str(folder)) from exc
         raise
+
+
+def _stamp(folder: Path):
+    """Identity of a cache entry on disk (a re-saved entry is a new folder and ``meta.json``), or None."""
+    try:
+        st, sf = os.stat(folder / "meta.json"), os.stat(folder)
+    except FileNotFoundError:
+        return None
+    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, sf.st_ino, sf.st_ctime_ns
+
+
+class MemoryCache:
+    """Arrays derived from cache entries (``build(arrays, meta) -> dict of arrays``), kept in memory
+    within ``budget`` bytes, per process.
+
+    An entry is served only while the folder's ``meta.json`` is the same file (a re-prepared
+    or resumed run's entry is rebuilt, never served stale).  A new entry that does not fit
+    first drops entries of other cache roots and entries no longer on disk, least recently
+    used first; if it still does not fit it is not kept: the tiles of one solve come back in
+    a cycle, where evicting the oldest would drop every entry just before its reuse.  The
+    returned arrays are shared: callers must not modify them.
+    """
+
+    def __init__(self, budget: int):
+        self.budget = int(budget)
+        self._entries: OrderedDict[str, tuple] = OrderedDict()  # folder -> (stamp, arrays, nbytes)
+        self._lock = threading.Lock()
+
+    @property
+    def nbytes(self) -> int:
+        return sum(e[2] for e in self._entries.values())
+
+    def get(self, folder: str | Path, build: Callable[[dict, dict], dict], group: str | Path | None = None) -> dict | None:
+        """The arrays built from the entry at ``folder`` (None when it does not exist).
+
+        ``group``: the cache root the entry belongs to (default: ``folder``'s parent); entries of
+        other groups are the first to go when room is needed.
+        """
+        folder = Path(os.path.abspath(folder))
+        key = str(folder)
+        stamp = _stamp(folder)
+        with self._lock:
+            hit = self._entries.get(key)
+            if hit is not None and hit[0] == stamp:
+                self._entries.move_to_end(key)
+                return hit[1]
+            self._entries.pop(key, None)
+        loaded = load_stack(folder)
+        if loaded is None or stamp is None:
+            return None
+        arrays = build(*loaded)
+        size = sum(a.nbytes for a in arrays.values() if isinstance(a, np.ndarray))
+        with self._lock:
+            self._make_room(size, Path(os.path.abspath(group)) if group is not None else folder.parent)
+            if self.nbytes + size <= self.budget and _stamp(folder) == stamp:
+                self._entries[key] = (stamp, arrays, size)
+        return arrays
+
+    def _make_room(self, size: int, root: Path) -> None:
+        for key in list(self._entries):
+            if self.nbytes + size <= self.budget:
+                return
+            stamp = self._entries[key][0]
+            if root not in Path(key).parents or _stamp(Path(key)) != stamp:
+                del self._entries[key]
+
+    def discard(self, folder: str | Path) -> None:
+        """Forget the entry of ``folder`` (its last use in a run)."""
+        with self._lock:
+            self._entries.pop(os.path.abspath(folder), None)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._entries.clear()

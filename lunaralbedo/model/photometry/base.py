@@ -14,7 +14,11 @@ never looks inside: it asks the model for
   fitted parameter, same dtype (used by eq. 5);
 
 and the forward model asks for ``reflectance(cos_i, cos_e, alpha, params)``
-(float64).  A model whose settings name files (``files``: settings key -> file kind) is
+(float64).  A model that fits parameters should also give ``point`` (see
+:mod:`.pointwise`): the numba form of :math:`R` and :math:`\partial R/\partial p_m` for one
+observation, which the iterate kernel inlines; its NumPy functions are then built on the
+same ``point`` (one implementation).  Models without it go through a generic path
+(:math:`R` and its derivatives as NumPy arrays each iteration).  A model whose settings name files (``files``: settings key -> file kind) is
 used *bound*: the engine reads those files (:mod:`lunaralbedo.engine.photometry`) and
 ``configure(values, contents, where)`` returns the model bound to them; the model itself
 does no I/O.  Angles: :math:`\cos i`, :math:`\cos e` dimensionless, :math:`\alpha` in
@@ -60,6 +64,10 @@ class PhotometricModel:
     #: ``configure(values, contents, where)``: the model bound to its settings ``values`` (legacy KEY -> value)
     #: and the ``contents`` of its ``files`` (KEY -> what was read); None: usable as is.
     configure: Callable[..., "PhotometricModel"] | None = None
+    #: Numba scalar form ``point(l0, l1, l2, params) -> (R, dR/dp_0, dR/dp_1)`` (:mod:`.pointwise`)
+    #: of the layers ``point_layers``; None: the engine uses ``reflectance_from``/``derivatives_from``.
+    point: Callable | None = None
+    point_layers: tuple[str, ...] = ()
     #: Files a forward-model scene writes for this model: settings KEY -> (file name, text).
     examples: dict[str, tuple[str, str]] = field(default_factory=dict)
 

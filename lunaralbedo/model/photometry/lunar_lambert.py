@@ -12,13 +12,17 @@ parameters: :math:`c_1, c_2` (settings PHASE_COEFF_C1, PHASE_COEFF_C2).
 
 The bracket (``geometric``) does not depend on :math:`c_1, c_2`, so the solver
 caches it with :math:`\alpha` and multiplies by :math:`P` each iteration.  All
-functions are pure NumPy and broadcast over arrays.
+functions broadcast over arrays; the phase factor is one numba scalar function (:func:`point`).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 from .base import PhotometricModel
+from .pointwise import evaluate
 
 #: :math:`L(\alpha)` polynomial, alpha in degrees (eq. 2).
 A, B, C = -0.019, 0.000242, -0.00000146
@@ -48,21 +52,46 @@ def geometric(cos_i, cos_e, alpha_rad):
     return np.where(lit, r, 0.0)
 
 
-def _exp_term(alpha, c1):
+@njit(cache=True)
+def point(g, alpha, _unused, c):
+    r"""One observation (eq. 2): :math:`(R, \partial R/\partial c_1, \partial R/\partial c_2)
+    = ((e^{-c_1\alpha} + c_2) G,\; -\alpha e^{-c_1\alpha} G,\; G)`, in the dtype of ``g``, ``alpha``, ``c``.
+
+    The one implementation of the phase factor: the NumPy functions below run it over
+    arrays (:func:`.pointwise.evaluate`) and the iterate kernel inlines it.
+    """
+    e = math.exp(-c[0] * alpha)
+    return (e + c[1]) * g, -alpha * e * g, g
+
+
+@njit(cache=True)
+def _over_arrays(g, alpha, unused, c, out):
+    """:func:`point` over arrays (:func:`.pointwise.evaluate`): rows R, dR/dc1, dR/dc2 of ``out``."""
+    m = out.shape[0]
+    for o in range(g.shape[0]):
+        r, d1, d2 = point(g[o], alpha[o], unused[o], c)
+        out[0, o] = r
+        if m > 1:
+            out[1, o] = d1
+        if m > 2:
+            out[2, o] = d2
+
+
+def _phase(alpha, c1, c2, n_out):
     a = np.asarray(alpha)
-    return np.exp(a.dtype.type(-c1) * a) if a.dtype == np.float32 else np.exp(-c1 * a.astype(np.float64))
+    one = np.ones((), np.float32 if a.dtype == np.float32 else np.float64)
+    return evaluate(_over_arrays, (one, a), (c1, c2), n_out)
 
 
 def phase_factor(alpha_rad, c1, c2):
     r"""Phase factor :math:`P = e^{-c_1\alpha} + c_2`, alpha in radians (eq. 2); float32 stays float32."""
-    e = _exp_term(alpha_rad, c1)
-    return e + e.dtype.type(c2)
+    return _phase(alpha_rad, c1, c2, 1)[0]
 
 
 def phase_factor_derivatives(alpha_rad, c1):
     r""":math:`(\partial P/\partial c_1, \partial P/\partial c_2) = (-\alpha e^{-c_1\alpha}, 1)` (for eq. 5)."""
-    a = np.asarray(alpha_rad)
-    return -a * _exp_term(a, c1), np.ones_like(a)
+    d1 = _phase(alpha_rad, c1, 0.0, 2)[1]
+    return d1, np.ones_like(d1)
 
 
 def layers(cos_i, cos_e, alpha, lon=None, lat=None):
@@ -72,14 +101,13 @@ def layers(cos_i, cos_e, alpha, lon=None, lat=None):
 
 def reflectance_from(arrays, params):
     """:math:`R = P(\\alpha)\\,G` from the cached layers (dtype of the layers)."""
-    return phase_factor(arrays["alpha"], params[0], params[1]) * arrays["geometric"]
+    return evaluate(_over_arrays, (arrays["geometric"], arrays["alpha"]), params)[0]
 
 
 def derivatives_from(arrays, params):
     r""":math:`(\partial R/\partial c_1, \partial R/\partial c_2) = (-\alpha e^{-c_1\alpha} G,\; G)`."""
-    g = arrays["geometric"]
-    d1, _ = phase_factor_derivatives(arrays["alpha"], params[0])
-    return d1 * g, g
+    out = evaluate(_over_arrays, (arrays["geometric"], arrays["alpha"]), params, 3)
+    return out[1], out[2]
 
 
 def reflectance(cos_i, cos_e, alpha, params=(1.4, 0.5)):
@@ -97,6 +125,8 @@ MODEL = PhotometricModel(
     reflectance=reflectance,
     parameters=("c1", "c2"),
     derivatives_from=derivatives_from,
+    point=point,
+    point_layers=("geometric", "alpha"),
     settings={"PHASE_COEFF_C1": (float, 1.4, None), "PHASE_COEFF_C2": (float, 0.5, None)},
     initial_keys=("PHASE_COEFF_C1", "PHASE_COEFF_C2"),
     curve=lambda alpha, params: phase_factor(alpha, params[0], params[1]),  # R / G: the phase factor

@@ -1,0 +1,114 @@
+"""The iterate step alone on the strip scene of item 6, in CPU time (docs/performance.md, section 1b).
+
+    .venv/bin/python benchmarks/iterate_bench.py [--out bench_out] [--before OTHER_CHECKOUT] [--budget-mb N]
+
+Renders (or reuses) the strip scene of item 6, prepares its tiles once, then times
+``iterate_tile`` over every tile after one warm-up pass (steady: 3 passes) and the kernels
+alone on the biggest tile, each checkout in a fresh process on the same prepared cache.
+``--budget-mb`` sets LUNARALBEDO_STACK_MEMORY_MB (0: stacks re-read every pass).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from common import REPO, scene  # noqa: E402
+
+from lunaralbedo.simulate import SceneSpec  # noqa: E402
+
+CHILD = r'''
+import json, resource, sys
+from pathlib import Path
+import numpy as np
+from lunaralbedo.settings import load_settings
+from lunaralbedo.engine.scene import build_scene
+from lunaralbedo.engine import kernels, tilework
+
+def cpu():
+    t = resource.getrusage(resource.RUSAGE_SELF)
+    return t.ru_utime + t.ru_stime
+
+d, cache = Path(sys.argv[1]), Path(sys.argv[2])
+scene = build_scene(load_settings(d / "settings.txt"), False, map_fn=lambda f, xs: list(map(f, xs)))
+tiles = range(len(scene.tiles))
+for t in tiles:
+    tilework.prepare_tile(t, scene=scene, cache_root=cache)
+state = tilework.SolveState(np.ones(len(scene.images)), scene.settings.initial_params.copy())
+n = sum(np.load(p, mmap_mode="r").shape[0] for p in cache.rglob("pix.npy"))
+out = {"observations": n}
+run = lambda: [tilework.iterate_tile(t, scene=scene, cache_root=cache, state=state, want_phase=True) for t in tiles]
+c0 = cpu(); run(); out["first_pass_ns"] = 1e9 * (cpu() - c0) / n
+c0 = cpu()
+for _ in range(3):
+    parts = run()
+out["steady_ns"] = 1e9 * (cpu() - c0) / 3 / n
+out["q"] = sum(p.q for p in parts)
+blk = lambda t: tilework._cache_dir(cache, scene, t) / "block_0000"  # the first block of rows of a tile
+t = max(tiles, key=lambda t: np.load(blk(t) / "pix.npy", mmap_mode="r").shape[0])
+arrays, meta = tilework.load_stack(blk(t))
+obs, _ = tilework._split({k: np.array(v) for k, v in arrays.items()})
+m, model = len(obs["pix"]), scene.settings.model
+npix = (meta["rows"][1] - meta["rows"][0]) * scene.tiles[t].width
+
+def timed(f, reps=3):
+    f(); c0 = cpu()
+    for _ in range(reps):
+        f()
+    return 1e9 * (cpu() - c0) / reps / m
+
+k = {}
+if hasattr(kernels, "iterate_pixels"):
+    pm = tilework.pixel_stack(blk(t), npix, cache)
+    names = [x for x in obs if x not in ("pix", "start", "index")]
+    k["reorder (once per tile in memory)"] = timed(lambda: kernels.pixel_major(obs, npix, names), 1)
+    s = tilework.TileSums(index=pm["index"], n_params=2, exp_num=np.zeros(len(pm["index"])), exp_den=np.zeros(len(pm["index"])))
+    k["fused kernel"] = timed(lambda: tilework.iterate_block(pm, scene.settings, state, True, s))
+else:
+    k["R (NumPy)"] = timed(lambda: model.reflectance_from(obs, state.params))
+    k["dR/dc (NumPy)"] = timed(lambda: model.derivatives_from(obs, state.params))
+    alb, r, w, t_obs = tilework.tile_model(scene, obs, state, npix)
+    tr = t_obs * r
+    k["albedo kernel"] = timed(lambda: kernels.albedo(obs["pix"], obs["image"], tr, w, npix))
+    dr = np.stack([np.asarray(x, np.float32) for x in model.derivatives_from(obs, state.params)])
+    z = lambda: (np.zeros((3, 3)), np.zeros(3), np.zeros(len(obs["index"])), np.zeros(len(obs["index"])))
+    k["sums kernel"] = timed(lambda: kernels.iteration_sums(obs["pix"], obs["start"], obs["image"], r, w, t_obs, alb, dr, *z()))
+out["kernels_ns"] = {"tile_observations": m, **k}
+out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+print(json.dumps(out))
+'''
+
+
+def measure(d: Path, cache: Path, src: Path, budget_mb: float | None) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(src)}
+    if budget_mb is not None:
+        env["LUNARALBEDO_STACK_MEMORY_MB"] = str(budget_mb)
+    res = subprocess.run([sys.executable, "-c", CHILD, str(d), str(cache)], capture_output=True, text=True, cwd=src, env=env)
+    if res.returncode:
+        raise RuntimeError(res.stderr[-3000:])
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default="bench_out")
+    ap.add_argument("--before", default=None, help="source tree of a previous implementation to measure too")
+    ap.add_argument("--budget-mb", type=float, default=None, help="LUNARALBEDO_STACK_MEMORY_MB for this checkout")
+    args = ap.parse_args()
+    root = (REPO / args.out).resolve()
+    root.mkdir(exist_ok=True)
+    d = scene(root, "strip_2000", SceneSpec(n_images=24, image_px=320, image_rows=2000, res_deg=0.002, tile_size=4.0,
+                                            max_num_iter=10, seed=15))
+    runs = [("before", Path(args.before).resolve(), None)] if args.before else []
+    for name, src, budget in runs + [("after", REPO, args.budget_mb)]:
+        r = measure(d, root / "iterate_cache", src, budget)
+        print(f"iterate ({name}): {r['steady_ns']:.1f} ns CPU per observation and iteration (first pass "
+              f"{r['first_pass_ns']:.0f} ns), kernels on one tile {r['kernels_ns']}, peak {r['peak_rss_mb']:.0f} MB", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
