@@ -10,6 +10,7 @@ import rasterio
 
 from lunaralbedo.engine.solve import solve
 from lunaralbedo.errors import ResumeError
+from lunaralbedo.response.synthetic import FilmCurve
 from lunaralbedo.simulate import SceneSpec, render_scene, score
 
 TOL = 0.03
@@ -73,18 +74,28 @@ def test_report_carries_the_curve_and_residuals_for_the_web_panel(estimated):
     assert 0 < resid["chi2_per_dof"] < 10 and np.max(np.abs(resid["bias_log"])) < 0.2
 
 
-def test_unknown_exposures_report_the_ambiguity_and_its_prior(film, tmp_path):
-    """Without exposure times the albedo is only fixed up to g -> g^gamma; the run says so and uses the prior.
+def test_unknown_exposures_gamma_from_the_reflectance_geometry(film, tmp_path):
+    """Without exposure times the curve is fixed only up to g -> g^gamma; the reflectance R varies within
+    pixels across images (c^gamma != c), which fixes gamma here, and the run says so.
 
-    (Measured, docs/response.md: the prior's gamma is wrong for this film curve, so the albedo
-    is not within 3 % here; it is still no worse than assuming a linear response.)
+    Measured (docs/response.md): the prior alone (g linear over DN 64-192) leaves g off the truth by the
+    power 0.64 and the albedo 10.8 % off; the geometry brings the power to 0.92 and the albedo to 3.0 %.
     """
     res = solve(film / "settings.txt", out=tmp_path / "o", workers=1, plots=False, response="estimate")
-    ident = res.report["response"]["identifiability"]
-    assert not ident["exposures_known"] and "linear over DN" in ident["prior"]
-    assert not res.report["exposure_fixed"]
+    resp = res.report["response"]
+    ident = resp["identifiability"]
+    assert not ident["exposures_known"] and not res.report["exposure_fixed"] and resp["converged"]
+    geo = ident["geometry"]
+    assert ident["gauge"] == "geometry" and geo["used"] and geo["se"] < 0.05 * geo["beta_under_prior"]
+    # the power left between the recovered curve and the truth's (the prior alone leaves 0.64)
+    z, g = np.array(resp["dn"]), np.array(resp["g"])
+    sel = (z >= 10) & (z <= 245)
+    truth = FilmCurve(k=1.4, x0=SceneSpec().film_mid).inverse(z[sel])
+    power = np.polyfit(np.log(truth), np.log(g[sel]), 1)[0]
+    assert 0.85 < power < 1.15, power
     solve(film / "settings.txt", out=tmp_path / "lin", workers=1, plots=False)
-    assert score(tmp_path / "o", film)["albedo_rel_rmse"] <= score(tmp_path / "lin", film)["albedo_rel_rmse"]
+    est, lin = score(tmp_path / "o", film), score(tmp_path / "lin", film)
+    assert est["albedo_rel_rmse"] < 0.04 and lin["albedo_rel_rmse"] > 3 * est["albedo_rel_rmse"], (est, lin)
 
 
 def test_identical_for_worker_counts_and_file_reuse(film, estimated, tmp_path):

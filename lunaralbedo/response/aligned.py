@@ -140,8 +140,10 @@ def fit_report(fit: ResponseFit, names: Sequence[str]) -> dict:
         "exposures": dict(zip(names, fit.exposure.tolist())),
         "identifiability": fit.gamma,
         "converged": fit.converged,
+        "convergence": fit.message,
         "loglik": fit.loglik,
-        "iterations": {"alternation": fit.n_juggle, "newton": len(fit.loglik) - fit.n_juggle},
+        "iterations": {"alternation": fit.n_juggle, "newton": len(fit.loglik) - fit.n_juggle,
+                       "active_set_passes": fit.passes},
         "residuals": {"dn": dn[seen].tolist(), **per_dn, "count": np.asarray(res["count"])[seen].astype(int).tolist(),
                       **{k: res[k] for k in ("chi2_per_dof", "rms_log", "n_obs", "n_params")}},
     }
