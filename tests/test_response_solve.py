@@ -7,7 +7,9 @@ import json
 import numpy as np
 import pytest
 import rasterio
+from click.testing import CliRunner
 
+from lunaralbedo.cli import main
 from lunaralbedo.engine.solve import solve
 from lunaralbedo.errors import ResumeError
 from lunaralbedo.response.synthetic import FilmCurve
@@ -81,10 +83,14 @@ def test_unknown_exposures_gamma_from_the_reflectance_geometry(film, tmp_path):
     Measured (docs/response.md): the prior alone (g linear over DN 64-192) leaves g off the truth by the
     power 0.64 and the albedo 10.8 % off; the geometry brings the power to 0.92 and the albedo to 3.0 %.
     """
-    res = solve(film / "settings.txt", out=tmp_path / "o", workers=1, plots=False, response="estimate")
-    resp = res.report["response"]
+    cli = CliRunner().invoke(main, ["solve", str(film / "settings.txt"), "-o", str(tmp_path / "o"), "--workers", "1",
+                                    "--quiet", "--response", "estimate"])
+    assert cli.exit_code == 0, cli.output
+    assert "gamma from the reflectance geometry" in cli.output and "converged (KKT conditions hold" in cli.output
+    report = _strict_json(tmp_path / "o" / "report.json")
+    resp = report["response"]
     ident = resp["identifiability"]
-    assert not ident["exposures_known"] and not res.report["exposure_fixed"] and resp["converged"]
+    assert not ident["exposures_known"] and not report["exposure_fixed"] and resp["converged"] and not resp["warnings"]
     geo = ident["geometry"]
     assert ident["gauge"] == "geometry" and geo["used"] and geo["se"] < 0.05 * geo["beta_under_prior"]
     # the power left between the recovered curve and the truth's (the prior alone leaves 0.64)

@@ -44,4 +44,6 @@ def command(images, out_dir, exposure_times, min_count, max_pixels, no_plots):
     r = rep["residuals"]
     click.echo(f"  fit: chi2/dof {r['chi2_per_dof']:.3g}, log residual RMS {r['rms_log']:.3g}, {r['n_obs']} observations; "
                + ("converged" if rep["converged"] else "NOT CONVERGED") + f" ({rep['convergence']})")
+    for w in rep["warnings"]:
+        click.echo(f"  WARNING: {w}")
     click.echo(f"  results in {out_dir}/")

@@ -34,6 +34,8 @@ def _print_summary(result) -> None:
             from .response import identifiability_line
 
             click.echo("    " + identifiability_line(r["identifiability"]))
+        for w in r.get("warnings", []):
+            click.echo(f"    WARNING: {w}")
     click.echo("  time " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()))
     click.echo(f"  results in {result.out_dir}/ (albedo/, error/, exposure.csv, phase.csv, report.json, *.png)")
 

@@ -70,7 +70,7 @@ class ResponseFit:
     g_initial: np.ndarray  # the start from the closed-form alternation (eq. 13), same normalisation
     exposure: np.ndarray
     radiance: np.ndarray  # per pixel of the observations; NaN where left out
-    loglik: list[float]  # eq. 8 per pass of the alternation, then per Newton iteration
+    loglik: list[float]  # eq. 8 per pass of the alternation, then per feasible Newton/active-set point
     z_ref: int
     n_juggle: int
     gamma: dict = field(default_factory=dict)
@@ -78,6 +78,7 @@ class ResponseFit:
     converged: bool = True
     message: str = ""
     passes: int = 1  # active-set passes of the Newton fit
+    newton: int = 0  # Newton iterations over all passes (``loglik`` records the feasible points only)
 
     def lut(self, n_levels: int = 256) -> np.ndarray:
         """g as a float32 look-up table over 0..n_levels-1; NaN outside the fitted range."""
@@ -179,9 +180,11 @@ class _Profile:
 def _juggle(obs, lev_idx, lev: Levels, t, t_free: bool, passes: int):
     """The seed's alternation (10), (11), (13) from a linear g; returns (g over the range, t, log-likelihoods).
 
-    g is kept at the fit's scale (mean of ln x over the observations = ln FIT_SCALE) so the
-    likelihoods compare with the Newton ones.
+    g is kept at the fit's scale (mean of ln x over the observations = ln FIT_SCALE) and, with
+    unknown exposures, on the prior's gauge (a power after each pass), so the likelihoods
+    compare with the Newton ones.
     """
+    gauge = gauge_prior(lev) if t_free else None
     g = np.arange(lev.lo, lev.hi + 1, dtype=np.float64)
     g *= FIT_SCALE / np.exp(np.mean(np.log(g[lev_idx])))
     hist = []
@@ -195,7 +198,10 @@ def _juggle(obs, lev_idx, lev: Levels, t, t_free: bool, passes: int):
         mu = r[obs.pixel] * (t[obs.image] if obs.factor is None else t[obs.image] * obs.factor)
         hist.append(log_likelihood(x, mu))
         g_new = response_closed_form(np.log(mu), lev_idx, len(g), exact=False)
-        g = np.exp(lev.matrix @ np.log(g_new[lev.knots - lev.lo]))
+        lg = np.log(g_new[lev.knots - lev.lo])
+        if gauge is not None and gauge @ lg > 0:
+            lg /= gauge @ lg
+        g = np.exp(lev.matrix @ lg)
         g *= FIT_SCALE / np.exp(np.mean(np.log(g[lev_idx])))
     return g, t, hist
 
@@ -221,7 +227,7 @@ def _kkt(p, grad, nv, pooled, a_s):
     lam = 0.0
     if a_s is not None:
         af = a_s[free[:nv]]
-        lam = -float(af @ grad[:nv][free[:nv]]) / float(af @ af)
+        lam = -float(af @ grad[:nv][free[:nv]]) / max(float(af @ af), 1e-300)
     lg = grad.copy()
     if a_s is not None:
         lg[:nv] += lam * a_s
@@ -245,6 +251,8 @@ def _solve(prof: "_Profile", p0: np.ndarray, a_s: np.ndarray | None, record, max
         # S over the free increments = s0 + Z y (the gauge eliminated); u unconstrained
         if a_s is not None:
             af = a_s[free]
+            if not af @ af > 0:  # every step the gauge measures is pooled: it cannot hold
+                break
             s0, z = af / (af @ af), null_space(af[None, :])
         else:
             s0, z = np.zeros(len(free)), np.eye(len(free))
@@ -261,7 +269,9 @@ def _solve(prof: "_Profile", p0: np.ndarray, a_s: np.ndarray | None, record, max
             return val, e.T @ grad
 
         def record_y(y, *_):
-            record(base + e @ y)
+            q = base + e @ y
+            if np.all(q[:nv] >= 0):  # the history shows feasible points only (eq. 7 holds)
+                record(q)
 
         res = minimize(fun, y0, jac=True, hess=lambda y: e.T @ prof.hess(base + e @ y) @ e, method="trust-exact",
                        callback=record_y, options=dict(maxiter=max(max_iter - its, 1), gtol=1e-10))
@@ -274,6 +284,7 @@ def _solve(prof: "_Profile", p0: np.ndarray, a_s: np.ndarray | None, record, max
             p = p + alpha * (p_new - p)
             pooled |= p[:nv] <= 1e-12 * max(1.0, float(np.max(p[:nv])))
             p[:nv][pooled] = 0.0
+            record(p)
             continue
         p = p_new
         prof._eval(p)
@@ -357,7 +368,7 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
     radiance[pix_ids] = r_sub / a
     return ResponseFit(levels=lev, g=g / a, g_initial=g0 / g0[zr - lev.lo], exposure=t, radiance=radiance,
                        loglik=hist, z_ref=zr, n_juggle=n_juggle, gamma=info, residuals=resid,
-                       converged=converged, message=message, passes=passes)
+                       converged=converged, message=message, passes=passes, newton=its)
 
 
 def choose_gauge(beta: float, se: float, spread: float, mode: str = "auto") -> tuple[bool, str]:
