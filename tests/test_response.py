@@ -100,7 +100,7 @@ def test_active_monotonicity_constraints_are_settled_in_finite_steps(stack):
 
 
 def test_choose_gauge_rules():
-    from lunaralbedo.model.response_fit import choose_gauge
+    from lunaralbedo.model.response import choose_gauge
 
     ok, why = choose_gauge(0.70, 0.006, 0.006)  # the synthetic film strip: g ~ z^1.43 in the mid range
     assert ok and "1.43" in why

@@ -1,7 +1,7 @@
 """Camera response on the real Apollo 15/16 DRGs of PhotometryTK's settings 1 (``../shared/photk_tests``).
 
 The observations are the solver's own response pass (``solve --response estimate``), thinned to
-every 4th DEM-grid pixel (about 112 000 of the 449 000 observations) to keep the test near 20 s;
+every 4th DEM-grid pixel (about 112 000 of the 449 000 observations) to keep the test short (16 s CPU);
 docs/response.md gives the full-data figures.  Skipped when ``../shared`` is absent.
 """
 from __future__ import annotations

@@ -14,7 +14,8 @@ def identifiability_line(ident: dict) -> str:
         return "exposure times given: g identified up to the one global scale"
     geo = ident.get("geometry") or {}
     if ident.get("gauge") == "geometry":
-        return f"exposure times estimated; gamma from the reflectance geometry: {geo['reason']}"
+        how = "fitted under it" if ident.get("mode") == "constraint" else "its power applied to the prior's curve"
+        return f"exposure times estimated; gamma from the reflectance geometry ({how}): {geo['reason']}"
     why = f" (geometry not used: {geo['reason']})" if geo else ""
     return f"exposure times estimated; exponential ambiguity fixed by the prior: {ident['prior']}{why}"
 

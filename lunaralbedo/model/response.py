@@ -48,6 +48,14 @@ Z_REF = 128
 FIT_SCALE = 1000.0
 #: DN range assumed linear by the gamma prior when exposure times are unknown.
 MID_RANGE = (64, 192)
+#: The geometric gauge is used when its slope is known to this relative standard error ...
+GEOMETRY_MAX_REL_SE = 0.05
+#: ... and the mid-range log-log slope of g it implies lies in this band (film and scanning; see docs/response.md).
+GEOMETRY_SLOPE_BAND = (0.5, 2.0)
+#: Geometry this strong (RMS of the projected ln c over the RMS log residual) constrains the refit itself;
+#: weaker geometry only sets the power of the prior-gauged curve (docs/response.md, "Identifiability").
+GEOMETRY_STRONG = 2.0
+
 
 
 @dataclass(frozen=True)
@@ -221,6 +229,43 @@ class GeometricSlope:
         ss = 1.0 / max(float(self.weight @ self.weight), 1e-300)  # sum of the projected ln c squared
         res = y - beta * self.weight * ss
         return beta, float(np.sqrt(res @ res / self.dof / ss))
+
+
+def gauge_prior(lev: Levels, mid=MID_RANGE) -> np.ndarray:
+    r"""The prior gauge: weights ``a`` over the knots with ``a @ ln g = 1`` meaning "g linear over ``mid``".
+
+    ``a @ ln g`` is the least-squares slope of :math:`\ln g` against :math:`\ln z` over the
+    knots in ``mid`` (all knots when fewer than three are).
+    """
+    z = lev.knots.astype(float)
+    sel = (z >= mid[0]) & (z <= mid[1])
+    sel = sel if sel.sum() >= 3 else np.ones_like(sel)
+    lz = np.where(sel, np.log(z), 0.0)
+    lz[sel] -= lz[sel].mean()
+    return lz / np.sum(lz**2)
+
+
+def choose_gauge(beta: float, se: float, spread: float, mode: str = "auto") -> tuple[bool, str]:
+    """Whether the geometric slope ``beta`` (s.e. ``se``) replaces the prior gauge, and why.
+
+    ``mode`` "auto" needs geometric variation (``spread`` of the projected ln c > 0), the
+    slope determined (relative s.e. below ``GEOMETRY_MAX_REL_SE``) and the mid-range log-log
+    slope of g it implies, 1/beta, inside ``GEOMETRY_SLOPE_BAND``; "geometry" needs only a
+    positive slope.
+    """
+    if not spread > 1e-9:
+        return False, "no reflectance variation within pixels across images: the geometry cannot fix gamma"
+    if not beta > 0:
+        return False, f"geometric slope {beta:.3g} is not positive: the reflectance variation does not show in the DN"
+    if mode == "geometry":
+        return True, "requested"
+    if se / beta > GEOMETRY_MAX_REL_SE:
+        return False, f"geometric slope {beta:.3f} +- {se:.3f}: too uncertain (> {GEOMETRY_MAX_REL_SE:.0%})"
+    lo, hi = GEOMETRY_SLOPE_BAND
+    if not lo <= 1.0 / beta <= hi:
+        return False, (f"geometric slope {beta:.3f} +- {se:.3f} implies a mid-range log-log slope of g of "
+                       f"{1 / beta:.2f}, outside the plausible {lo:g}-{hi:g}: taken as model error")
+    return True, f"geometric slope {beta:.3f} +- {se:.3f} (mid-range log-log slope of g {1 / beta:.2f})"
 
 
 def residual_analysis(x: np.ndarray, mu: np.ndarray, level: np.ndarray, n_levels: int, n_params: int) -> dict:

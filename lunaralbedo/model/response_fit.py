@@ -32,9 +32,11 @@ iterations or ``MAX_PASSES`` passes.  (The earlier log-increment parametrisation
 active bound at :math:`-\infty`: trust-exact never settled on the Apollo DRGs.)
 
 Unknown exposure times: the gauge of the exponential ambiguity, g linear over DN 64-192
-(:func:`gauge_prior`, a linear equality in :math:`S`), is eliminated through its null space;
-:func:`choose_gauge` then decides whether the geometric slope of
-:class:`.response.GeometricSlope` replaces it (a power applied to the fitted g, r, t).
+(:func:`.response.gauge_prior`, a linear equality in :math:`S`), is eliminated through its null space;
+:func:`.response.choose_gauge` then decides whether the geometric slope :math:`\beta` of
+:class:`.response.GeometricSlope` replaces it: strong geometry (``GEOMETRY_STRONG``) refits with
+:math:`\beta = 1` as the constraint; weaker geometry applies the power :math:`1/\beta` to the fitted
+g, r, t (a constraint on :math:`\beta` alone would let eq. 8's compression bend the rest of the curve).
 """
 from __future__ import annotations
 
@@ -46,8 +48,9 @@ from scipy.linalg import null_space
 from scipy.optimize import minimize
 from scipy.special import digamma, polygamma
 
-from .response import (FIT_SCALE, known_factor, MID_RANGE, Z_REF, GeometricSlope, Levels, Observations, choose_levels,
-                       exposure_update, log_likelihood, radiance_update, residual_analysis, response_closed_form)
+from .response import (FIT_SCALE, GEOMETRY_STRONG, MID_RANGE, Z_REF, GeometricSlope, Levels, Observations, choose_gauge,
+                       choose_levels, exposure_update, gauge_prior, known_factor, log_likelihood, radiance_update,
+                       residual_analysis, response_closed_form)
 
 #: Convergence: largest violation of the first-order (KKT) conditions of -L/N (per observation).
 GTOL_ACCEPT = 1e-6
@@ -55,10 +58,6 @@ GTOL_ACCEPT = 1e-6
 MAX_ITER = 500
 #: Active-set passes before the fit is reported as not converged.
 MAX_PASSES = 200
-#: The geometric gauge is used when its slope is known to this relative standard error ...
-GEOMETRY_MAX_REL_SE = 0.05
-#: ... and the mid-range log-log slope of g it implies lies in this band (film and scanning; see docs/response.md).
-GEOMETRY_SLOPE_BAND = (0.5, 2.0)
 
 
 @dataclass
@@ -206,20 +205,6 @@ def _juggle(obs, lev_idx, lev: Levels, t, t_free: bool, passes: int):
     return g, t, hist
 
 
-def gauge_prior(lev: Levels, mid=MID_RANGE) -> np.ndarray:
-    r"""The prior gauge: weights ``a`` over the knots with ``a @ ln g = 1`` meaning "g linear over ``mid``".
-
-    ``a @ ln g`` is the least-squares slope of :math:`\ln g` against :math:`\ln z` over the
-    knots in ``mid`` (all knots when fewer than three are).
-    """
-    z = lev.knots.astype(float)
-    sel = (z >= mid[0]) & (z <= mid[1])
-    sel = sel if sel.sum() >= 3 else np.ones_like(sel)
-    lz = np.where(sel, np.log(z), 0.0)
-    lz[sel] -= lz[sel].mean()
-    return lz / np.sum(lz**2)
-
-
 def _kkt(p, grad, nv, pooled, a_s):
     """Largest violation of the first-order conditions (bounds S >= 0 on pooled increments, gauge a_s @ S = 1)."""
     free = np.ones(len(p), bool)
@@ -311,9 +296,11 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
     two observations (they carry no information on g).  With ``exposure`` None the
     exponential ambiguity needs a gauge (reported in ``gamma``).  The fit holds g linear over
     DN 64-192 (the prior, an exact linear constraint); then, with ``gauge`` "auto" (or
-    "geometry") and factors ``c`` that vary within pixels, the power :math:`\gamma = 1/\beta`
-    from :class:`.response.GeometricSlope` is applied to g, r, t when :func:`choose_gauge`
-    accepts it ("prior": never).  The exposures are returned with geometric mean 1.
+    "geometry") and factors ``c`` that vary within pixels, the slope :math:`\beta` of
+    :class:`.response.GeometricSlope` replaces it when :func:`.response.choose_gauge` accepts it ("prior":
+    never): as the constraint of a refit when the geometry is strong (``GEOMETRY_STRONG``),
+    else as the power :math:`\gamma = 1/\beta` applied to g, r, t.  The exposures are returned
+    with geometric mean 1.
     """
     lev = choose_levels(obs.dn, min_count, exclude)
     keep = (obs.dn >= lev.lo) & (obs.dn <= lev.hi) & ~np.isin(obs.dn, exclude)
@@ -348,10 +335,17 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
             prof._eval(p)
             beta, se = geo.slope(np.log(prof.state[3]))
             use, why = choose_gauge(beta, se, geo.spread, gauge)
-            info["geometry"] = {"beta_under_prior": beta, "se": se, "spread_log_c": geo.spread,
+            x, mu = prof.state[3], prof.state[4]
+            strength = geo.spread / max(float(np.sqrt(np.mean(np.log(mu / x) ** 2))), 1e-12)
+            info["geometry"] = {"beta_under_prior": beta, "se": se, "spread_log_c": geo.spread, "strength": strength,
                                 "mid_slope_implied": 1.0 / beta if beta > 0 else None, "used": use, "reason": why}
-            if use:
-                info.update(gauge="geometry", gamma=1.0 / beta)
+            if use and strength >= GEOMETRY_STRONG:  # refit with beta = 1 as the constraint, from the powered curve
+                a_geo = lev.matrix.T @ np.bincount(lev_idx, geo.weight, len(prof.cnt))
+                p2, converged, passes2, its2, message = _solve(prof, p / beta, prof.jac.T @ a_geo, record, max_iter)
+                p, passes, its = p2, passes + passes2, its + its2
+                info.update(gauge="geometry", mode="constraint", gamma=1.0)
+            elif use:  # weak geometry: the likelihood's shape under the prior, the geometry's power
+                info.update(gauge="geometry", mode="power", gamma=1.0 / beta)
     prof._eval(p)
     g, t = prof.state[:2]
     if t_free:
@@ -369,26 +363,3 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
     return ResponseFit(levels=lev, g=g / a, g_initial=g0 / g0[zr - lev.lo], exposure=t, radiance=radiance,
                        loglik=hist, z_ref=zr, n_juggle=n_juggle, gamma=info, residuals=resid,
                        converged=converged, message=message, passes=passes, newton=its)
-
-
-def choose_gauge(beta: float, se: float, spread: float, mode: str = "auto") -> tuple[bool, str]:
-    """Whether the geometric slope ``beta`` (s.e. ``se``) replaces the prior gauge, and why.
-
-    ``mode`` "auto" needs geometric variation (``spread`` of the projected ln c > 0), the
-    slope determined (relative s.e. below ``GEOMETRY_MAX_REL_SE``) and the mid-range log-log
-    slope of g it implies, 1/beta, inside ``GEOMETRY_SLOPE_BAND``; "geometry" needs only a
-    positive slope.
-    """
-    if not spread > 1e-9:
-        return False, "no reflectance variation within pixels across images: the geometry cannot fix gamma"
-    if not beta > 0:
-        return False, f"geometric slope {beta:.3g} is not positive: the reflectance variation does not show in the DN"
-    if mode == "geometry":
-        return True, "requested"
-    if se / beta > GEOMETRY_MAX_REL_SE:
-        return False, f"geometric slope {beta:.3f} +- {se:.3f}: too uncertain (> {GEOMETRY_MAX_REL_SE:.0%})"
-    lo, hi = GEOMETRY_SLOPE_BAND
-    if not lo <= 1.0 / beta <= hi:
-        return False, (f"geometric slope {beta:.3f} +- {se:.3f} implies a mid-range log-log slope of g of "
-                       f"{1 / beta:.2f}, outside the plausible {lo:g}-{hi:g}: taken as model error")
-    return True, f"geometric slope {beta:.3f} +- {se:.3f} (mid-range log-log slope of g {1 / beta:.2f})"
