@@ -1,12 +1,15 @@
 #!/usr/bin/env python3
 """Camera response (seed 002): accuracy vs OpenCV on synthetic stacks, and time per million observations.
 
-    python benchmarks/response_bench.py [--figures docs]
+    python benchmarks/response_bench.py [--figures docs] [--apollo ../shared/photk_tests]
 
 Prints, per synthetic stack (film S curve, 8 bit, photon noise): log-RMS error of g over
 DN 10-245 after one global scale for ours (known exposure times), OpenCV calibrateDebevec
 and calibrateRobertson; then the fit time for ~0.1, 0.5 and 1 million observations.
 With --figures, writes the comparison plot of the first stack to FOLDER/response_vs_opencv.png.
+With --apollo PHOTK_TESTS (and --figures), the real Apollo 15/16 DRGs of settings 1: the response
+pass and fit (CPU time, convergence, residuals), then ``solve`` with that response.csv and with a
+linear response, and the figures response_apollo15_{curve,residuals,loglik,albedo}.png.
 """
 from __future__ import annotations
 
@@ -42,6 +45,9 @@ def accuracy(figures: Path | None) -> None:
         print(f"{name:34s} " + " ".join(f"{100 * e:7.2f}%" for e in errs), flush=True)
         if figures and i == 0:
             plot(figures / "response_vs_opencv.png", s, fit, cv)
+            from lunaralbedo.io.response import plot_loglik
+
+            plot_loglik(figures / "response_loglik.png", fit.loglik, fit.n_juggle)
 
 
 def plot(path: Path, s, fit, cv) -> None:
@@ -73,20 +79,101 @@ def timing(shapes=((120, 120), (250, 250), (350, 350))) -> list[dict]:
     for shape in shapes:
         s = render_stack(n_images=8, shape=shape)
         obs = observations_from_stack(s["dn"], np.ones(s["dn"].shape, bool))
-        t0 = time.perf_counter()
+        t0 = time.process_time()  # CPU time: the machine is shared
         fit = fit_response(obs, s["exposure"])
-        dt = time.perf_counter() - t0
+        dt = time.process_time() - t0
         n = fit.residuals["n_obs"]
-        rows.append({"observations": n, "seconds": dt, "seconds_per_million": dt / n * 1e6,
-                     "newton_iterations": len(fit.loglik) - fit.n_juggle})
-        print(f"{n:9d} observations: {dt:6.2f} s, {dt / n * 1e6:6.2f} s per million (known t), "
+        rows.append({"observations": n, "cpu_seconds": dt, "cpu_seconds_per_million": dt / n * 1e6,
+                     "newton_iterations": fit.newton})
+        print(f"{n:9d} observations: {dt:6.2f} s CPU, {dt / n * 1e6:6.2f} s per million (known t), "
               f"{rows[-1]['newton_iterations']} Newton iterations", flush=True)
     return rows
+
+
+def apollo(photk: Path, figures: Path | None, work: Path = Path("/tmp/response_apollo")) -> dict:
+    """Response of the settings-1 DRGs: fit figures, then the albedo solved with and without it."""
+    import shutil
+
+    from lunaralbedo.engine.response import response_observations
+    from lunaralbedo.engine.scene import build_scene
+    from lunaralbedo.engine.solve import solve
+    from lunaralbedo.parallel import make_executor
+    from lunaralbedo.response.aligned import write_outputs
+    from lunaralbedo.settings import load_settings
+
+    settings = photk / "photometry_settings_1.txt"
+    shutil.rmtree(work, ignore_errors=True)
+    (work / "fit").mkdir(parents=True)
+    ex = make_executor(1, None, None, None, False)
+    try:
+        scene = build_scene(load_settings(settings), False, map_fn=lambda f, xs: ex.map(f, xs, "masks"))
+        obs = response_observations(scene, ex)
+    finally:
+        ex.close()
+    c0 = time.process_time()
+    fit = fit_response(obs, None)
+    cpu = time.process_time() - c0
+    write_outputs(work / "fit", fit, scene.keys, plots=True, exposure_given=False)
+    res = fit.residuals
+    row = {"observations": res["n_obs"], "fit_cpu_s": cpu, "converged": fit.converged, "message": fit.message,
+           "newton_iterations": fit.newton, "passes": fit.passes,
+           "pooled_steps": int(np.sum(np.diff(fit.g) == 0)), "levels": len(fit.g), "chi2_per_dof": res["chi2_per_dof"],
+           "rms_log": res["rms_log"], "gauge": fit.gamma.get("gauge"), "geometry": fit.gamma.get("geometry")}
+    print(row, flush=True)
+    out = {}
+    for name, kw in (("linear", {}), ("response", {"response": work / "fit" / "response.csv"})):
+        solve(settings, out=work / name, workers=1, plots=False, **kw)
+        out[name] = _mosaic(work / name / "albedo")
+    for name, a in out.items():
+        v = a[np.isfinite(a)]
+        print(f"albedo {name}: {v.size} px, relative spread (std/mean) {np.std(v) / np.mean(v):.4f}", flush=True)
+    if figures:
+        shutil.copyfile(work / "fit" / "response.png", figures / "response_apollo15_curve.png")
+        shutil.copyfile(work / "fit" / "residuals.png", figures / "response_apollo15_residuals.png")
+        _plot_albedo(figures / "response_apollo15_albedo.png", out)
+        shutil.copyfile(work / "fit" / "loglik.png", figures / "response_apollo15_loglik.png")
+    return row
+
+
+def _mosaic(folder: Path) -> np.ndarray:
+    import rasterio
+    from rasterio.merge import merge
+
+    sources = [rasterio.open(p) for p in sorted(folder.glob("*.tif"))]
+    try:
+        arr, _ = merge(sources, nodata=np.nan)
+    finally:
+        for s in sources:
+            s.close()
+    return arr[0].astype(np.float64)
+
+
+def _plot_albedo(path: Path, mosaics: dict) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    h, w = next(iter(mosaics.values())).shape
+    fig, axes = plt.subplots(1, len(mosaics), figsize=(3.4 * len(mosaics), 3.4 * h / w + 0.4))
+    for ax, (name, a) in zip(axes, mosaics.items()):
+        v = a / np.nanmean(a)
+        lo, hi = np.nanpercentile(v, [1, 99])
+        ax.imshow(v, cmap="gray", vmin=lo, vmax=hi)
+        ax.set_title(f"{name} (std/mean {np.nanstd(v):.3f})", fontsize=9)
+        ax.set_axis_off()
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
 
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser()
     ap.add_argument("--figures", type=Path, default=None)
+    ap.add_argument("--apollo", type=Path, default=None, help="../shared/photk_tests: the real-data figures only")
     a = ap.parse_args()
-    accuracy(a.figures)
-    timing()
+    if a.apollo:
+        apollo(a.apollo.resolve(), a.figures)
+    else:
+        accuracy(a.figures)
+        timing()

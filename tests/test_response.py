@@ -48,7 +48,8 @@ def test_known_exposures_recover_the_truth(fit_known, stack):
 def test_unknown_exposures_fix_the_gamma_ambiguity_by_the_documented_prior(obs, stack):
     fit = fit_response(obs, None)
     info = fit.gamma
-    assert not info["exposures_known"] and "linear" in info["prior"]
+    assert not info["exposures_known"] and "linear" in info["prior"] and fit.converged
+    assert info["gauge"] == "prior" and "geometry" not in info  # an aligned stack has no reflectance factor
     # the prior is honoured: unit log-log slope of g over the mid range
     sel = (fit.levels.dn >= 64) & (fit.levels.dn <= 192)
     assert np.polyfit(np.log(fit.levels.dn[sel]), np.log(fit.g[sel]), 1)[0] == pytest.approx(1.0, abs=1e-6)
@@ -75,6 +76,41 @@ def test_closed_forms():
     g = R.response_closed_form(log_mu, level, 3)
     assert np.all(np.diff(g) >= 0) and g[1] == pytest.approx(g[2])
     assert np.allclose(R.response_closed_form(np.log([5.0, 5.0]), np.array([0, 1]), 2, exact=False), 5.0)
+
+
+def test_active_monotonicity_constraints_are_settled_in_finite_steps(stack):
+    """Where the likelihood wants g to decrease, (7) is active: the fit pools those levels and converges.
+
+    Relabelling DN 120 <-> 135 in the stack makes the data say g(120) > g(135); the maximum
+    under (7) then has a flat step between them.  (The log-increment parametrisation put such
+    a step at -infinity and never settled: the Apollo DRGs, docs/response.md.)
+    """
+    dn = stack["dn"].astype(np.int16)
+    swapped = dn.copy()
+    swapped[dn == 120], swapped[dn == 135] = 135, 120
+    fit = fit_response(R.observations_from_stack(swapped, np.ones(dn.shape, bool)), stack["exposure"])
+    assert fit.converged and fit.message.startswith("KKT conditions hold")
+    steps = np.diff(fit.g)
+    assert np.all(steps >= 0)
+    z = fit.levels.dn[1:]
+    assert np.any(steps[(z > 120) & (z <= 135)] == 0)  # pooled: g(120..135) share values
+    # away from the relabelled levels the curve is still the truth's
+    far = (fit.levels.dn < 110) | (fit.levels.dn > 145)
+    assert R.log_rms_error(fit.g[far], stack["curve"].inverse(fit.levels.dn[far])) < TOL
+
+
+def test_choose_gauge_rules():
+    from lunaralbedo.model.response import choose_gauge
+
+    ok, why = choose_gauge(0.70, 0.006, 0.006)  # the synthetic film strip: g ~ z^1.43 in the mid range
+    assert ok and "1.43" in why
+    ok, why = choose_gauge(0.30, 0.002, 0.10)  # the Apollo DRGs: implies g ~ z^3.3
+    assert not ok and "outside the plausible" in why
+    ok, why = choose_gauge(0.9, 0.2, 0.01)
+    assert not ok and "too uncertain" in why
+    ok, why = choose_gauge(0.0, 0.0, 0.0)
+    assert not ok and "no reflectance variation" in why
+    assert choose_gauge(0.30, 0.002, 0.10, mode="geometry")[0]
 
 
 def test_rare_dn_are_interpolated_not_fitted(stack):

@@ -8,6 +8,18 @@ import click
 from ._common import reports_errors
 
 
+def identifiability_line(ident: dict) -> str:
+    """One line on how the exponential ambiguity was resolved (shared with ``solve``)."""
+    if ident["exposures_known"]:
+        return "exposure times given: g identified up to the one global scale"
+    geo = ident.get("geometry") or {}
+    if ident.get("gauge") == "geometry":
+        how = "fitted under it" if ident.get("mode") == "constraint" else "its power applied to the prior's curve"
+        return f"exposure times estimated; gamma from the reflectance geometry ({how}): {geo['reason']}"
+    why = f" (geometry not used: {geo['reason']})" if geo else ""
+    return f"exposure times estimated; exponential ambiguity fixed by the prior: {ident['prior']}{why}"
+
+
 @click.command("response")
 @click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
@@ -29,12 +41,10 @@ def command(images, out_dir, exposure_times, min_count, max_pixels, no_plots):
     ident = rep["identifiability"]
     click.echo(f"lunaralbedo response: {len(images)} images, DN {rep['dn_range'][0]}-{rep['dn_range'][1]} "
                f"({rep['free_levels']} free levels, {rep['interpolated_levels']} interpolated), {rep['normalisation']}")
-    if ident["exposures_known"]:
-        click.echo("  exposure times given: g, radiance identified up to the one global scale")
-    else:
-        click.echo(f"  exposure times estimated; exponential ambiguity fixed by the prior: {ident['prior']} "
-                   f"(gamma {ident['gamma']:.3f})")
+    click.echo("  " + identifiability_line(ident))
     r = rep["residuals"]
-    click.echo(f"  fit: chi2/dof {r['chi2_per_dof']:.3g}, log residual RMS {r['rms_log']:.3g}, "
-               f"{r['n_obs']} observations, converged {rep['converged']}")
+    click.echo(f"  fit: chi2/dof {r['chi2_per_dof']:.3g}, log residual RMS {r['rms_log']:.3g}, {r['n_obs']} observations; "
+               + ("converged" if rep["converged"] else "NOT CONVERGED") + f" ({rep['convergence']})")
+    for w in rep["warnings"]:
+        click.echo(f"  WARNING: {w}")
     click.echo(f"  results in {out_dir}/")

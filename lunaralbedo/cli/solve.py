@@ -27,7 +27,15 @@ def _print_summary(result) -> None:
     if rep.get("response"):
         r = rep["response"]
         click.echo(f"  camera response: {r['source']}" + (f", DN {r['dn_range'][0]}-{r['dn_range'][1]}, "
-                   f"chi2/dof {rep['residuals']['chi2_per_dof']:.3g}" if rep.get("residuals") else ""))
+                   f"chi2/dof {rep['residuals']['chi2_per_dof']:.3g}, "
+                   + ("converged" if r["converged"] else "NOT CONVERGED") + f" ({r['convergence']})"
+                   if rep.get("residuals") else ""))
+        if r.get("identifiability"):
+            from .response import identifiability_line
+
+            click.echo("    " + identifiability_line(r["identifiability"]))
+        for w in r.get("warnings", []):
+            click.echo(f"    WARNING: {w}")
     click.echo("  time " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()))
     click.echo(f"  results in {result.out_dir}/ (albedo/, error/, exposure.csv, phase.csv, report.json, *.png)")
 

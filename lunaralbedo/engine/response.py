@@ -92,6 +92,12 @@ def _reduce(scene: Scene, parts: list[dict]) -> Observations:
                         c["factor"].astype(np.float64))
 
 
+def response_observations(scene: Scene, executor) -> Observations:
+    """The response pass: :func:`response_tile` over every tile, concatenated in tile order."""
+    parts = executor.map(response_tile, list(range(len(scene.tiles))), "response", shared=("scene",), scene=scene)
+    return _reduce(scene, parts)
+
+
 def lut_digest(lut: np.ndarray | None) -> str | None:
     return None if lut is None else hashlib.sha256(np.nan_to_num(lut, nan=-1).astype(np.float32).tobytes()).hexdigest()[:16]
 
@@ -123,8 +129,7 @@ def resolve_response(spec, scene: Scene, executor, folder: Path, t_known, ck: di
         if lut_digest(lut) != ck["response"]["digest"]:
             raise ResumeError(f"{folder / RESPONSE_FILE}: differs from the checkpointed response; run without --resume")
         return lut, ck["response"]
-    parts = executor.map(response_tile, list(range(len(scene.tiles))), "response", shared=("scene",), scene=scene)
-    fit = fit_response(_reduce(scene, parts), t_known)
+    fit = fit_response(response_observations(scene, executor), t_known)
     from ..response.aligned import fit_report, write_outputs
 
     write_outputs(folder, fit, scene.keys, plots, exposure_given=True)

@@ -30,7 +30,7 @@ depends on the choice; see :mod:`.response_fit` for why this pin), and the retur
 :math:`g(z_{ref}) = 1` (OpenCV's convention, :math:`z_{ref} = 128`), with :math:`r`
 rescaled so that :math:`g(z) = r\,t\,c` still holds.  With unknown exposure times the
 data also fit :math:`g^\gamma, r^\gamma, t^\gamma` (the exponential ambiguity): see
-:func:`fix_gamma`.
+:func:`.response_fit.fit_response` (its gauges) and :class:`GeometricSlope`.
 """
 from __future__ import annotations
 
@@ -48,6 +48,14 @@ Z_REF = 128
 FIT_SCALE = 1000.0
 #: DN range assumed linear by the gamma prior when exposure times are unknown.
 MID_RANGE = (64, 192)
+#: The geometric gauge is used when its slope is known to this relative standard error ...
+GEOMETRY_MAX_REL_SE = 0.05
+#: ... and the mid-range log-log slope of g it implies lies in this band (film and scanning; see docs/response.md).
+GEOMETRY_SLOPE_BAND = (0.5, 2.0)
+#: Geometry this strong (RMS of the projected ln c over the RMS log residual) constrains the refit itself;
+#: weaker geometry only sets the power of the prior-gauged curve (docs/response.md, "Identifiability").
+GEOMETRY_STRONG = 2.0
+
 
 
 @dataclass(frozen=True)
@@ -81,7 +89,8 @@ def observations_from_stack(dn: np.ndarray, valid: np.ndarray) -> Observations:
 
 
 # --------------------------------------------------------------------------- closed forms
-def _ct(obs: Observations, t: np.ndarray) -> np.ndarray:
+def known_factor(obs: Observations, t: np.ndarray) -> np.ndarray:
+    """:math:`t_j c_n` per observation (c = 1 when the observations carry no factor)."""
     ct = np.asarray(t, np.float64)[obs.image]
     return ct if obs.factor is None else ct * obs.factor
 
@@ -89,7 +98,7 @@ def _ct(obs: Observations, t: np.ndarray) -> np.ndarray:
 def radiance_update(x: np.ndarray, obs: Observations, t: np.ndarray) -> np.ndarray:
     r"""Eq. 10 (and 15): :math:`r_i = \sum_j g(z_{ij}) / \sum_j t_j c_{ij}`; 0 where a pixel has no observation."""
     num = np.bincount(obs.pixel, x, obs.n_pixels)
-    den = np.bincount(obs.pixel, _ct(obs, t), obs.n_pixels)
+    den = np.bincount(obs.pixel, known_factor(obs, t), obs.n_pixels)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(den > 0, num / den, 0.0)
 
@@ -180,27 +189,83 @@ def choose_levels(dn: np.ndarray, min_count: int, exclude=(0, 255), n_levels: in
     return Levels(lo, hi, knots, m, counts)
 
 
-def fix_gamma(dn: np.ndarray, g: np.ndarray, mid=MID_RANGE) -> tuple[float, dict]:
-    r"""The documented prior that fixes the exponential ambiguity when exposures are unknown.
+@dataclass(frozen=True)
+class GeometricSlope:
+    r"""The within-pixel, within-image regression of :math:`\ln g(z_n)` on :math:`\ln c_n`.
 
-    :math:`g^\gamma, r^\gamma, t^\gamma` fit the data as well as :math:`g, r, t` (every
-    :math:`g(z) = r t` holds for both).  Known exposure times remove it, and so does a
-    reflectance that varies between images (the solver's case: :math:`c` is fixed, so
-    :math:`c^\gamma \ne c`), weakly.  Otherwise the response is assumed linear in the
-    middle of the DN range: :math:`\gamma` makes the least-squares slope of
-    :math:`\ln g` against :math:`\ln z` over ``mid`` equal to 1.
+    With :math:`g(z_n) = r_i t_j c_n` exactly, :math:`\ln g(z_n) = a_i + b_j + \beta \ln c_n`
+    with :math:`\beta = 1`; a curve off by the exponential ambiguity (:math:`g^\gamma`) gives
+    :math:`\beta = \gamma`.  ``weight`` holds :math:`w_n = \tilde c_n / \sum \tilde c_n^2`
+    (:math:`\tilde c` = :math:`\ln c` with the pixel and image effects projected out, by
+    scipy's ``lsqr``), so :math:`\beta = \sum_n w_n \ln g(z_n)` is linear in :math:`\ln g`.
     """
-    sel = (dn >= mid[0]) & (dn <= mid[1])
-    if sel.sum() < 3:
-        sel = np.ones_like(dn, bool)
-    slope = float(np.polyfit(np.log(dn[sel].astype(np.float64)), np.log(g[sel]), 1)[0])
-    gamma = 1.0 / slope if slope > 0 else 1.0
-    return gamma, {
-        "exposures_known": False,
-        "gamma": gamma,
-        "prior": f"response linear over DN {int(dn[sel].min())}-{int(dn[sel].max())} (log-log slope 1)",
-        "slope_before": slope,
-    }
+
+    weight: np.ndarray
+    spread: float  # RMS of the projected ln c: the geometric variation that identifies beta
+    dof: int
+    design: object  # the sparse fixed-effect design (pixels, images), for the residual
+
+    @classmethod
+    def of(cls, obs: "Observations") -> "GeometricSlope":
+        import scipy.sparse as sparse
+        from scipy.sparse.linalg import lsqr
+
+        n = len(obs)
+        rows = np.arange(n)
+        design = sparse.hstack([sparse.csr_matrix((np.ones(n), (rows, obs.pixel)), shape=(n, obs.n_pixels)),
+                                sparse.csr_matrix((np.ones(n), (rows, obs.image)), shape=(n, obs.n_images))]).tocsr()
+        lc = np.log(obs.factor)
+        ct = lc - design @ lsqr(design, lc, atol=1e-12, btol=1e-12, iter_lim=2000)[0]
+        ss = float(ct @ ct)
+        dof = max(n - len(np.unique(obs.pixel)) - obs.n_images, 1)
+        return cls(ct / ss if ss > 0 else np.zeros(n), float(np.sqrt(ss / n)), dof, design)
+
+    def slope(self, log_x: np.ndarray) -> tuple[float, float]:
+        """:math:`\beta` and its standard error for the log exposures ``log_x`` of the observations."""
+        from scipy.sparse.linalg import lsqr
+
+        beta = float(self.weight @ log_x)
+        y = log_x - self.design @ lsqr(self.design, log_x, atol=1e-12, btol=1e-12, iter_lim=2000)[0]
+        ss = 1.0 / max(float(self.weight @ self.weight), 1e-300)  # sum of the projected ln c squared
+        res = y - beta * self.weight * ss
+        return beta, float(np.sqrt(res @ res / self.dof / ss))
+
+
+def gauge_prior(lev: Levels, mid=MID_RANGE) -> np.ndarray:
+    r"""The prior gauge: weights ``a`` over the knots with ``a @ ln g = 1`` meaning "g linear over ``mid``".
+
+    ``a @ ln g`` is the least-squares slope of :math:`\ln g` against :math:`\ln z` over the
+    knots in ``mid`` (all knots when fewer than three are).
+    """
+    z = lev.knots.astype(float)
+    sel = (z >= mid[0]) & (z <= mid[1])
+    sel = sel if sel.sum() >= 3 else np.ones_like(sel)
+    lz = np.where(sel, np.log(z), 0.0)
+    lz[sel] -= lz[sel].mean()
+    return lz / np.sum(lz**2)
+
+
+def choose_gauge(beta: float, se: float, spread: float, mode: str = "auto") -> tuple[bool, str]:
+    """Whether the geometric slope ``beta`` (s.e. ``se``) replaces the prior gauge, and why.
+
+    ``mode`` "auto" needs geometric variation (``spread`` of the projected ln c > 0), the
+    slope determined (relative s.e. below ``GEOMETRY_MAX_REL_SE``) and the mid-range log-log
+    slope of g it implies, 1/beta, inside ``GEOMETRY_SLOPE_BAND``; "geometry" needs only a
+    positive slope.
+    """
+    if not spread > 1e-9:
+        return False, "no reflectance variation within pixels across images: the geometry cannot fix gamma"
+    if not beta > 0:
+        return False, f"geometric slope {beta:.3g} is not positive: the reflectance variation does not show in the DN"
+    if mode == "geometry":
+        return True, "requested"
+    if se / beta > GEOMETRY_MAX_REL_SE:
+        return False, f"geometric slope {beta:.3f} +- {se:.3f}: too uncertain (> {GEOMETRY_MAX_REL_SE:.0%})"
+    lo, hi = GEOMETRY_SLOPE_BAND
+    if not lo <= 1.0 / beta <= hi:
+        return False, (f"geometric slope {beta:.3f} +- {se:.3f} implies a mid-range log-log slope of g of "
+                       f"{1 / beta:.2f}, outside the plausible {lo:g}-{hi:g}: taken as model error")
+    return True, f"geometric slope {beta:.3f} +- {se:.3f} (mid-range log-log slope of g {1 / beta:.2f})"
 
 
 def residual_analysis(x: np.ndarray, mu: np.ndarray, level: np.ndarray, n_levels: int, n_params: int) -> dict:

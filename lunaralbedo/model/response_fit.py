@@ -1,4 +1,4 @@
-r"""Maximum of the profile likelihood of seed 002 (eq. 8 under eq. 7) by trust-region Newton.
+r"""Maximum of the profile likelihood of seed 002 (eq. 8 under eq. 7): trust-region Newton in an active set.
 
 With :math:`r` at its closed form (eq. 10) the log-likelihood of eq. 8 becomes, per pixel
 :math:`i` with :math:`X_i = \sum_{n\in i} x_n` and :math:`C_i = \sum_{n\in i} t_{j(n)} c_n`,
@@ -9,9 +9,9 @@ whose gradient in :math:`x_n = g(z_n)` is eq. 9's :math:`\ln(r_i t_j c_n) - \Psi
 (envelope theorem) and whose Hessian is
 :math:`\delta_{i(n)i(m)}/X_i - \delta_{nm}\Psi'(x_n+1)` (concave: Cauchy-Schwarz).
 Summed per DN level this is a small dense matrix (levels x levels), built with
-scipy.sparse.  The unknowns handed to scipy's ``trust-exact`` are the log increments
-:math:`v_m` of :math:`\ln g` between free levels (so eq. 7 holds by construction), with the
-mean of :math:`\ln x_n` over the observations pinned to ``ln FIT_SCALE``.  That pin is the
+scipy.sparse.  The unknowns are the increments :math:`S_m \ge 0` of :math:`\ln g` between
+free levels (eq. 7 is :math:`S \ge 0`), with the mean of :math:`\ln x_n` over the
+observations pinned to ``ln FIT_SCALE``.  That pin is the
 one that does not bend the curve: eq. 8 pulls the scale of :math:`g` down (Stirling:
 :math:`L \approx -\tfrac12\sum_n \ln x_n - \sum_n x_n\varepsilon_n^2/2` with
 :math:`\varepsilon_n` the relative misfit), and that pull, :math:`-n_k/2` on
@@ -19,6 +19,24 @@ one that does not bend the curve: eq. 8 pulls the scale of :math:`g` down (Stirl
 at one level instead pushes every other level down: a visible step in g.) and, for unknown exposure
 times, :math:`u_j = \ln t_j` for :math:`j \ge 1` (:math:`u_0 = 0`: :math:`r t` is all the
 data see).  The start is the seed's alternation of eqs. 10, 11 and 13 (ten passes).
+
+Eq. 7 by an active set (:func:`_solve`, Lawson-Hanson style): scipy's ``trust-exact``
+maximises over the increments that are not pooled, unconstrained.  When some come out
+negative the step goes only as far as the first one reaching 0, which is pooled (held at 0:
+adjacent levels share one g, as isotonic regression pools them); once the free increments
+are optimal, the pooled one whose multiplier most wants it open is released.  The fit is
+**converged** when the first-order (KKT) conditions of -L/N hold to ``GTOL_ACCEPT``
+(gradient of the free parameters, plus the gauge's multiplier, below it; no pooled step
+wanting to open by more), and reported as not converged after ``MAX_ITER`` Newton
+iterations or ``MAX_PASSES`` passes.  (The earlier log-increment parametrisation put an
+active bound at :math:`-\infty`: trust-exact never settled on the Apollo DRGs.)
+
+Unknown exposure times: the gauge of the exponential ambiguity, g linear over DN 64-192
+(:func:`.response.gauge_prior`, a linear equality in :math:`S`), is eliminated through its null space;
+:func:`.response.choose_gauge` then decides whether the geometric slope :math:`\beta` of
+:class:`.response.GeometricSlope` replaces it: strong geometry (``GEOMETRY_STRONG``) refits with
+:math:`\beta = 1` as the constraint; weaker geometry applies the power :math:`1/\beta` to the fitted
+g, r, t (a constraint on :math:`\beta` alone would let eq. 8's compression bend the rest of the curve).
 """
 from __future__ import annotations
 
@@ -26,16 +44,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg import null_space
 from scipy.optimize import minimize
 from scipy.special import digamma, polygamma
 
-from .response import (FIT_SCALE, MID_RANGE, Z_REF, Levels, Observations, choose_levels, exposure_update, fix_gamma,
-                       log_likelihood, radiance_update, residual_analysis, response_closed_form)
+from .response import (FIT_SCALE, GEOMETRY_STRONG, MID_RANGE, Z_REF, GeometricSlope, Levels, Observations, choose_gauge,
+                       choose_levels, exposure_update, gauge_prior, known_factor, log_likelihood, radiance_update,
+                       residual_analysis, response_closed_form)
 
-#: Weight (per observation) of the gamma prior when exposure times are unknown (see :func:`.response.fix_gamma`).
-PRIOR_WEIGHT = 10.0
-#: Largest gradient component (of -L/N) accepted as converged.
+#: Convergence: largest violation of the first-order (KKT) conditions of -L/N (per observation).
 GTOL_ACCEPT = 1e-6
+#: Newton iterations (all active-set passes together) before the fit is reported as not converged.
+MAX_ITER = 500
+#: Active-set passes before the fit is reported as not converged.
+MAX_PASSES = 200
 
 
 @dataclass
@@ -47,13 +69,15 @@ class ResponseFit:
     g_initial: np.ndarray  # the start from the closed-form alternation (eq. 13), same normalisation
     exposure: np.ndarray
     radiance: np.ndarray  # per pixel of the observations; NaN where left out
-    loglik: list[float]  # eq. 8 per pass of the alternation, then per Newton iteration
+    loglik: list[float]  # eq. 8 per pass of the alternation, then per feasible Newton/active-set point
     z_ref: int
     n_juggle: int
     gamma: dict = field(default_factory=dict)
     residuals: dict = field(default_factory=dict)
     converged: bool = True
     message: str = ""
+    passes: int = 1  # active-set passes of the Newton fit
+    newton: int = 0  # Newton iterations over all passes (``loglik`` records the feasible points only)
 
     def lut(self, n_levels: int = 256) -> np.ndarray:
         """g as a float32 look-up table over 0..n_levels-1; NaN outside the fitted range."""
@@ -63,7 +87,7 @@ class ResponseFit:
 
 
 class _Profile:
-    """-L_p / N, its gradient and Hessian in the parameters ``(v, u)``; caches the last point."""
+    """-L_p / N, its gradient and Hessian in the parameters ``(S, u)``; caches the last point."""
 
     def __init__(self, obs: Observations, lev_idx, lev: Levels, t_fixed):
         self.obs, self.lev_idx, self.lev, self.t_fixed = obs, lev_idx, lev, t_fixed
@@ -76,20 +100,12 @@ class _Profile:
         m = np.arange(nk - 1)[None, :]
         k = np.arange(nk)[:, None]
         tail = np.cumsum(self.w_mean[::-1])[::-1][1:]  # sum of w_mean over knots above increment m
-        self.jac = (m < k).astype(float) - tail[None, :]  # d lg_k / d S_m, S_m = exp(v_m)
+        self.jac = (m < k).astype(float) - tail[None, :]  # d lg_k / d S_m
         self.scale = float(n)
         self._key = None
-        self.prior = None
-        if t_fixed is None:  # gamma prior: least-squares slope of ln g on ln z over the mid range = 1
-            z = lev.knots.astype(float)
-            sel = (z >= MID_RANGE[0]) & (z <= MID_RANGE[1])
-            sel = sel if sel.sum() >= 3 else np.ones_like(sel)
-            lz = np.where(sel, np.log(z), 0.0)
-            lz[sel] -= lz[sel].mean()
-            self.prior = lz / np.sum(lz**2)
 
     def unpack(self, p):
-        s = np.concatenate([[0.0], np.cumsum(np.exp(p[:self.nv]))])
+        s = np.concatenate([[0.0], np.cumsum(p[:self.nv])])
         lg = np.log(FIT_SCALE) + s - self.w_mean @ s
         t = self.t_fixed if self.t_fixed is not None else np.exp(np.concatenate([[0.0], p[self.nv:]]))
         return lg, t
@@ -113,31 +129,24 @@ class _Profile:
         mu = r[obs.pixel] * ct
         val = log_likelihood(x, mu)
         d_lg = g * (np.bincount(self.lev_idx, np.log(mu), self.n_lev) - self.cnt * digamma(g + 1.0))
-        d_k = self.lev.matrix.T @ d_lg  # to ln g over the range, then to the knots, then to v
-        if self.prior is not None:  # -PRIOR_WEIGHT * N * (slope - 1)^2 added to L
-            dev = self.prior @ lg_k - 1.0
-            val -= PRIOR_WEIGHT * self.scale * dev**2
-            d_k = d_k - 2 * PRIOR_WEIGHT * self.scale * dev * self.prior
-        e = np.exp(p[:self.nv])
-        grad = [(self.jac * e[None, :]).T @ d_k]
+        d_k = self.lev.matrix.T @ d_lg  # to ln g over the range, then to the knots, then to S
+        grad = [self.jac.T @ d_k]
         if self.t_fixed is None:
             grad.append(np.bincount(obs.image, x - mu, obs.n_images)[1:])
         self._key, self._hess = p.copy(), None
         self._val = -val / self.scale
         self._grad = -np.concatenate(grad) / self.scale
         self.state = (g, t, r, x, mu)
-        self._parts = (e, d_lg, d_k, ct, big_x, big_c)
+        self._parts = (d_lg, ct, big_x, big_c)
 
     def _hessian(self):
         g, t, r, x, mu = self.state
-        e, d_lg, d_k, ct, big_x, big_c = self._parts
+        d_lg, ct, big_x, big_c = self._parts
         mt = self.lev.matrix.T
         h_g = (self.b.T @ sp.diags(1.0 / big_x) @ self.b).toarray() - np.diag(self.cnt * polygamma(1, g + 1.0))
         h_k = mt @ (g[:, None] * h_g * g[None, :] + np.diag(d_lg)) @ self.lev.matrix
-        if self.prior is not None:
-            h_k = h_k - 2 * PRIOR_WEIGHT * self.scale * np.outer(self.prior, self.prior)
-        ej = self.jac * e[None, :]
-        blocks = [[ej.T @ h_k @ ej + np.diag(e * (self.jac.T @ d_k))]]
+        ej = self.jac
+        blocks = [[ej.T @ h_k @ ej]]
         if self.t_fixed is None:
             h_uu, h_lgu = self._exposure_blocks(x, ct, big_x, big_c, g)
             cross = ej.T @ (mt @ h_lgu)  # (nv, n_img-1)
@@ -170,9 +179,11 @@ class _Profile:
 def _juggle(obs, lev_idx, lev: Levels, t, t_free: bool, passes: int):
     """The seed's alternation (10), (11), (13) from a linear g; returns (g over the range, t, log-likelihoods).
 
-    g is kept at the fit's scale (mean of ln x over the observations = ln FIT_SCALE) so the
-    likelihoods compare with the Newton ones.
+    g is kept at the fit's scale (mean of ln x over the observations = ln FIT_SCALE) and, with
+    unknown exposures, on the prior's gauge (a power after each pass), so the likelihoods
+    compare with the Newton ones.
     """
+    gauge = gauge_prior(lev) if t_free else None
     g = np.arange(lev.lo, lev.hi + 1, dtype=np.float64)
     g *= FIT_SCALE / np.exp(np.mean(np.log(g[lev_idx])))
     hist = []
@@ -186,20 +197,110 @@ def _juggle(obs, lev_idx, lev: Levels, t, t_free: bool, passes: int):
         mu = r[obs.pixel] * (t[obs.image] if obs.factor is None else t[obs.image] * obs.factor)
         hist.append(log_likelihood(x, mu))
         g_new = response_closed_form(np.log(mu), lev_idx, len(g), exact=False)
-        g = np.exp(lev.matrix @ np.log(g_new[lev.knots - lev.lo]))
+        lg = np.log(g_new[lev.knots - lev.lo])
+        if gauge is not None and gauge @ lg > 0:
+            lg /= gauge @ lg
+        g = np.exp(lev.matrix @ lg)
         g *= FIT_SCALE / np.exp(np.mean(np.log(g[lev_idx])))
     return g, t, hist
 
 
+def _kkt(p, grad, nv, pooled, a_s):
+    """Largest violation of the first-order conditions (bounds S >= 0 on pooled increments, gauge a_s @ S = 1)."""
+    free = np.ones(len(p), bool)
+    free[:nv] = ~pooled
+    lam = 0.0
+    if a_s is not None:
+        af = a_s[free[:nv]]
+        lam = -float(af @ grad[:nv][free[:nv]]) / max(float(af @ af), 1e-300)
+    lg = grad.copy()
+    if a_s is not None:
+        lg[:nv] += lam * a_s
+    viol = np.abs(lg)
+    viol[:nv][pooled] = np.maximum(-lg[:nv][pooled], 0.0)  # a pooled step may only want to stay shut
+    return float(viol.max()) if len(viol) else 0.0, lg
+
+
+def _solve(prof: "_Profile", p0: np.ndarray, a_s: np.ndarray | None, record, max_iter: int):
+    """Minimise -L/N over (S >= 0, u) with ``a_s @ S = 1`` (if given): active set around trust-exact.
+
+    Returns ``(p, converged, passes, newton_iterations, message)``.
+    """
+    nv = prof.nv
+    p = p0.copy()
+    pooled = p[:nv] <= 0.0
+    p[:nv][pooled] = 0.0
+    its = 0
+    for passes in range(1, MAX_PASSES + 1):
+        free = np.flatnonzero(~pooled)
+        # S over the free increments = s0 + Z y (the gauge eliminated); u unconstrained
+        if a_s is not None:
+            af = a_s[free]
+            if not af @ af > 0:  # every step the gauge measures is pooled: it cannot hold
+                break
+            s0, z = af / (af @ af), null_space(af[None, :])
+        else:
+            s0, z = np.zeros(len(free)), np.eye(len(free))
+        nu = len(p) - nv
+        e = np.zeros((len(p), z.shape[1] + nu))
+        e[free, :z.shape[1]] = z
+        e[nv:, z.shape[1]:] = np.eye(nu)
+        base = np.zeros(len(p))
+        base[free] = s0
+        y0 = np.linalg.lstsq(e, p - base, rcond=None)[0]
+
+        def fun(y):
+            val, grad = prof.fun(base + e @ y)
+            return val, e.T @ grad
+
+        def record_y(y, *_):
+            q = base + e @ y
+            if np.all(q[:nv] >= 0):  # the history shows feasible points only (eq. 7 holds)
+                record(q)
+
+        res = minimize(fun, y0, jac=True, hess=lambda y: e.T @ prof.hess(base + e @ y) @ e, method="trust-exact",
+                       callback=record_y, options=dict(maxiter=max(max_iter - its, 1), gtol=1e-10))
+        its += res.nit
+        p_new = base + e @ res.x
+        neg = ~pooled & (p_new[:nv] < 0.0)
+        if neg.any():  # eq. 7 violated: go only as far as the first step reaching 0 and pool it (Lawson-Hanson)
+            s_old, s_new = p[:nv][neg], p_new[:nv][neg]
+            alpha = float(np.min(s_old / (s_old - s_new)))
+            p = p + alpha * (p_new - p)
+            pooled |= p[:nv] <= 1e-12 * max(1.0, float(np.max(p[:nv])))
+            p[:nv][pooled] = 0.0
+            record(p)
+            continue
+        p = p_new
+        prof._eval(p)
+        viol, lg = _kkt(p, prof._grad, nv, pooled, a_s)
+        if viol < GTOL_ACCEPT:
+            return p, True, passes, its, f"KKT conditions hold to {viol:.1e} ({int(pooled.sum())} pooled steps)"
+        opening = np.flatnonzero(pooled & (lg[:nv] < -GTOL_ACCEPT))
+        if len(opening):  # the likelihood rises if this pooled step opens: release the one that wants it most
+            pooled[opening[np.argmin(lg[:nv][opening])]] = False
+        if its >= max_iter:
+            break
+    prof._eval(p)
+    viol = _kkt(p, prof._grad, nv, pooled, a_s)[0]
+    return p, False, passes, its, f"not converged: KKT violation {viol:.1e} after {its} Newton iterations, {passes} passes"
+
+
 def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_count: int = 20, exclude=(0, 255),
-                 juggle_passes: int = 10, max_iter: int = 200, z_ref: int = Z_REF) -> ResponseFit:
-    """Maximum-likelihood g, r and (if ``exposure`` is None) t of eq. 8 under eq. 7.
+                 juggle_passes: int = 10, max_iter: int = MAX_ITER, z_ref: int = Z_REF,
+                 gauge: str = "auto") -> ResponseFit:
+    r"""Maximum-likelihood g, r and (if ``exposure`` is None) t of eq. 8 under eq. 7.
 
     Observations at excluded DN (saturation) or outside the range of the free levels
     (:func:`~.response.choose_levels`) are left out, as are pixels left with fewer than
     two observations (they carry no information on g).  With ``exposure`` None the
-    exponential ambiguity is fixed by :func:`~.response.fix_gamma` (reported in ``gamma``)
-    and the exposures are returned with geometric mean 1.
+    exponential ambiguity needs a gauge (reported in ``gamma``).  The fit holds g linear over
+    DN 64-192 (the prior, an exact linear constraint); then, with ``gauge`` "auto" (or
+    "geometry") and factors ``c`` that vary within pixels, the slope :math:`\beta` of
+    :class:`.response.GeometricSlope` replaces it when :func:`.response.choose_gauge` accepts it ("prior":
+    never): as the constraint of a refit when the geometry is strong (``GEOMETRY_STRONG``),
+    else as the power :math:`\gamma = 1/\beta` applied to g, r, t.  The exposures are returned
+    with geometric mean 1.
     """
     lev = choose_levels(obs.dn, min_count, exclude)
     keep = (obs.dn >= lev.lo) & (obs.dn <= lev.hi) & ~np.isin(obs.dn, exclude)
@@ -212,31 +313,53 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
     g0, t_j, hist = _juggle(sub, lev_idx, lev, t0, t_free, juggle_passes)
     n_juggle = len(hist)
     g0_k = g0[lev.knots - lev.lo]
-    p0 = np.log(np.maximum(np.diff(np.log(g0_k)), 1e-6))
+    p0 = np.maximum(np.diff(np.log(g0_k)), 0.0)
     if t_free:
         p0 = np.concatenate([p0, np.log(t_j[1:] / t_j[0])])
     prof = _Profile(sub, lev_idx, lev, None if t_free else t0)
 
-    def record(xk, *_):
-        hist.append(-prof.fun(xk)[0] * prof.scale)
+    def record(p):
+        hist.append(-prof.fun(p)[0] * prof.scale)
 
-    res = minimize(prof.fun, p0, jac=True, hess=prof.hess, method="trust-exact", callback=record,
-                   options=dict(maxiter=max_iter, gtol=1e-9))
-    prof._eval(res.x)
-    # trust-exact stops with "bad approximation" once steps reach rounding level; the gradient says if that is the optimum
-    converged = bool(res.success or np.max(np.abs(prof._grad)) < GTOL_ACCEPT)
-    g, t, r_sub, x, mu = prof.state
+    info = {"exposures_known": not t_free, "gamma": 1.0}
+    if not t_free:
+        p, converged, passes, its, message = _solve(prof, p0, None, record, max_iter)
+    else:
+        a = gauge_prior(lev)
+        p0[:prof.nv] /= max(float(a @ prof.jac @ p0[:prof.nv]), 1e-12)  # start on the prior's gauge
+        p, converged, passes, its, message = _solve(prof, p0, prof.jac.T @ a, record, max_iter)
+        info = {"exposures_known": False, "gauge": "prior", "gamma": 1.0,
+                "prior": f"response linear over DN {MID_RANGE[0]}-{MID_RANGE[1]} (log-log slope 1)"}
+        if gauge != "prior" and sub.factor is not None:
+            geo = GeometricSlope.of(sub)
+            prof._eval(p)
+            beta, se = geo.slope(np.log(prof.state[3]))
+            use, why = choose_gauge(beta, se, geo.spread, gauge)
+            x, mu = prof.state[3], prof.state[4]
+            strength = geo.spread / max(float(np.sqrt(np.mean(np.log(mu / x) ** 2))), 1e-12)
+            info["geometry"] = {"beta_under_prior": beta, "se": se, "spread_log_c": geo.spread, "strength": strength,
+                                "mid_slope_implied": 1.0 / beta if beta > 0 else None, "used": use, "reason": why}
+            if use and strength >= GEOMETRY_STRONG:  # refit with beta = 1 as the constraint, from the powered curve
+                a_geo = lev.matrix.T @ np.bincount(lev_idx, geo.weight, len(prof.cnt))
+                p2, converged, passes2, its2, message = _solve(prof, p / beta, prof.jac.T @ a_geo, record, max_iter)
+                p, passes, its = p2, passes + passes2, its + its2
+                info.update(gauge="geometry", mode="constraint", gamma=1.0)
+            elif use:  # weak geometry: the likelihood's shape under the prior, the geometry's power
+                info.update(gauge="geometry", mode="power", gamma=1.0 / beta)
+    prof._eval(p)
+    g, t = prof.state[:2]
+    if t_free:
+        gam = info["gamma"]  # the likelihood's shape, the geometry's power (see choose_gauge)
+        g, t, g0 = g**gam, (t / np.exp(np.mean(np.log(t)))) ** gam, g0**gam  # geometric mean of t -> 1
+        g *= FIT_SCALE / np.exp(np.mean(np.log(g[lev_idx])))  # back on the fit's scale: chi2 comparable
+    x = g[lev_idx]
+    r_sub = radiance_update(x, sub, t)  # eq. 10 again: r^gamma is not the optimum when c varies
+    mu = r_sub[sub.pixel] * known_factor(sub, t)
     n_params = prof.nv + (obs.n_images - 1 if t_free else 0) + sub.n_pixels
     resid = residual_analysis(x, mu, lev_idx, len(g), n_params=n_params)
-    gamma_info = {"exposures_known": not t_free, "gamma": 1.0}
-    if t_free:
-        b = np.exp(np.mean(np.log(t)))  # geometric mean of t -> 1
-        t, r_sub = t / b, r_sub * b
-        gamma, gamma_info = fix_gamma(lev.dn, g)
-        g, t, r_sub, g0 = g**gamma, t**gamma, r_sub**gamma, g0**gamma
     a = g[zr - lev.lo]
     radiance = np.full(obs.n_pixels, np.nan)
     radiance[pix_ids] = r_sub / a
     return ResponseFit(levels=lev, g=g / a, g_initial=g0 / g0[zr - lev.lo], exposure=t, radiance=radiance,
-                       loglik=hist, z_ref=zr, n_juggle=n_juggle, gamma=gamma_info, residuals=resid,
-                       converged=converged, message=str(res.message))
+                       loglik=hist, z_ref=zr, n_juggle=n_juggle, gamma=info, residuals=resid,
+                       converged=converged, message=message, passes=passes, newton=its)

@@ -123,6 +123,22 @@ def write_outputs(out: Path, fit: ResponseFit, names: Sequence[str], plots: bool
         rio.plot_residuals(out / "residuals.png", lev.dn, res)
 
 
+#: More than this fraction of flat steps of g (eq. 7 active) and the report warns that the data do not determine g.
+FLAT_WARNING = 0.25
+
+
+def warnings_for(fit: ResponseFit) -> list[str]:
+    """Plain-language warnings of a fit: not converged, largely flat (pooled) curve."""
+    out = []
+    if not fit.converged:
+        out.append(f"the response fit did not converge ({fit.message})")
+    flat = int(np.sum(np.diff(fit.g) == 0))
+    if flat > FLAT_WARNING * max(len(fit.g) - 1, 1):
+        out.append(f"{flat} of {len(fit.g) - 1} steps of g are flat (eq. 7 active): the data do not determine the "
+                   "response there (chi2/dof {:.3g}); do not use this curve for science".format(fit.residuals["chi2_per_dof"]))
+    return out
+
+
 def fit_report(fit: ResponseFit, names: Sequence[str]) -> dict:
     """The fit as JSON: the curve (``dn``, ``g`` first: the web panel plots the first two
     equal-length number lists), scalars, and ``residuals`` (summary and per-DN lists over
@@ -140,8 +156,12 @@ def fit_report(fit: ResponseFit, names: Sequence[str]) -> dict:
         "exposures": dict(zip(names, fit.exposure.tolist())),
         "identifiability": fit.gamma,
         "converged": fit.converged,
+        "convergence": fit.message,
+        "flat_steps": int(np.sum(np.diff(fit.g) == 0)),
+        "warnings": warnings_for(fit),
         "loglik": fit.loglik,
-        "iterations": {"alternation": fit.n_juggle, "newton": len(fit.loglik) - fit.n_juggle},
+        "iterations": {"alternation": fit.n_juggle, "newton": fit.newton,
+                       "active_set_passes": fit.passes},
         "residuals": {"dn": dn[seen].tolist(), **per_dn, "count": np.asarray(res["count"])[seen].astype(int).tolist(),
                       **{k: res[k] for k in ("chi2_per_dof", "rms_log", "n_obs", "n_params")}},
     }
