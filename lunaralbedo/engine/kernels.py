@@ -129,8 +129,8 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
     ``exp_den``, ``jtj``, ``jtr`` (float64) are filled; ``alb`` (float32 per pixel, or size 0)
     gets the albedo.  Returns ``(Q, n_obs, alpha_min, alpha_max)``.
 
-    Observations go in chunks of whole pixels: first R and dR/dp over the chunk (:func:`_points`),
-    then per pixel the albedo and the sums.  The float32 products are those of the former
+    Observations go in chunks of whole pixels, in flat loops over the chunk: R and dR/dp
+    (:func:`_points`), the albedo terms, each pixel's albedo, then the sums.  The float32 products are those of the former
     image-major NumPy/numba code: the albedo equals :func:`albedo`'s bit for bit (each pixel sums
     its images in tile order) and so do the exposure sums for the same R (each image sums its
     pixels in row-major order); Q and the normal equations are float64 sums in pixel-major order
@@ -138,12 +138,10 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
     workers or threads.
     """
     zero = np.float32(0.0)
-    nk = texp.shape[0]
-    cap = CHUNK + nk
-    R = np.empty(cap, np.float32)
-    D0 = np.empty(cap, np.float32)
-    D1 = np.empty(cap, np.float32)
-    W = np.empty(cap, np.float32)
+    cap = CHUNK + texp.shape[0]  # a chunk holds whole pixels (at most one observation per image each)
+    R, D0, D1 = np.empty(cap, np.float32), np.empty(cap, np.float32), np.empty(cap, np.float32)
+    T, W, A = np.empty(cap, np.float32), np.empty(cap, np.float32), np.empty(cap, np.float32)
+    PN, PD = np.empty(cap, np.float32), np.empty(cap, np.float32)
     want_alb = alb.shape[0] > 0
     want_alpha = alpha.shape[0] > 0
     q = 0.0
@@ -159,61 +157,72 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
         j1 = j0 + 1
         while j1 < npx and offsets[j1 + 1] - s0 <= CHUNK:
             j1 += 1
-        _points(kind, l0, l1, l2, params, s0, offsets[j1], R, D0, D1)
+        s1 = offsets[j1]
+        n = s1 - s0
+        _points(kind, l0, l1, l2, params, s0, s1, R, D0, D1)
+        img = image[s0:s1]
+        # per observation: exposure, weight after the shadow test, eq. 3's numerator and denominator terms
+        for i in range(n):
+            t = texp[image_of[s0 + i]]
+            wo = w[s0 + i]
+            if shadow != NO_SHADOW_TEST:
+                rho = R[i] if shadow == SHADOW_ON_R else ratio[s0 + i]
+                if not img[i] / (rho * t) >= thresh:  # NaN ratios are shadow, as in dynamic_lit
+                    wo = zero
+            n_obs += wo > 0
+            T[i] = t
+            W[i] = wo
+            tr = t * R[i]
+            trw = tr * wo
+            PN[i] = img[i] * trw
+            PD[i] = tr * trw
+        # per pixel: the albedo (its images in tile order), 0 in the sums where there is none
         for j in range(j0, j1):
-            s = offsets[j] - s0
-            e = offsets[j + 1] - s0
             num = 0.0
             den = 0.0
-            for i in range(s, e):
-                o = s0 + i
-                t = texp[image_of[o]]
-                r = R[i]
-                wo = w[o]
-                if shadow != NO_SHADOW_TEST:
-                    rho = r if shadow == SHADOW_ON_R else ratio[o]
-                    if not image[o] / (rho * t) >= thresh:  # NaN ratios are shadow, as in dynamic_lit
-                        wo = zero
-                W[i] = wo
-                tr = t * r
-                trw = tr * wo
-                num += image[o] * trw
-                den += tr * trw
+            for i in range(offsets[j] - s0, offsets[j + 1] - s0):
+                num += PN[i]
+                den += PD[i]
             a = np.float32(num / den) if den > 0 else np.float32(np.nan)
             if want_alb:
                 alb[j] = a
             if a != a:
                 a = zero
-            for i in range(s, e):
-                o = s0 + i
-                k = image_of[o]
-                t = texp[k]
-                ro = R[i]
-                wo = W[i]
-                res = image[o] - a * (t * ro)
-                arw = (a * ro) * wo
-                n_obs += wo > 0
-                q += res * res * wo
-                exp_num[k] += image[o] * arw
-                exp_den[k] += (a * ro) * arw
-                if n_cols:
-                    at = a * t
-                    c0 = at * D0[i] if n_par > 0 else at * ro
-                    c1 = (at * D1[i] if n_par > 1 else at * ro) if n_par > 0 else zero
-                    c2 = at * ro if n_par > 1 else zero
-                    j0_, j1_, j2_ = c0 * wo, c1 * wo, c2 * wo
-                    b0 += j0_ * res
-                    b1 += j1_ * res
-                    b2 += j2_ * res
-                    a00 += j0_ * c0
-                    a01 += j0_ * c1
-                    a02 += j0_ * c2
-                    a11 += j1_ * c1
-                    a12 += j1_ * c2
-                    a22 += j2_ * c2
-                if want_alpha and wo > 0:
-                    amin = min(amin, alpha[o])
-                    amax = max(amax, alpha[o])
+            for i in range(offsets[j] - s0, offsets[j + 1] - s0):
+                A[i] = a
+        # per observation: eq. 1, eq. 4, eq. 5
+        for i in range(n):
+            k = image_of[s0 + i]
+            a = A[i]
+            t = T[i]
+            ro = R[i]
+            wo = W[i]
+            res = img[i] - a * (t * ro)
+            arw = (a * ro) * wo
+            q += res * res * wo
+            exp_num[k] += img[i] * arw
+            exp_den[k] += (a * ro) * arw
+            if n_cols:
+                at = a * t
+                # columns in order: dR/dp_0, dR/dp_1 (when present), then R
+                c0 = at * D0[i] if n_par > 0 else at * ro
+                c1 = (at * D1[i] if n_par > 1 else at * ro) if n_par > 0 else zero
+                c2 = at * ro if n_par > 1 else zero
+                j0_, j1_, j2_ = c0 * wo, c1 * wo, c2 * wo
+                b0 += j0_ * res
+                b1 += j1_ * res
+                b2 += j2_ * res
+                a00 += j0_ * c0
+                a01 += j0_ * c1
+                a02 += j0_ * c2
+                a11 += j1_ * c1
+                a12 += j1_ * c2
+                a22 += j2_ * c2
+        if want_alpha:
+            for i in range(n):
+                if W[i] > 0:
+                    amin = min(amin, alpha[s0 + i])
+                    amax = max(amax, alpha[s0 + i])
         j0 = j1
     if n_cols:
         acc = np.array([[a00, a01, a02], [a01, a11, a12], [a02, a12, a22]])

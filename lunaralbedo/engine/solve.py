@@ -219,6 +219,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     check_resume(ck, lut, t_known)
     if lut is not None:  # the cached stacks hold g(DN): one cache per response, never a stale one on --resume
         cache = cache / f"g-{lut_digest(lut)}"
+    cache.mkdir(parents=True, exist_ok=True)  # tasks create entries inside it, never the run's folders
     metas = executor.map(prepare_tile, tiles, "prepare", shared=("scene",), scene=scene, cache_root=cache, lut=lut)
     t_init = _reduce_init(scene, metas, method) if t_known is None else t_known
     timings["prepare"] = time.perf_counter() - t1

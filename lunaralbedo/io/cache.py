@@ -21,10 +21,16 @@ from typing import Callable
 import numpy as np
 
 
+def _ensure_parent(folder: Path) -> None:
+    """Create ``folder``'s parent, but not the folders above it: a task still running after its run
+    failed and cleaned up (another Dask worker) must not bring the removed output folder back."""
+    folder.parent.mkdir(exist_ok=True)
+
+
 def save_stack(folder: str | Path, arrays: dict[str, np.ndarray], meta: dict) -> None:
     """Write ``arrays`` and ``meta`` (JSON) as a cache entry at ``folder`` (atomic rename)."""
     folder = Path(folder)
-    folder.parent.mkdir(parents=True, exist_ok=True)
+    _ensure_parent(folder)
     tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=folder.parent))
     try:
         for name, arr in arrays.items():
@@ -73,7 +79,7 @@ def building(folder: str | Path):
     temporary folder is removed.
     """
     folder = Path(folder)
-    folder.parent.mkdir(parents=True, exist_ok=True)
+    _ensure_parent(folder)
     tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=folder.parent))
     try:
         yield tmp
