@@ -246,6 +246,7 @@ def test_sums_do_not_depend_on_anything_but_the_data():
 
 def test_memory_cache_keeps_within_budget_and_never_serves_a_replaced_entry(tmp_path):
     def entry(folder, value, n=1000):
+        folder.parent.mkdir(parents=True, exist_ok=True)  # the cache root exists (solve creates it)
         save_stack(folder, {"x": np.full(n, value, np.float32)}, {"v": value})
 
     built = []
@@ -270,3 +271,14 @@ def test_memory_cache_keeps_within_budget_and_never_serves_a_replaced_entry(tmp_
     cache.get(other / "a", build)
     assert built.count(5) == 1 and cache.nbytes <= cache.budget  # kept: served from memory the second time
     assert cache.get(tmp_path / "missing", build) is None
+
+
+def test_a_cache_entry_does_not_bring_back_a_removed_run_folder(tmp_path):
+    """A task still running after its run failed and removed OUTDIR (another Dask worker) must not recreate it."""
+    run = tmp_path / "out"
+    with pytest.raises(FileNotFoundError):
+        save_stack(run / "checkpoint" / "cache" / "tile_0E0N", {"x": np.zeros(3, np.float32)}, {})
+    assert not run.exists()
+    (run / "checkpoint").mkdir(parents=True)  # the run's folder is there: its cache root may be created
+    save_stack(run / "checkpoint" / "cache" / "tile_0E0N", {"x": np.zeros(3, np.float32)}, {})
+    assert (run / "checkpoint" / "cache" / "tile_0E0N" / "x.npy").is_file()
