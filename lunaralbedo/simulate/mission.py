@@ -29,7 +29,7 @@ from ..model import photometry
 from ..model.geometry import body_fixed, dem_normals, illumination, lonlat_height
 from ..spice.kernels import KernelPool
 from ..spice.writers import write_ck, write_spk, write_text_kernel
-from .forward import SUN_DISTANCE_KM, exposure_signal, local_frame, sun_position, to_radiance
+from .forward import exposure_signal, local_frame, sun_position, to_radiance
 from .truth import write_truth
 
 SC, SC_FRAME, FRAME_CAM, LINE_CAM = -999, -999000, -999001, -999002
