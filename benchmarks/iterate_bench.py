@@ -3,8 +3,8 @@
     .venv/bin/python benchmarks/iterate_bench.py [--out bench_out] [--before OTHER_CHECKOUT] [--budget-mb N]
 
 Renders (or reuses) the strip scene of item 6, prepares its tiles once, then times
-``iterate_tile`` over every tile after one warm-up pass (steady: 3 passes) and the kernels
-alone on the biggest tile, each checkout in a fresh process on the same prepared cache.
+``iterate_tile`` over every tile after one warm-up pass (steady: 3 passes) and the kernel
+alone on the biggest tile, each checkout in a fresh process on its own prepared cache.
 ``--budget-mb`` sets LUNARALBEDO_STACK_MEMORY_MB (0: stacks re-read every pass).
 """
 from __future__ import annotations
@@ -38,7 +38,7 @@ tiles = range(len(scene.tiles))
 for t in tiles:
     tilework.prepare_tile(t, scene=scene, cache_root=cache)
 state = tilework.SolveState(np.ones(len(scene.images)), scene.settings.initial_params.copy())
-n = sum(np.load(p, mmap_mode="r").shape[0] for p in cache.rglob("pix.npy"))
+n = sum(np.load(p, mmap_mode="r").shape[0] for p in cache.rglob("weight.npy"))
 out = {"observations": n}
 run = lambda: [tilework.iterate_tile(t, scene=scene, cache_root=cache, state=state, want_phase=True) for t in tiles]
 c0 = cpu(); run(); out["first_pass_ns"] = 1e9 * (cpu() - c0) / n
@@ -48,10 +48,10 @@ for _ in range(3):
 out["steady_ns"] = 1e9 * (cpu() - c0) / 3 / n
 out["q"] = sum(p.q for p in parts)
 blk = lambda t: tilework._cache_dir(cache, scene, t) / "block_0000"  # the first block of rows of a tile
-t = max(tiles, key=lambda t: np.load(blk(t) / "pix.npy", mmap_mode="r").shape[0])
+t = max(tiles, key=lambda t: np.load(blk(t) / "weight.npy", mmap_mode="r").shape[0])
 arrays, meta = tilework.load_stack(blk(t))
 obs, _ = tilework._split({k: np.array(v) for k, v in arrays.items()})
-m, model = len(obs["pix"]), scene.settings.model
+m, model = len(obs["weight"]), scene.settings.model
 npix = (meta["rows"][1] - meta["rows"][0]) * scene.tiles[t].width
 
 def timed(f, reps=3):
@@ -61,21 +61,14 @@ def timed(f, reps=3):
     return 1e9 * (cpu() - c0) / reps / m
 
 k = {}
-if hasattr(kernels, "iterate_pixels"):
+if "offsets" not in obs:  # an image-major cache (before the pixel-major layout): reordered once per tile in memory
     pm = tilework.pixel_stack(blk(t), npix, cache)
     names = [x for x in obs if x not in ("pix", "start", "index")]
     k["reorder (once per tile in memory)"] = timed(lambda: kernels.pixel_major(obs, npix, names), 1)
-    s = tilework.TileSums(index=pm["index"], n_params=2, exp_num=np.zeros(len(pm["index"])), exp_den=np.zeros(len(pm["index"])))
-    k["fused kernel"] = timed(lambda: tilework.iterate_block(pm, scene.settings, state, True, s))
 else:
-    k["R (NumPy)"] = timed(lambda: model.reflectance_from(obs, state.params))
-    k["dR/dc (NumPy)"] = timed(lambda: model.derivatives_from(obs, state.params))
-    alb, r, w, t_obs = tilework.tile_model(scene, obs, state, npix)
-    tr = t_obs * r
-    k["albedo kernel"] = timed(lambda: kernels.albedo(obs["pix"], obs["image"], tr, w, npix))
-    dr = np.stack([np.asarray(x, np.float32) for x in model.derivatives_from(obs, state.params)])
-    z = lambda: (np.zeros((3, 3)), np.zeros(3), np.zeros(len(obs["index"])), np.zeros(len(obs["index"])))
-    k["sums kernel"] = timed(lambda: kernels.iteration_sums(obs["pix"], obs["start"], obs["image"], r, w, t_obs, alb, dr, *z()))
+    pm = tilework.pixel_stack(blk(t), cache)
+s = tilework.TileSums(index=pm["index"], n_params=2, exp_num=np.zeros(len(pm["index"])), exp_den=np.zeros(len(pm["index"])))
+k["fused kernel"] = timed(lambda: tilework.iterate_block(pm, scene.settings, state, True, s))
 out["kernels_ns"] = {"tile_observations": m, **k}
 out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 print(json.dumps(out))
@@ -104,7 +97,7 @@ def main() -> int:
                                             max_num_iter=10, seed=15))
     runs = [("before", Path(args.before).resolve(), None)] if args.before else []
     for name, src, budget in runs + [("after", REPO, args.budget_mb)]:
-        r = measure(d, root / "iterate_cache", src, budget)
+        r = measure(d, root / f"iterate_cache_{name}", src, budget)  # one cache per checkout: layouts may differ
         print(f"iterate ({name}): {r['steady_ns']:.1f} ns CPU per observation and iteration (first pass "
               f"{r['first_pass_ns']:.0f} ns), kernels on one tile {r['kernels_ns']}, peak {r['peak_rss_mb']:.0f} MB", flush=True)
     return 0

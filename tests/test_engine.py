@@ -51,6 +51,46 @@ def test_local_cluster_matches_single_worker_byte_for_byte(scene, reference, tmp
     same_results(reference, out)
 
 
+def test_blocks_are_cached_pixel_major_and_read_as_they_are_over_the_memory_budget(scene, reference, tmp_path,
+                                                                                 monkeypatch):
+    """The cache holds the iteration's order, so a block over the stack budget is read memory-mapped as it
+    is (no reordering every pass) and gives the bytes of a run that keeps its stacks in memory; a cache
+    of another layout (no ``layout`` in its meta) is prepared again, not misread."""
+    import numpy as np
+
+    from lunaralbedo.engine import tilework
+    from lunaralbedo.engine.scene import build_scene
+    from lunaralbedo.io.cache import load_stack
+    from lunaralbedo.settings import load_settings
+
+    sc = build_scene(load_settings(scene / "settings.txt"))
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    t = max(range(len(sc.tiles)), key=lambda t: len(sc.tile_images[t]))
+    assert tilework.prepare_tile(t, scene=sc, cache_root=cache)["reused"] is False
+    folder = cache / sc.tiles[t].name
+    arrays, _ = load_stack(folder / "block_0000")
+    offsets, pixels, image_of = (np.asarray(arrays[n]) for n in ("offsets", "pixels", "image_of"))
+    assert len(pixels) > 100 and np.all(np.diff(pixels) > 0) and np.all(np.diff(offsets) > 0)
+    assert offsets[-1] == len(arrays["image"]) == len(image_of) and (np.diff(offsets) > 1).any()
+    for j in range(len(pixels)):  # each pixel's images in tile order
+        assert np.all(np.diff(image_of[offsets[j]:offsets[j + 1]].astype(int)) > 0)
+    meta = json.loads((folder / "meta.json").read_text())
+    assert tilework.prepare_tile(t, scene=sc, cache_root=cache)["reused"] is True
+    (folder / "meta.json").write_text(json.dumps({k: v for k, v in meta.items() if k != "layout"}))
+    assert tilework.prepare_tile(t, scene=sc, cache_root=cache)["reused"] is False
+    assert json.loads((folder / "meta.json").read_text())["layout"] == tilework.CACHE_LAYOUT
+
+    monkeypatch.setattr(tilework.STACKS, "budget", 0)
+    tilework.STACKS.clear()
+    got = tilework.pixel_stack(folder / "block_0000", cache)
+    assert isinstance(got["image"], np.memmap) and tilework.STACKS.nbytes == 0
+    out = tmp_path / "out"
+    solve(scene / "settings.txt", out=out, workers=1, plots=False)
+    assert tilework.STACKS.nbytes == 0
+    same_results(reference, out)
+
+
 def _start(scene: Path, out: Path, *extra: str) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "lunaralbedo.cli", "solve", str(scene / "settings.txt"), "-o", str(out), "--workers", "1", "--quiet", *extra]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)

@@ -1,11 +1,11 @@
 r"""Fused numba kernels of one iteration over a tile's compact observations (eqs. 1, 3, 4, 5, 7).
 
-The cache holds observations as 1-D float32 arrays ordered by image, then by pixel (``pix``:
-flat index into the tile; ``start[k]:start[k+1]`` are image ``k``'s), the order
-:func:`albedo` and :func:`error_numerator` (finalise) read.  An iteration reads them in
-pixel-major order (:func:`pixel_major`, done once per tile and kept in memory within a
-budget, see :mod:`.tilework`): :func:`iterate_pixels` then computes each pixel's albedo and
-all the sums in one pass, with the photometric model's ``point`` (R and dR/dp) inline.
+The prepare step gathers observations as 1-D float32 arrays ordered by image, then by pixel
+(``pix``: flat index into the block; ``start[k]:start[k+1]`` are image ``k``'s) and caches
+them in pixel-major order (:func:`pixel_major`, once per block at prepare, see
+:mod:`.tilework`): :func:`iterate_pixels` computes each pixel's albedo and all the sums in
+one pass, with the photometric model's ``point`` (R and dR/dp) inline; finalise's
+:func:`albedo` and :func:`error_numerator` take any order with a pixel per observation.
 Every product is formed in float32 as the former NumPy code did and summed into float64
 accumulators in one fixed sequential order, so results do not depend on workers or threads.
 ``cache=True``, no fastmath (IEEE semantics, no reassociation).

@@ -8,10 +8,14 @@ iteration's partial sums from them in one fused pass (:mod:`.kernels`); ``finali
 
 Cache layout of a tile (``OUTDIR/checkpoint/cache/<tile>/``): one folder per block of
 rows, ``block_0000/`` ... (a :func:`~lunaralbedo.io.cache.save_stack` entry each: the
-block's observations and ``tile_*`` per-pixel arrays, ``pix`` relative to the block),
-then ``meta.json`` (written last: the tile is complete) with the initialisation sums and
-``blocks``, the ``[b0, b1]`` rows of each block.  Iterate and finalise read one block at a
-time (:func:`iterate_block` is one block's work), so memory is bounded by a block.
+block's observations in pixel-major order (:func:`.kernels.pixel_major`: ``offsets``,
+``pixels`` relative to the block, ``image_of``, ``index``, then ``image``, ``weight`` and the
+model's layers) and ``tile_*`` per-pixel arrays), then ``meta.json`` (written last: the
+tile is complete) with the initialisation sums, ``blocks``, the ``[b0, b1]`` rows of each
+block, and ``layout`` (:data:`CACHE_LAYOUT`; a cache of another layout is prepared again).
+Iterate and finalise read one block at a time (:func:`iterate_block` is one block's work),
+so memory is bounded by a block.  The order is the iteration's, so a block that does not
+fit the memory budget is read as it is, memory-mapped, and never reordered again.
 """
 from __future__ import annotations
 
@@ -61,6 +65,10 @@ class TileSums:
             self.jtr = np.zeros(self.n_params + 1)
 
 
+#: Version of the cache layout above (2: pixel-major observations); ``meta.json`` records it.
+CACHE_LAYOUT = 2
+
+
 def _cache_dir(cache_root: Path, scene: Scene, t: int) -> Path:
     return Path(cache_root) / scene.tiles[t].name
 
@@ -80,7 +88,7 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | No
     """
     folder = _cache_dir(cache_root, scene, t)
     cached = load_stack(folder)
-    if cached is not None:
+    if cached is not None and cached[1].get("layout") == CACHE_LAYOUT:
         return {**cached[1], "reused": True}
     with building(folder) as tmp:  # the tile's folder appears when all its blocks are written
         meta = _prepare_blocks(scene, t, lut, tmp)
@@ -98,7 +106,11 @@ def _prepare_blocks(scene: Scene, t: int, lut, folder: Path) -> dict:
             acc[0] += rs
             acc[1] += n
         exposure_init.merge_pair_sums(pairs, part["pairs"])
-        save_stack(folder / f"block_{len(blocks):04d}", {**obs, **{f"tile_{k}": v for k, v in per_pixel.items()}},
+        npix = (b1 - b0) * scene.tiles[t].width
+        names = [n for n in obs if n not in ("pix", "start", "index")]
+        pm = kernels.pixel_major(obs, npix, names)
+        del obs
+        save_stack(folder / f"block_{len(blocks):04d}", {**pm, **{f"tile_{k}": v for k, v in per_pixel.items()}},
                    {"rows": [b0, b1]})
         blocks.append([b0, b1])
     index = [int(k) for k in scene.tile_images[t] if int(k) in r_sums]  # tile order
@@ -109,14 +121,15 @@ def _prepare_blocks(scene: Scene, t: int, lut, folder: Path) -> dict:
         "pairs": [[j, k, n_, d] for (j, k), (n_, d) in sorted(pairs.items())],
         "tile": scene.tiles[t].name,
         "blocks": blocks,
+        "layout": CACHE_LAYOUT,
     }
     save_meta(folder, meta)
     return meta
 
 
 def _split(arrays) -> tuple[dict, dict]:
-    """Cached arrays as in-memory ``(observations, per-pixel arrays)``."""
-    obs = {k: np.asarray(v) for k, v in arrays.items() if not k.startswith("tile_")}
+    """Cached arrays as ``(observations, per-pixel arrays)`` (memory-mapped as loaded)."""
+    obs = {k: v for k, v in arrays.items() if not k.startswith("tile_")}
     return obs, {k[5:]: v for k, v in arrays.items() if k.startswith("tile_")}
 
 
@@ -138,36 +151,33 @@ def _init_sums(scene: Scene, obs, width: int) -> dict:
 
 # --------------------------------------------------------------------------- iterate
 def tile_model(scene: Scene, obs, state: SolveState, npix: int):
-    """Albedo of a tile's observations for the given exposures and model parameters (eq. 3).
+    """Albedo of a block's pixel-major observations for the given exposures and model parameters (eq. 3).
 
-    Returns ``(albedo (npix,), R, w, T per observation)``; ``w`` includes the dynamic shadow mask.
+    Returns ``(albedo (npix,), R, w, T, pixel per observation)``; ``w`` includes the dynamic
+    shadow mask.  Each pixel sums its images in tile order, as the iterations do.
     """
     s = scene.settings
-    t_obs = np.repeat(state.exposure[obs["index"]].astype(np.float32), np.diff(obs["start"]))
+    t_obs = state.exposure[obs["index"]].astype(np.float32)[obs["image_of"]]
     r = np.asarray(s.model.reflectance_from(obs, state.params), dtype=np.float32)
     w = obs["weight"]
     if s.shadow_type in (shadows.LAMBERT_RATIO, shadows.LUNAR_LAMBERT_RATIO) and s.model.needs_geometry:
         rr = obs["cos_i"] if (s.shadow_type == shadows.LAMBERT_RATIO and "cos_i" in obs) else r
         w = np.where(shadows.dynamic_lit(obs["image"], rr, t_obs, s.shadow_thresh), w, 0.0).astype(np.float32)
-    alb = kernels.albedo(obs["pix"], obs["image"], t_obs * r, w, npix)
-    return alb, r, w, t_obs
+    pix = np.repeat(obs["pixels"], np.diff(obs["offsets"]))
+    alb = kernels.albedo(pix, obs["image"], t_obs * r, w, npix)
+    return alb, r, w, t_obs, pix
 
 
-#: Pixel-major observations of the tiles this process iterates stay in memory within this
-#: budget (bytes; environment variable ``LUNARALBEDO_STACK_MEMORY_MB``, default 512); tiles
-#: beyond it are read again from the (memory-mapped) cache and reordered every iteration.
+#: Pixel-major observations of the blocks this process iterates stay in memory within this
+#: budget (bytes; environment variable ``LUNARALBEDO_STACK_MEMORY_MB``, default 512); blocks
+#: beyond it are read from the memory-mapped cache every iteration (no reordering: the cache
+#: holds the iteration's order).
 STACKS = MemoryCache(int(float(os.environ.get("LUNARALBEDO_STACK_MEMORY_MB", "512")) * 2**20))
 
 
-def pixel_stack(folder: Path, npix: int, cache_root: Path) -> dict:
-    """The observations of one cached block in pixel-major order (:func:`.kernels.pixel_major`), from :data:`STACKS`."""
-
-    def build(arrays, meta):
-        obs, _ = _split(arrays)
-        names = [n for n in obs if n not in ("pix", "start", "index")]
-        return kernels.pixel_major(obs, npix, names)
-
-    return STACKS.get(folder, build, group=cache_root)
+def pixel_stack(folder: Path, cache_root: Path) -> dict:
+    """The pixel-major observations of one cached block, from :data:`STACKS` (memory-mapped if over its budget)."""
+    return STACKS.get(folder, lambda arrays, meta: _split(arrays)[0], group=cache_root)
 
 
 def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> TileSums:
@@ -183,9 +193,8 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
     phase = want_phase and bool(model.parameters)
     out = TileSums(index=idx, n_params=len(model.parameters), exp_num=np.zeros(len(idx)), exp_den=np.zeros(len(idx)))
     pos = {k: i for i, k in enumerate(idx.tolist())}
-    width = scene.tiles[t].width
     for i, (b0, b1) in enumerate(meta["blocks"]):
-        arrays = pixel_stack(folder / f"block_{i:04d}", (b1 - b0) * width, cache_root)
+        arrays = pixel_stack(folder / f"block_{i:04d}", cache_root)
         if not len(arrays["index"]):
             continue
         part = TileSums(index=arrays["index"], n_params=out.n_params, exp_num=np.zeros(len(arrays["index"])),
@@ -303,10 +312,10 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
         if not len(obs["index"]):
             continue
         npix = (b1 - b0) * w_
-        a, r, w, t_obs = tile_model(scene, obs, state, npix)
+        a, r, w, t_obs, pix = tile_model(scene, obs, state, npix)
         alb[b0:b1] = a.reshape(b1 - b0, w_)
         if want_err:
-            num = kernels.error_numerator(obs["pix"], obs["image"], t_obs * r, w, a, npix)
+            num = kernels.error_numerator(pix, obs["image"], t_obs * r, w, a, npix)
             den = per_pixel["wblend_sum"].ravel()
             with np.errstate(divide="ignore", invalid="ignore"):
                 err[b0:b1] = np.where(den > 0, num / den, np.nan).astype(np.float32).reshape(b1 - b0, w_)

@@ -110,8 +110,10 @@ class MemoryCache:
     or resumed run's entry is rebuilt, never served stale).  A new entry that does not fit
     first drops entries of other cache roots and entries no longer on disk, least recently
     used first; if it still does not fit it is not kept: the tiles of one solve come back in
-    a cycle, where evicting the oldest would drop every entry just before its reuse.  The
-    returned arrays are shared: callers must not modify them.
+    a cycle, where evicting the oldest would drop every entry just before its reuse.  Kept
+    entries are read into memory (memory-mapped arrays ``build`` returns are copied); an entry
+    that is not kept is returned as built.  The returned arrays are shared: callers must not
+    modify them.
     """
 
     def __init__(self, budget: int):
@@ -145,7 +147,13 @@ class MemoryCache:
         size = sum(a.nbytes for a in arrays.values() if isinstance(a, np.ndarray))
         with self._lock:
             self._make_room(size, Path(os.path.abspath(group)) if group is not None else folder.parent)
-            if self.nbytes + size <= self.budget and _stamp(folder) == stamp:
+            keep = self.nbytes + size <= self.budget and _stamp(folder) == stamp
+        if not keep:
+            return arrays
+        arrays = {k: np.array(v) if isinstance(v, np.memmap) else v for k, v in arrays.items()}  # read into memory
+        with self._lock:
+            self._make_room(size, Path(os.path.abspath(group)) if group is not None else folder.parent)
+            if self.nbytes + size <= self.budget:
                 self._entries[key] = (stamp, arrays, size)
         return arrays
 
