@@ -171,8 +171,8 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut):
         if got is None:
             continue
         val, ok, wt, use = got
-        use &= val > 0
         wb = (wt if s.use_weights else ok).astype(np.float32)
+        use &= (val > 0) & (wb > 0)  # zero blending weight: no observation (no geometry, no shadow test either)
         layers = {}
         if geo is not None:
             rows, cols, ci, ce, al = geo.observe(use, r0 - b0, c0, scene.sun[k], scene.spacecraft[k])
@@ -181,15 +181,13 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut):
                 rows, cols, ci, ce, al = rows[lit], cols[lit], ci[lit], ce[lit], al[lit]
             if not len(rows):
                 continue
-            take = wb[rows, cols] > 0
-            rows, cols, ci, ce, al = rows[take], cols[take], ci[take], ce[take], al[take]
             layers = model.layers(ci, ce, al, lon=geo.lon[c0 + cols], lat=geo.lat[r0 - b0 + rows])
             if with_cos_i:
                 layers["cos_i"] = ci
         else:
             if not use.any():
                 continue
-            rows, cols = np.nonzero(use & (wb > 0))
+            rows, cols = np.nonzero(use)
         weights_sum[r0 - b0:r1 - b0, c0:c1] += wb  # float64, images in tile order
         pix = ((rows + (r0 - b0)) * w + (cols + c0)).astype(np.int32)
         # compact at once: only the window's blending weights stay (for eq. 7's denominator)
