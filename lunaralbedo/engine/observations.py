@@ -30,7 +30,6 @@ margin) and, while writing the outputs, 8 bytes per tile pixel (docs/performance
 """
 from __future__ import annotations
 
-import math
 import os
 
 import numpy as np
@@ -65,12 +64,7 @@ def image_window(tile, bounds) -> tuple[int, int, int, int] | None:
     """
     shifts = overlap_shifts(bounds, tile.padded_bounds) or [0.0]
     west, south, east, north = bounds
-    west, east = west + min(shifts), east + max(shifts)
-    c0 = max(0, math.floor((west - tile.west) / tile.res_x) - 1)
-    c1 = min(tile.width, math.ceil((east - tile.west) / tile.res_x) + 1)
-    r0 = max(0, math.floor((tile.north - north) / tile.res_y) - 1)
-    r1 = min(tile.height, math.ceil((tile.north - south) / tile.res_y) + 1)
-    return (r0, r1, c0, c1) if (r1 > r0 and c1 > c0) else None
+    return tile.grid.pixel_box((west + min(shifts), south, east + max(shifts), north), margin=1)
 
 
 def block_rows(scene: Scene, t: int) -> int:
