@@ -5,7 +5,7 @@ For output pixel ``(i, j)`` of a north-up grid: the body-fixed point of its DEM 
 differences, one-sided at the grid's edges; the same formula as
 :func:`lunaralbedo.model.geometry.dem_normals`), ``cos e`` towards the spacecraft, and
 the cube value at 1-based ``(sample, line)`` sampled bilinearly as
-:func:`lunaralbedo.model.grid.bilinear` does.  NaN where the DEM has no value, the
+:func:`lunaralbedo.model.grid.bilinear_at` does.  NaN where the DEM has no value, the
 point is not imaged or the slope faces away from the spacecraft (``cos e <= 0``).
 """
 from __future__ import annotations
@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from ..constants import MOON_RADIUS_KM
+from ..model.grid import bilinear_at
 
 
 @njit(cache=True)
@@ -24,22 +25,6 @@ def _point(lon_deg, lat_deg, h_m):
     r = MOON_RADIUS_KM + h_m / 1000.0
     cl = math.cos(la)
     return r * cl * math.cos(lo), r * cl * math.sin(lo), r * math.sin(la)
-
-
-@njit(cache=True)
-def _bilinear(image, col, row):
-    h, w = image.shape
-    if not (col >= -0.5 and col <= w - 0.5 and row >= -0.5 and row <= h - 0.5):
-        return np.nan
-    c = min(max(col, 0.0), w - 1.0)
-    r = min(max(row, 0.0), h - 1.0)
-    c0 = min(int(math.floor(c)), max(w - 2, 0))
-    r0 = min(int(math.floor(r)), max(h - 2, 0))
-    c1 = min(c0 + 1, w - 1)
-    r1 = min(r0 + 1, h - 1)
-    fc, fr = c - c0, r - r0
-    return (image[r0, c0] * (1 - fc) * (1 - fr) + image[r0, c1] * fc * (1 - fr)
-            + image[r1, c0] * (1 - fc) * fr + image[r1, c1] * fc * fr)
 
 
 @njit(cache=True)
@@ -70,7 +55,7 @@ def _visible_samples(image, s, l, lon, lat, heights, row0, cx, cy, cz, out):
             vx, vy, vz = cx - px, cy - py, cz - pz
             cos_e = (nx * vx + ny * vy + nz * vz) / norm / math.sqrt(vx * vx + vy * vy + vz * vz)
             if cos_e > 0:
-                out[bi, j] = _bilinear(image, s[bi, j] - 1.0, l[bi, j] - 1.0)
+                out[bi, j] = bilinear_at(image, s[bi, j] - 1.0, l[bi, j] - 1.0)
 
 
 def sample_visible(image, s, l, lon, lat, heights, row0: int, spacecraft_km, out) -> None:

@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from affine import Affine
+from numba import njit
 
 from ..constants import MOON_RADIUS_M
 from .geometry import lonlat_grid
@@ -143,22 +144,37 @@ def mpp_to_degrees(mpp: float) -> float:
     return math.degrees(mpp / MOON_RADIUS_M)
 
 
-def bilinear(image: np.ndarray, col, row) -> np.ndarray:
-    """Bilinear samples of ``image`` at 0-based pixel-centre coordinates; NaN outside or next to NaN.
+@njit(cache=True)
+def bilinear_at(image, col, row):
+    """One bilinear sample of ``image`` at 0-based pixel-centre coordinates (float64); NaN outside or next to NaN.
 
-    Coordinates within half a pixel of the border are clamped to the edge pixels.
+    Coordinates within half a pixel of the border are clamped to the edge pixels.  The one
+    implementation: :func:`bilinear` runs it over arrays, ingest's fused orthoprojection
+    (:mod:`lunaralbedo.ingest.sampling`) calls it per pixel.
     """
     h, w = image.shape
-    col = np.asarray(col, dtype=np.float64)
-    row = np.asarray(row, dtype=np.float64)
-    ok = np.isfinite(col) & np.isfinite(row) & (col >= -0.5) & (col <= w - 0.5) & (row >= -0.5) & (row <= h - 0.5)
-    c = np.clip(np.where(ok, col, 0.0), 0.0, w - 1.0)
-    r = np.clip(np.where(ok, row, 0.0), 0.0, h - 1.0)
-    c0 = np.minimum(np.floor(c).astype(np.int64), max(w - 2, 0))
-    r0 = np.minimum(np.floor(r).astype(np.int64), max(h - 2, 0))
-    c1 = np.minimum(c0 + 1, w - 1)
-    r1 = np.minimum(r0 + 1, h - 1)
+    if not (col >= -0.5 and col <= w - 0.5 and row >= -0.5 and row <= h - 0.5):  # NaN coordinates too
+        return np.nan
+    c = min(max(col, 0.0), w - 1.0)
+    r = min(max(row, 0.0), h - 1.0)
+    c0 = min(int(math.floor(c)), max(w - 2, 0))
+    r0 = min(int(math.floor(r)), max(h - 2, 0))
+    c1 = min(c0 + 1, w - 1)
+    r1 = min(r0 + 1, h - 1)
     fc, fr = c - c0, r - r0
-    v = (image[r0, c0] * (1 - fc) * (1 - fr) + image[r0, c1] * fc * (1 - fr)
-         + image[r1, c0] * (1 - fc) * fr + image[r1, c1] * fc * fr)
-    return np.where(ok, v, np.nan)
+    return (image[r0, c0] * (1 - fc) * (1 - fr) + image[r0, c1] * fc * (1 - fr)
+            + image[r1, c0] * (1 - fc) * fr + image[r1, c1] * fc * fr)
+
+
+@njit(cache=True)
+def _bilinear_over(image, col, row, out):
+    for i in range(col.shape[0]):
+        out[i] = bilinear_at(image, col[i], row[i])
+
+
+def bilinear(image: np.ndarray, col, row) -> np.ndarray:
+    """:func:`bilinear_at` over broadcast arrays of 0-based pixel-centre coordinates (float64)."""
+    col, row = np.broadcast_arrays(np.asarray(col, dtype=np.float64), np.asarray(row, dtype=np.float64))
+    out = np.empty(col.size)
+    _bilinear_over(np.asarray(image), np.ascontiguousarray(col).ravel(), np.ascontiguousarray(row).ravel(), out)
+    return out.reshape(col.shape)
