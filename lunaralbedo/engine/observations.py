@@ -33,6 +33,7 @@ from __future__ import annotations
 import os
 
 import numpy as np
+from numba import njit
 
 from ..constants import MIN_COS_INCIDENCE_MODEL, MOON_RADIUS_KM
 from ..io.drgs import read_drg_onto_grid
@@ -148,6 +149,36 @@ def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None):
         yield (b0, b1, *_gather_block(scene, tile, b0, b1, windows, geo, cast, model, lut))
 
 
+@njit(cache=True)
+def _compact(rows, cols, keep, val, wb, ci, ce, al, row_off, col_off, width):
+    """The candidates of one window that ``keep`` (all when it is empty), in one pass.
+
+    Returns their window ``rows``, ``cols`` and geometry (as given), their block pixel numbers
+    ``(row + row_off) * width + col + col_off`` (int32) and their value and blending weight
+    (float32, from the window arrays ``val``, ``wb``).
+    """
+    n = rows.shape[0]
+    m = n
+    if keep.shape[0]:
+        m = 0
+        for o in range(n):
+            m += keep[o]
+    out_r, out_c = np.empty(m, np.int64), np.empty(m, np.int64)
+    pix, value, weight = np.empty(m, np.int32), np.empty(m, np.float32), np.empty(m, np.float32)
+    out_i, out_e, out_a = np.empty(m, ci.dtype), np.empty(m, ce.dtype), np.empty(m, al.dtype)
+    j = 0
+    for o in range(n):
+        if keep.shape[0] and not keep[o]:
+            continue
+        r, c = rows[o], cols[o]
+        out_r[j], out_c[j] = r, c
+        pix[j] = (r + row_off) * width + c + col_off
+        value[j], weight[j] = val[r, c], wb[r, c]
+        out_i[j], out_e[j], out_a[j] = ci[o], ce[o], al[o]
+        j += 1
+    return out_r, out_c, pix, value, weight, out_i, out_e, out_a
+
+
 def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut):
     s = scene.settings
     h, w = b1 - b0, tile.width
@@ -165,14 +196,13 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut):
         if got is None:
             continue
         val, ok, wt, use = got
-        wb = (wt if s.use_weights else ok).astype(np.float32)
+        wb = (wt if s.use_weights else ok).astype(np.float32, copy=False)
         use &= (val > 0) & (wb > 0)  # zero blending weight: no observation (no geometry, no shadow test either)
         layers = {}
         if geo is not None:
             rows, cols, ci, ce, al = geo.observe(use, r0 - b0, c0, scene.sun[k], scene.spacecraft[k])
-            if cast is not None and len(rows):
-                lit = ~cast.shadowed(k, rows + r0, cols + c0)
-                rows, cols, ci, ce, al = rows[lit], cols[lit], ci[lit], ce[lit], al[lit]
+            lit = ~cast.shadowed(k, rows + r0, cols + c0) if (cast is not None and len(rows)) else np.ones(0, bool)
+            rows, cols, pix, value, weight, ci, ce, al = _compact(rows, cols, lit, val, wb, ci, ce, al, r0 - b0, c0, w)
             if not len(rows):
                 continue
             layers = model.layers(ci, ce, al, lon=geo.lon[c0 + cols], lat=geo.lat[r0 - b0 + rows])
@@ -182,11 +212,12 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut):
             if not use.any():
                 continue
             rows, cols = np.nonzero(use)
+            pix, value, weight = _compact(rows, cols, np.ones(0, bool), val, wb, *(np.zeros(len(rows)),) * 3,
+                                          r0 - b0, c0, w)[2:5]
         weights_sum[r0 - b0:r1 - b0, c0:c1] += wb  # float64, images in tile order
-        pix = ((rows + (r0 - b0)) * w + (cols + c0)).astype(np.int32)
         # compact at once: only the window's blending weights stay (for eq. 7's denominator)
-        kept.append((k, (r0 - b0, r1 - b0, c0, c1), wb, pix, val[rows, cols], wb[rows, cols],
-                     {n: np.asarray(layers[n]).astype(np.float32) for n in layers}))
+        kept.append((k, (r0 - b0, r1 - b0, c0, c1), wb, pix, value, weight,
+                     {n: np.asarray(layers[n]).astype(np.float32, copy=False) for n in layers}))
     weights_sum32 = weights_sum.astype(np.float32)
     wblend_sum = np.zeros((h, w))
     names = model.layer_names + (("cos_i",) if with_cos_i else ())
