@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit, vectorize
 
 
 @dataclass(frozen=True)
@@ -72,11 +73,23 @@ def merge_profiles(parts: list[tuple[int, WeightProfile]], height: int, width: i
     return WeightProfile(rf, rl, cf, cl)
 
 
+@njit(cache=True)
+def _tent(x, centre, half):
+    """The float64 tent of one point (:func:`tent_about`)."""
+    if not half > 0:
+        return 0.0
+    return min(max(1.0 - abs(x - centre) / half, 0.0), 1.0)
+
+
+_tent_ufunc = vectorize(["float64(float64, float64, float64)"], cache=True)(_tent.py_func)
+
+
 def tent_about(x: np.ndarray, centre: np.ndarray, half: np.ndarray, dtype=np.float64) -> np.ndarray:
     r""":math:`\max(0, 1 - |x - c|/h)`: 1 at the centre ``c``, 0 at distance ``h`` and beyond, 0 where ``h = 0``.
 
     The one implementation of the blending tent of eq. 1.  ``dtype=np.float64`` (the
-    solver) evaluates it in float64.  ``dtype=np.float32`` gives PhotometryTK's numerics,
+    solver) evaluates it in float64 (:func:`_tent`, also per pixel in :func:`window_weights`).
+    ``dtype=np.float32`` gives PhotometryTK's numerics,
     which the legacy gold needs: ``c``, ``h``, :math:`|x - c|` and the slope :math:`-1/h`
     rounded to float32 and :math:`t = (-1/h)|x - c| + 1` in float32.
     """
@@ -89,11 +102,8 @@ def tent_about(x: np.ndarray, centre: np.ndarray, half: np.ndarray, dtype=np.flo
             slope = (-1.0 / h.astype(np.float64)).astype(f32)
             t = np.maximum(f32(0.0), slope * dist + f32(1.0)).astype(f32)
         return np.where(h != 0, t, f32(0.0)).astype(f32)
-    c = np.asarray(centre, dtype=np.float64)
-    h = np.asarray(half, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = 1.0 - np.abs(x - c) / h
-    return np.where(h > 0, np.clip(t, 0.0, 1.0), 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):  # the vectorised loop may divide where h = 0 (masked)
+        return _tent_ufunc(x, np.asarray(centre, dtype=np.float64), np.asarray(half, dtype=np.float64))
 
 
 def tent(x: np.ndarray, first: np.ndarray, last: np.ndarray) -> np.ndarray:
@@ -103,17 +113,35 @@ def tent(x: np.ndarray, first: np.ndarray, last: np.ndarray) -> np.ndarray:
     return tent_about(x, (a + b) / 2.0, (b - a) / 2.0)
 
 
+@njit(cache=True)
+def _window_weights(row_first, row_last, col_first, col_last, row_off, col_off, valid, out):
+    """``out[i, j]``: the row tent times the column tent of pixel ``(row_off + i, col_off + j)`` (float64,
+    rounded once to float32), 0 where not ``valid``; profiles of rows/columns outside the image are the edge ones."""
+    n_r, n_c = row_first.shape[0], col_first.shape[0]
+    for i in range(out.shape[0]):
+        r = row_off + i
+        rc = min(max(r, 0), n_r - 1)
+        a, b = float(row_first[rc]), float(row_last[rc])
+        c_row, h_row = (a + b) / 2.0, (b - a) / 2.0
+        for j in range(out.shape[1]):
+            if not valid[i, j]:
+                out[i, j] = 0.0
+                continue
+            c = col_off + j
+            cc = min(max(c, 0), n_c - 1)
+            a2, b2 = float(col_first[cc]), float(col_last[cc])
+            out[i, j] = np.float32(_tent(float(c), c_row, h_row) * _tent(float(r), (a2 + b2) / 2.0, (b2 - a2) / 2.0))
+
+
 def window_weights(profile: WeightProfile, row_off: int, col_off: int, height: int, width: int) -> np.ndarray:
     """Tent weights (float32) of the image window starting at ``(row_off, col_off)``."""
-    rows = np.arange(row_off, row_off + height)
-    cols = np.arange(col_off, col_off + width)
-    rows_c = np.clip(rows, 0, len(profile.row_first) - 1)
-    cols_c = np.clip(cols, 0, len(profile.col_first) - 1)
-    w_row = tent(cols[None, :], profile.row_first[rows_c][:, None], profile.row_last[rows_c][:, None])
-    w_col = tent(rows[:, None], profile.col_first[cols_c][None, :], profile.col_last[cols_c][None, :])
-    return (w_row * w_col).astype(np.float32)
+    return source_weights(profile, row_off, col_off, np.ones((height, width), bool))
 
 
 def source_weights(profile: WeightProfile, row_off: int, col_off: int, valid: np.ndarray) -> np.ndarray:
     """Blending weights (float32) of the image window at ``(row_off, col_off)``, zero where not ``valid``."""
-    return window_weights(profile, row_off, col_off, valid.shape[0], valid.shape[1]) * valid
+    valid = np.ascontiguousarray(valid, dtype=bool)
+    out = np.empty(valid.shape, np.float32)
+    _window_weights(*(np.asarray(a, np.int64) for a in (profile.row_first, profile.row_last, profile.col_first,
+                                                        profile.col_last)), int(row_off), int(col_off), valid, out)
+    return out
