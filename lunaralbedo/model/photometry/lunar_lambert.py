@@ -28,12 +28,17 @@ from .pointwise import evaluate
 A, B, C = -0.019, 0.000242, -0.00000146
 
 
+def _polynomial(a):
+    """:math:`L` of eq. 2 for ``a`` in degrees: the one formula (NumPy below, numba in :func:`_geometric_over`)."""
+    return 1.0 + a * (A + a * (B + a * C))
+
+
 def weight(alpha_deg):
     r""":math:`L(\alpha) = 1 + A\alpha + B\alpha^2 + C\alpha^3`, alpha in degrees (eq. 2); keeps float32 input float32."""
     a = np.asarray(alpha_deg)
     if a.dtype != np.float32:
         a = a.astype(np.float64)
-    return 1.0 + a * (A + a * (B + a * C))
+    return _polynomial(a)
 
 
 def bracket(cos_i, cos_e, L):
@@ -41,15 +46,26 @@ def bracket(cos_i, cos_e, L):
     return (1.0 - L) * cos_i + 2.0 * L * cos_i / (cos_i + cos_e)
 
 
+_polynomial_nb = njit(cache=True)(_polynomial)
+_bracket_nb = njit(cache=True)(bracket)
+#: ``np.degrees``' factor (it multiplies by 180/pi, rounded once).
+_DEGREES = 180.0 / math.pi
+
+
+@njit(cache=True)
+def _geometric_over(cos_i, cos_e, alpha_rad, out):
+    """:func:`geometric` per element (float64): the same operations as the NumPy form, in one pass."""
+    for o in range(out.shape[0]):
+        ci, ce = cos_i[o], cos_e[o]
+        out[o] = _bracket_nb(ci, ce, _polynomial_nb(alpha_rad[o] * _DEGREES)) if (ci > 0 and ce > 0) else 0.0
+
+
 def geometric(cos_i, cos_e, alpha_rad):
     r"""The bracket of eq. 2 with :math:`L(\alpha)` (float64); zero where :math:`\cos i \le 0` or :math:`\cos e \le 0`."""
-    cos_i = np.asarray(cos_i, dtype=np.float64)
-    cos_e = np.asarray(cos_e, dtype=np.float64)
-    L = weight(np.degrees(np.asarray(alpha_rad, dtype=np.float64)))
-    lit = (cos_i > 0) & (cos_e > 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = bracket(cos_i, cos_e, L)
-    return np.where(lit, r, 0.0)
+    arrays = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (cos_i, cos_e, alpha_rad)))
+    out = np.empty(arrays[0].size)
+    _geometric_over(*(np.ascontiguousarray(a).ravel() for a in arrays), out)
+    return out.reshape(arrays[0].shape)
 
 
 @njit(cache=True)
