@@ -16,8 +16,7 @@ from rasterio.transform import Affine
 from ..constants import MOON_RADIUS_KM
 from ..io.rasters import read_dem_onto_grid
 from ..model import geometry
-from ..model.cast_shadows import (MAX_REACH_KM, cast_shadow_pixels, near_maximum, shadow_reach_km, slope_bound,
-                                  sun_elevation)
+from ..model.cast_shadows import MAX_REACH_KM, MarchGrid, shadow_reach_km, sun_elevation
 
 #: Margin (pixels) first read around a tile for cast shadows.
 FIRST_MARGIN_PX = 16
@@ -74,9 +73,7 @@ class TileShadows:
                 break
             margin = min(max(need, 2 * margin), max_margin)
         self.dem = dem  # float32: the march gives the answers of float64 heights
-        self.hmax = float(np.nanmax(self.dem))
-        self.near = near_maximum(self.dem)
-        self.slope = slope_bound(self.dem, transform)
+        self.grid = MarchGrid(dem, transform)  # tables shared by all images (the pyramid built on first need)
         self.transform, self.margin = transform, margin
 
     def rows(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
@@ -88,6 +85,4 @@ class TileShadows:
         """True where unpadded tile pixel ``(rows[o], cols[o])`` is in image ``k``'s cast shadow."""
         if self.dem is None:
             return np.zeros(np.shape(rows), bool)
-        m = self.margin
-        return cast_shadow_pixels(self.dem, self.transform, self.scene.sun[k], np.asarray(rows) + m,
-                                  np.asarray(cols) + m, hmax_m=self.hmax, near_max=self.near, slope=self.slope)
+        return self.grid.march(self.scene.sun[k], rows, cols, offset=self.margin)
