@@ -137,30 +137,27 @@ def _blocks(dem, cell):
     ni, nj = (h_ + cell - 1) // cell, (w_ + cell - 1) // cell
     top = np.full((ni, nj), -np.inf)
     gx, gy = np.zeros((ni, nj)), np.zeros((ni, nj))
-    for i in range(h_):
-        bi0, bi1 = max(i - 1, 0) // cell, i // cell
-        for j in range(w_):
-            bj0, bj1 = max(j - 1, 0) // cell, j // cell
-            v = np.float64(dem[i, j])
-            for bi in range(bi0, bi1 + 1):
-                for bj in range(bj0, bj1 + 1):
-                    if v != v:
-                        gx[bi, bj] = np.inf
-                        gy[bi, bj] = np.inf
-                    elif v > top[bi, bj]:
-                        top[bi, bj] = v
-            if v != v:
-                continue
-            if j + 1 < w_:  # the x-pair (i, j)-(i, j + 1): samples with floor(x) = j, floor(y) = i or i - 1
-                d = abs(np.float64(dem[i, j + 1]) - v)
-                if d == d:
-                    for bi in range(bi0, bi1 + 1):
-                        gx[bi, bj1] = max(gx[bi, bj1], d)
-            if i + 1 < h_:
-                d = abs(np.float64(dem[i + 1, j]) - v)
-                if d == d:
-                    for bj in range(bj0, bj1 + 1):
-                        gy[bi1, bj] = max(gy[bi1, bj], d)
+    for bi in range(ni):
+        i0, i1 = bi * cell, min(bi * cell + cell, h_ - 1)  # rows i0..i1 (inclusive)
+        for bj in range(nj):
+            j0, j1 = bj * cell, min(bj * cell + cell, w_ - 1)
+            t, ax, ay, nan = -np.inf, 0.0, 0.0, False
+            for i in range(i0, i1 + 1):
+                for j in range(j0, j1 + 1):
+                    v = np.float64(dem[i, j])
+                    nan |= v != v
+                    if v > t:
+                        t = v
+                    if j < j1:  # the x-pairs (i, j)-(i, j + 1) that start in the block's columns
+                        d = abs(np.float64(dem[i, j + 1]) - v)
+                        if d > ax:
+                            ax = d
+                    if i < i1:
+                        d = abs(np.float64(dem[i + 1, j]) - v)
+                        if d > ay:
+                            ay = d
+            top[bi, bj] = t
+            gx[bi, bj], gy[bi, bj] = (np.inf, np.inf) if nan else (ax, ay)
     return top, gx, gy
 
 
@@ -213,6 +210,14 @@ def _as_heights(dem_m) -> np.ndarray:
     return np.ascontiguousarray(dem, dtype=dem.dtype if dem.dtype in (np.float32, np.float64) else np.float64)
 
 
+def _global_slope(blocks, px) -> float:
+    """The largest slope bound (m/km, x 1.05) over all blocks; 0 (no bound) at a pole or with a NaN height."""
+    if px is None or blocks[1].size == 0:
+        return 0.0
+    g = SLOPE_SAFETY * (float(blocks[1].max()) / px[0] + float(blocks[2].max()) / px[1])
+    return g if math.isfinite(g) else 0.0
+
+
 def slope_bound(dem_m, transform) -> float:
     r"""The steepest rise (m per km of ground) the bilinear terrain can have anywhere on the grid, x 1.05.
 
@@ -223,12 +228,9 @@ def slope_bound(dem_m, transform) -> float:
     terrain beyond it is not reached by a path of neighbours).
     """
     dem = _as_heights(dem_m)
-    px = _ground_px_km(transform, dem.shape)
-    if px is None or min(dem.shape) < 2:
+    if min(dem.shape) < 2:
         return 0.0
-    _, gx, gy = _blocks(dem, max(dem.shape))
-    g = SLOPE_SAFETY * (float(gx.max()) / px[0] + float(gy.max()) / px[1])
-    return g if math.isfinite(g) else 0.0
+    return _global_slope(_blocks(dem, CELL_PX), _ground_px_km(transform, dem.shape))
 
 
 class MarchGrid:
@@ -250,11 +252,11 @@ class MarchGrid:
                                                           abs(transform.e))
         self.step_km = step_px * px_km
         self.max_steps = max(1, int(math.ceil(max_reach_km / self.step_km)))
-        finite = np.isfinite(dem).any()
-        self.empty = h < 2 or w < 2 or not finite
-        self.hmax = float(np.nanmax(dem)) if finite else -np.inf
+        self.blocks = _blocks(dem, CELL_PX)  # level 0 of the pyramid; its maxima give the global figures
+        self.hmax = float(self.blocks[0].max()) if self.blocks[0].size else -np.inf
+        self.empty = h < 2 or w < 2 or not np.isfinite(self.hmax)
         self.tables = _trig_tables(float(transform.c), float(transform.a), w, float(transform.f), float(transform.e), h)
-        self.slope = 0.0 if self.empty else slope_bound(dem, transform)
+        self.slope = 0.0 if self.empty else _global_slope(self.blocks, _ground_px_km(transform, dem.shape))
         self.tolerance_m = float(tolerance_m)
         self._pyramid = None
 
@@ -267,7 +269,7 @@ class MarchGrid:
             tops, slopes, offs, widths, cells, skips = [], [], [0], [], [], []
             cell = CELL_PX
             if px is not None and not self.empty:
-                top, gx, gy = _blocks(dem, cell)
+                top, gx, gy = self.blocks
                 while cell < max(dem.shape):
                     tops.append(_dilate3(top).ravel())
                     slopes.append((SLOPE_SAFETY * (_dilate3(gx) / px[0] + _dilate3(gy) / px[1])).ravel())
