@@ -138,22 +138,33 @@ def test_aligned_drg_is_copied_with_the_warper_values(tmp_path, monkeypatch):
     assert got[1][5:45, 5:33].all() and not got[1][5:45, 3:5].any() and not got[1][:5].any()
 
 
-@pytest.mark.parametrize("sun_deg", [(80.0, 4.7), (20.3, -60.0), (40.0, 30.0)])
-def test_cast_shadow_pixels_and_skipping_march_equal_the_full_march(sun_deg):
-    """Low Suns from the east and the south, a higher one from the north-east, rough terrain: the same mask."""
-    from lunaralbedo.model.cast_shadows import _skip_steps, cast_shadow_mask, cast_shadow_pixels
+@pytest.mark.parametrize("sun_deg, lat, nan", [((80.0, 4.7), 5.0, True), ((20.3, -60.0), 5.0, True),
+                                               ((40.0, 30.0), 5.0, True), ((80.0, 4.7), 5.0, False),
+                                               ((70.0, 15.0), 55.0, False), ((-70.0, -10.0), -40.0, True)])
+def test_cast_shadow_pixels_and_skipping_march_equal_the_full_march(sun_deg, lat, nan):
+    """Low Suns from the east, south and west, higher ones, rough terrain, at 5-55 degrees of latitude, with and
+    without a hole (the global slope bound applies only without): the same mask as every step of every ray with
+    each sample's lon/lat from atan2/asin."""
+    from lunaralbedo.model.cast_shadows import MarchGrid, _skip_steps, cast_shadow_mask, cast_shadow_pixels
 
     rng = np.random.default_rng(6)
-    tr = Affine(0.01, 0, 20.0, 0, -0.01, 5.0)
-    dem = (rng.normal(0, 1, (90, 90)).cumsum(0).cumsum(1) * 20).astype(np.float64)
-    dem[40:44, 50:53] = np.nan
-    sun = geometry.body_fixed(20.3 + sun_deg[0], 4.7 + sun_deg[1], 0.0) * 1e5
-    full = cast_shadow_mask(dem, tr, sun, (10, 80, 10, 80), skip=False)
+    tr = Affine(0.01, 0, 20.0, 0, -0.01, lat)
+    dem = (rng.normal(0, 1, (150, 150)).cumsum(0).cumsum(1) * 20).astype(np.float64)
+    if nan:
+        dem[40:44, 50:53] = np.nan
+    sun = geometry.body_fixed(20.7 + sun_deg[0], lat - 0.7 + sun_deg[1], 0.0) * 1e5
+    win = (10, 140, 10, 140)
+    full = cast_shadow_mask(dem, tr, sun, win, skip=False, exact=True)
     assert 0.02 < full.mean() < 0.95
-    assert np.array_equal(cast_shadow_mask(dem, tr, sun, (10, 80, 10, 80)), full)
-    rows, cols = np.mgrid[10:80, 10:80]
+    assert np.array_equal(cast_shadow_mask(dem, tr, sun, win, skip=False), full)  # the series lon/lat
+    assert np.array_equal(cast_shadow_mask(dem, tr, sun, win), full)
+    rows, cols = np.mgrid[10:140, 10:140]
     assert np.array_equal(cast_shadow_pixels(dem, tr, sun, rows.ravel(), cols.ravel()), full.ravel())
     d32 = dem.astype(np.float32)  # the solver marches float32 heights: the answers of their float64 values
     assert np.array_equal(cast_shadow_pixels(d32, tr, sun, rows.ravel(), cols.ravel()),
-                          cast_shadow_mask(d32.astype(np.float64), tr, sun, (10, 80, 10, 80), skip=False).ravel())
-    assert _skip_steps(tr, dem.shape, 0.5 * np.radians(0.01) * MOON_RADIUS_KM, 8) >= 10  # the march does skip
+                          cast_shadow_mask(d32.astype(np.float64), tr, sun, win, skip=False, exact=True).ravel())
+    grid = MarchGrid(dem, tr)
+    assert (grid.slope > 0) == (not nan)  # a hole voids the global bound; the pyramid's cells away from it keep theirs
+    assert list(grid.pyramid()[4]) == [3, 6]  # cells of 8 and 64 px
+    skips = grid.pyramid()[5]  # the march does skip: 7 and 63 px of the narrower (longitude) pixels
+    assert skips[0] == _skip_steps(tr, dem.shape, grid.step_km, 8) >= 5 and skips[1] >= 60

@@ -16,8 +16,7 @@ from rasterio.transform import Affine
 from ..constants import MOON_RADIUS_KM
 from ..io.rasters import read_dem_onto_grid
 from ..model import geometry
-from ..model.cast_shadows import (MAX_REACH_KM, cast_shadow_pixels, near_maximum, shadow_reach_km, slope_bound,
-                                  sun_elevation)
+from ..model.cast_shadows import MAX_REACH_KM, MarchGrid, shadow_reach_km, sun_elevation
 
 #: Margin (pixels) first read around a tile for cast shadows.
 FIRST_MARGIN_PX = 16
@@ -27,15 +26,27 @@ FIRST_MARGIN_PX = 16
 READ_ROWS = 256
 
 
-def _read(scene, tile, margin: int) -> tuple[np.ndarray, Affine]:
-    """The DEM (float32) around the tile with ``margin`` pixels, read in strips of :data:`READ_ROWS` rows."""
+def _read_into(dem, scene, transform, r0: int, r1: int, c0: int, c1: int) -> None:
+    """Read the DEM's rows ``r0:r1``, columns ``c0:c1`` of the grid ``transform`` into ``dem``, :data:`READ_ROWS` at a time."""
+    for a in range(r0, r1, READ_ROWS):
+        b = min(a + READ_ROWS, r1)
+        dem[a:b, c0:c1] = read_dem_onto_grid(scene.dems, transform @ Affine.translation(c0, a), (b - a, c1 - c0),
+                                             scene.crs, scene.settings.no_dem_data_val)
+
+
+def _read(scene, tile, margin: int, inner=None) -> tuple[np.ndarray, Affine]:
+    """The DEM (float32) around the tile with ``margin`` pixels.  ``inner``: the DEM with a smaller margin,
+    already read: copied, and only the frame around it is read (the same values: each pixel is read on its own)."""
     transform = tile.transform @ Affine.translation(-margin, -margin)
     h, w = tile.height + 2 * margin, tile.width + 2 * margin
     dem = np.empty((h, w), np.float32)
-    for r0 in range(0, h, READ_ROWS):
-        r1 = min(r0 + READ_ROWS, h)
-        dem[r0:r1] = read_dem_onto_grid(scene.dems, transform @ Affine.translation(0, r0), (r1 - r0, w), scene.crs,
-                                        scene.settings.no_dem_data_val)
+    if inner is None:
+        _read_into(dem, scene, transform, 0, h, 0, w)
+        return dem, transform
+    d = (h - inner.shape[0]) // 2
+    dem[d:h - d, d:w - d] = inner
+    for r0, r1, c0, c1 in ((0, d, 0, w), (h - d, h, 0, w), (d, h - d, 0, d), (d, h - d, w - d, w)):
+        _read_into(dem, scene, transform, r0, r1, c0, c1)
     return dem, transform
 
 
@@ -63,8 +74,9 @@ class TileShadows:
         px_km = _pixel_km(tile)
         max_margin = int(math.ceil(MAX_REACH_KM / px_km)) + 2
         margin = FIRST_MARGIN_PX
+        dem = None
         while True:
-            dem, transform = _read(scene, tile, margin)
+            dem, transform = _read(scene, tile, margin, dem)
             inner = dem[margin:margin + tile.height, margin:margin + tile.width]
             if not np.isfinite(inner).any():
                 return
@@ -74,9 +86,7 @@ class TileShadows:
                 break
             margin = min(max(need, 2 * margin), max_margin)
         self.dem = dem  # float32: the march gives the answers of float64 heights
-        self.hmax = float(np.nanmax(self.dem))
-        self.near = near_maximum(self.dem)
-        self.slope = slope_bound(self.dem, transform)
+        self.grid = MarchGrid(dem, transform)  # tables shared by all images (the pyramid built on first need)
         self.transform, self.margin = transform, margin
 
     def rows(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
@@ -88,6 +98,4 @@ class TileShadows:
         """True where unpadded tile pixel ``(rows[o], cols[o])`` is in image ``k``'s cast shadow."""
         if self.dem is None:
             return np.zeros(np.shape(rows), bool)
-        m = self.margin
-        return cast_shadow_pixels(self.dem, self.transform, self.scene.sun[k], np.asarray(rows) + m,
-                                  np.asarray(cols) + m, hmax_m=self.hmax, near_max=self.near, slope=self.slope)
+        return self.grid.march(self.scene.sun[k], rows, cols, offset=self.margin)

@@ -60,163 +60,148 @@ def shadow_reach_km(relief_m: float, elevation_rad: float, max_km: float = MAX_R
     return min(s, max_km)
 
 
-#: Cells (pixels) of the coarse maximum-height grid the march uses to skip steps that cannot be blocked.
+#: Cells (pixels) of the finest level of the maximum-height pyramid; each next level's cells are
+#: :data:`LEVEL_RATIO` times larger (8, 64, 512 px ...), as long as they are smaller than the grid.
 CELL_PX = 8
-#: Safety factor on the terrain's slope bound (second-order effects of the lon/lat grid over the reach).
+LEVEL_RATIO = 8
+#: Safety factor on the terrain's slope bounds (second-order effects of the lon/lat grid over the reach).
 SLOPE_SAFETY = 1.05
+#: Lowest radius (km) a sample can have: below every lunar height (the ground-distance bounds use it).
+LOW_RADIUS_KM = MOON_RADIUS_KM - 20.0
 
-
-@njit(cache=True)
-def _slope_bound(dem, px_x_km, px_y_km):
-    """Upper bound of the bilinear terrain's rise per km of ground distance (m/km): the largest |dh|
-    between neighbours along x over the smallest x pixel, plus the same along y (NaN neighbours ignored)."""
-    h_, w_ = dem.shape
-    gx = 0.0
-    gy = 0.0
-    for i in range(h_):
-        for j in range(w_):
-            v = dem[i, j]
-            if v != v:
-                continue
-            if j + 1 < w_ and dem[i, j + 1] == dem[i, j + 1]:
-                gx = max(gx, abs(dem[i, j + 1] - v))
-            if i + 1 < h_ and dem[i + 1, j] == dem[i + 1, j]:
-                gy = max(gy, abs(dem[i + 1, j] - v))
-    return gx / px_x_km + gy / px_y_km
-
-
-def slope_bound(dem_m, transform) -> float:
-    r"""The steepest rise (m per km of ground) the bilinear terrain can have anywhere on the grid, x 1.05.
-
-    A ray whose Sun is higher than this (:math:`	an\epsilon \ge` bound / 1000) cannot be
-    blocked: it rises at least :math:`s\sin\epsilon` over a ground distance of at most
-    :math:`s\cos\epsilon`, along which the terrain rises at most bound x distance.  0 when
-    the grid reaches a pole (no bound).
-    """
-    dem = _as_heights(dem_m)
-    h = dem.shape[0]
-    km_per_deg = math.radians(1.0) * (MOON_RADIUS_KM - 20.0)  # the lowest radius a sample can have
-    far = max(abs(transform.f), abs(transform.f + transform.e * h))
-    if far >= 89.0 or h < 2:
-        return 0.0
-    px_x = km_per_deg * abs(transform.a) * math.cos(math.radians(far))
-    return SLOPE_SAFETY * float(_slope_bound(dem, px_x, km_per_deg * abs(transform.e)))
-
-
-@njit(cache=True)
-def _cell_max(dem, cell):
-    """Highest height of every ``cell`` x ``cell`` block plus its next row and column (bilinear neighbours),
-    then the maximum over the 3 x 3 blocks around it; -inf where no height."""
-    h_, w_ = dem.shape
-    ni, nj = (h_ + cell - 1) // cell, (w_ + cell - 1) // cell
-    cm = np.full((ni, nj), -np.inf)
-    for i in range(h_):
-        for j in range(w_):
-            v = dem[i, j]
-            if v != v:
-                continue
-            for bi in range(max(i - 1, 0) // cell, i // cell + 1):
-                for bj in range(max(j - 1, 0) // cell, j // cell + 1):
-                    if v > cm[bi, bj]:
-                        cm[bi, bj] = v
-    dm = np.full((ni, nj), -np.inf)
-    for bi in range(ni):
-        for bj in range(nj):
-            m = -np.inf
-            for ii in range(max(bi - 1, 0), min(bi + 2, ni)):
-                for jj in range(max(bj - 1, 0), min(bj + 2, nj)):
-                    m = max(m, cm[ii, jj])
-            dm[bi, bj] = m
-    return dm
+# atan(t) = t - t^3/3 + t^5/5 - ... for |t| <= ATAN_SERIES_MAX, to t^15: an alternating series whose
+# truncation error is below its first dropped term, 0.1^17 / 17 = 6e-19 rad.
+ATAN_SERIES_MAX = 0.1
+_A3, _A5, _A7, _A9, _A11, _A13, _A15 = -1 / 3, 1 / 5, -1 / 7, 1 / 9, -1 / 11, 1 / 13, -1 / 15
 
 
 @njit(cache=True, inline="always")
-def _shadowed(dem, lon0, dlon, lat0, dlat, sun, i, j, step_km, max_steps, hmax_m, tol_m, radius, lon_mid,
-              near_max, cell, skip, slope):
-    """Is DEM pixel ``(i, j)`` in the cast shadow (the one march of every caller)?
+def _angle(num, den):
+    """atan2(num, den) for den > 0 and |num| <= 0.1 den by the series (no libm call), else atan2 itself."""
+    if den > 0.0 and abs(num) <= ATAN_SERIES_MAX * den:
+        t = num / den
+        u = t * t
+        return t * (1.0 + u * (_A3 + u * (_A5 + u * (_A7 + u * (_A9 + u * (_A11 + u * (_A13 + u * _A15)))))))
+    return math.atan2(num, den)
 
-    Steps whose ray is above every height within ``cell`` pixels (``near_max``, the 3 x 3
-    cells around the sample) cannot be blocked, nor can the next ``skip`` steps, which stay
-    within those cells while the ray keeps rising (Sun above the point's horizon): they are
-    skipped, so the answer is the full march's at a fraction of the steps.  A ray whose Sun
-    is higher than the terrain's steepest rise (``slope``, m/km, :func:`slope_bound`; 0: no
-    bound) cannot be blocked and is not marched at all.
+
+@njit(cache=True, inline="always")
+def _sample_xy(qx, qy, qz, cos_lon, sin_lon, cos_lat, sin_lat, i, j, kx, ky):
+    r"""Grid coordinates (fractional col, row) of the point ``q`` (km) seen from pixel ``(i, j)``, without trig calls.
+
+    The longitude and latitude of ``q`` relative to the pixel's :math:`(\lambda_j, \phi_i)`
+    (their cosines and sines from the tables) are
+    :math:`\Delta\lambda = \operatorname{atan2}(q_y\cos\lambda_j - q_x\sin\lambda_j,\ q_x\cos\lambda_j + q_y\sin\lambda_j)`,
+    :math:`\Delta\phi = \operatorname{atan2}(q_z\cos\phi_i - \rho\sin\phi_i,\ \rho\cos\phi_i + q_z\sin\phi_i)`,
+    :math:`\rho = \sqrt{q_x^2 + q_y^2}` (exact identities), both angles below 0.1 rad within
+    :data:`MAX_REACH_KM` of a pixel below 60° of latitude, where :func:`_angle` sums the series;
+    ``kx``, ``ky``: pixels per radian.  Error against ``atan2``/``asin`` of ``q`` (the exact
+    conversion): the series' 6e-19 rad plus rounding, below 1e-9 px (``tests/test_cast_shadows.py``).
     """
-    h_, w_ = dem.shape
+    dlon = _angle(qy * cos_lon - qx * sin_lon, qx * cos_lon + qy * sin_lon)
+    rho = math.sqrt(qx * qx + qy * qy)
+    dlat = _angle(qz * cos_lat - rho * sin_lat, rho * cos_lat + qz * sin_lat)
+    return j + dlon * kx, i + dlat * ky
+
+
+@njit(cache=True, inline="always")
+def _sample_xy_exact(qx, qy, qz, lon0, dlon, lat0, dlat, lon_mid):
+    """Grid coordinates of ``q`` from its longitude (``atan2``, wrapped near ``lon_mid``) and latitude (``asin``)."""
     d2r = math.pi / 180.0
-    h = dem[i, j]
-    if not np.isfinite(h):
-        return False
-    lat = (lat0 + (i + 0.5) * dlat) * d2r
-    lon = (lon0 + (j + 0.5) * dlon) * d2r
-    r = radius + h / 1000.0
-    px, py, pz = r * math.cos(lat) * math.cos(lon), r * math.cos(lat) * math.sin(lon), r * math.sin(lat)
-    lx, ly, lz = sun[0] - px, sun[1] - py, sun[2] - pz
-    n = math.sqrt(lx * lx + ly * ly + lz * lz)
-    lx, ly, lz = lx / n, ly / n, lz / n
-    sin_e = (px * lx + py * ly + pz * lz) / r  # the Sun's elevation above the point's horizon
-    if slope > 0.0 and sin_e > 0.0 and sin_e >= 0.001 * slope * math.sqrt(max(1.0 - sin_e * sin_e, 0.0)):
-        return False  # tan(e) >= the steepest rise of the terrain
-    rising = skip > 0 and sin_e >= 0.0  # |p + s l| grows with s
-    s = 1
-    while s <= max_steps:
-        qx, qy, qz = px + s * step_km * lx, py + s * step_km * ly, pz + s * step_km * lz
-        rq = math.sqrt(qx * qx + qy * qy + qz * qz)
-        hray = (rq - radius) * 1000.0
-        if hray > hmax_m:
-            return False
-        lonq = math.atan2(qy, qx) / d2r
-        lonq = lon_mid + ((lonq - lon_mid + 180.0) % 360.0 - 180.0)
-        latq = math.asin(qz / rq) / d2r
-        x = (lonq - lon0) / dlon - 0.5
-        y = (latq - lat0) / dlat - 0.5
-        if x < 0.0 or y < 0.0 or x > w_ - 1 or y > h_ - 1:
-            return False
-        ix, iy = min(int(x), w_ - 2), min(int(y), h_ - 2)
-        fx, fy = x - ix, y - iy
-        z = ((dem[iy, ix] * (1 - fx) + dem[iy, ix + 1] * fx) * (1 - fy)
-             + (dem[iy + 1, ix] * (1 - fx) + dem[iy + 1, ix + 1] * fx) * fy)
-        if np.isfinite(z) and hray < z - tol_m:
-            return True
-        if rising and hray >= near_max[iy // cell, ix // cell] - tol_m:
-            s += skip
-        s += 1
-    return False
+    rq = math.sqrt(qx * qx + qy * qy + qz * qz)
+    lonq = math.atan2(qy, qx) / d2r
+    lonq = lon_mid + ((lonq - lon_mid + 180.0) % 360.0 - 180.0)
+    latq = math.asin(qz / rq) / d2r
+    return (lonq - lon0) / dlon - 0.5, (latq - lat0) / dlat - 0.5
 
 
 @njit(cache=True)
-def _march(dem, lon0, dlon, lat0, dlat, sun, r0, r1, c0, c1, step_km, max_steps, hmax_m, tol_m, radius,
-           near_max, cell, skip, slope):
-    out = np.zeros((r1 - r0, c1 - c0), np.bool_)
-    lon_mid = lon0 + dlon * dem.shape[1] / 2.0
-    for i in range(r0, r1):
-        for j in range(c0, c1):
-            out[i - r0, j - c0] = _shadowed(dem, lon0, dlon, lat0, dlat, sun, i, j, step_km, max_steps, hmax_m,
-                                            tol_m, radius, lon_mid, near_max, cell, skip, slope)
+def _trig_tables(lon0, dlon, w, lat0, dlat, h):
+    """Cosines and sines of the pixel-centre longitudes and latitudes (radians from ``transform * (c + 0.5, r + 0.5)``)."""
+    d2r = math.pi / 180.0
+    cos_lon, sin_lon, cos_lat, sin_lat = np.empty(w), np.empty(w), np.empty(h), np.empty(h)
+    for j in range(w):
+        lon = (lon0 + (j + 0.5) * dlon) * d2r
+        cos_lon[j], sin_lon[j] = math.cos(lon), math.sin(lon)
+    for i in range(h):
+        lat = (lat0 + (i + 0.5) * dlat) * d2r
+        cos_lat[i], sin_lat[i] = math.cos(lat), math.sin(lat)
+    return cos_lon, sin_lon, cos_lat, sin_lat
+
+
+@njit(cache=True)
+def _blocks(dem, cell):
+    """Per ``cell`` x ``cell`` block, with its next row and column (the bilinear neighbours of its samples):
+    the highest height (-inf: none) and the largest |dh| between x-, y-neighbours (inf if a height is NaN)."""
+    h_, w_ = dem.shape
+    ni, nj = (h_ + cell - 1) // cell, (w_ + cell - 1) // cell
+    top = np.full((ni, nj), -np.inf)
+    gx, gy = np.zeros((ni, nj)), np.zeros((ni, nj))
+    for bi in range(ni):
+        i0, i1 = bi * cell, min(bi * cell + cell, h_ - 1)  # rows i0..i1 (inclusive)
+        for bj in range(nj):
+            j0, j1 = bj * cell, min(bj * cell + cell, w_ - 1)
+            t, ax, ay, nan = -np.inf, 0.0, 0.0, False
+            for i in range(i0, i1 + 1):
+                for j in range(j0, j1 + 1):
+                    v = np.float64(dem[i, j])
+                    nan |= v != v
+                    if v > t:
+                        t = v
+                    if j < j1:  # the x-pairs (i, j)-(i, j + 1) that start in the block's columns
+                        d = abs(np.float64(dem[i, j + 1]) - v)
+                        if d > ax:
+                            ax = d
+                    if i < i1:
+                        d = abs(np.float64(dem[i + 1, j]) - v)
+                        if d > ay:
+                            ay = d
+            top[bi, bj] = t
+            gx[bi, bj], gy[bi, bj] = (np.inf, np.inf) if nan else (ax, ay)
+    return top, gx, gy
+
+
+@njit(cache=True)
+def _coarsen(a, ratio):
+    """Maximum over ``ratio`` x ``ratio`` blocks of ``a``."""
+    ni, nj = (a.shape[0] + ratio - 1) // ratio, (a.shape[1] + ratio - 1) // ratio
+    out = np.full((ni, nj), -np.inf)
+    for i in range(a.shape[0]):
+        for j in range(a.shape[1]):
+            out[i // ratio, j // ratio] = max(out[i // ratio, j // ratio], a[i, j])
     return out
 
 
 @njit(cache=True)
-def _march_pixels(dem, lon0, dlon, lat0, dlat, sun, rows, cols, step_km, max_steps, hmax_m, tol_m, radius,
-                  near_max, cell, skip, slope):
-    out = np.zeros(rows.shape[0], np.bool_)
-    lon_mid = lon0 + dlon * dem.shape[1] / 2.0
-    for o in range(rows.shape[0]):
-        out[o] = _shadowed(dem, lon0, dlon, lat0, dlat, sun, rows[o], cols[o], step_km, max_steps, hmax_m,
-                           tol_m, radius, lon_mid, near_max, cell, skip, slope)
+def _dilate3(a):
+    """Maximum over the 3 x 3 neighbourhood of every cell."""
+    ni, nj = a.shape
+    out = np.empty_like(a)
+    for i in range(ni):
+        for j in range(nj):
+            m = -np.inf
+            for ii in range(max(i - 1, 0), min(i + 2, ni)):
+                for jj in range(max(j - 1, 0), min(j + 2, nj)):
+                    m = max(m, a[ii, jj])
+            out[i, j] = m
     return out
+
+
+def _ground_px_km(transform, shape):
+    """(smallest x pixel, y pixel) in km of ground at :data:`LOW_RADIUS_KM`; None when the grid reaches a pole."""
+    far = max(abs(transform.f), abs(transform.f + transform.e * shape[0]))
+    if far >= 89.0:
+        return None
+    km_per_deg = math.radians(1.0) * LOW_RADIUS_KM
+    return km_per_deg * abs(transform.a) * math.cos(math.radians(far)), km_per_deg * abs(transform.e)
 
 
 def _skip_steps(transform, shape, step_km: float, cell: int) -> int:
     """Steps that certainly stay within ``cell - 1`` pixels of the grid (0: never skip)."""
-    h, w = shape
-    lats = (transform.f, transform.f + transform.e * h)
-    far = max(abs(v) for v in lats)
-    if cell < 2 or far >= 89.0:
+    px = _ground_px_km(transform, shape)
+    if cell < 2 or px is None:
         return 0
-    low = MOON_RADIUS_KM - 20.0  # lowest radius a sample can have (km): below every lunar height
-    px_km = math.radians(1.0) * low * min(abs(transform.a) * math.cos(math.radians(far)), abs(transform.e))
-    return max(0, int((cell - 1) / (1.01 * step_km / px_km)) - 1)
+    return max(0, int((cell - 1) / (1.01 * step_km / min(px))) - 1)
 
 
 def _as_heights(dem_m) -> np.ndarray:
@@ -225,18 +210,182 @@ def _as_heights(dem_m) -> np.ndarray:
     return np.ascontiguousarray(dem, dtype=dem.dtype if dem.dtype in (np.float32, np.float64) else np.float64)
 
 
-def _march_args(dem_m, transform, step_px, max_reach_km):
+def _global_slope(blocks, px) -> float:
+    """The largest slope bound (m/km, x 1.05) over all blocks; 0 (no bound) at a pole or with a NaN height."""
+    if px is None or blocks[1].size == 0:
+        return 0.0
+    g = SLOPE_SAFETY * (float(blocks[1].max()) / px[0] + float(blocks[2].max()) / px[1])
+    return g if math.isfinite(g) else 0.0
+
+
+def slope_bound(dem_m, transform) -> float:
+    r"""The steepest rise (m per km of ground) the bilinear terrain can have anywhere on the grid, x 1.05.
+
+    A ray whose Sun is higher than this (:math:`\tan\epsilon \ge` bound / 1000) cannot be
+    blocked: it rises at least :math:`s\sin\epsilon` over a ground distance of at most
+    :math:`s\cos\epsilon`, along which the terrain rises at most bound x distance.  0 (no
+    bound) when the grid reaches a pole or holds a NaN height (a hole breaks the bound: the
+    terrain beyond it is not reached by a path of neighbours).
+    """
     dem = _as_heights(dem_m)
-    h, w = dem.shape
-    lat_mid = math.radians(transform.f + transform.e * h / 2.0)
-    px_km = math.radians(1.0) * MOON_RADIUS_KM * min(abs(transform.a) * max(math.cos(lat_mid), 1e-3), abs(transform.e))
-    step_km = step_px * px_km
-    max_steps = max(1, int(math.ceil(max_reach_km / step_km)))
-    return dem, (float(transform.c), float(transform.a), float(transform.f), float(transform.e)), step_km, max_steps
+    if min(dem.shape) < 2:
+        return 0.0
+    return _global_slope(_blocks(dem, CELL_PX), _ground_px_km(transform, dem.shape))
+
+
+class MarchGrid:
+    """What the march needs of one DEM grid, built once and shared by every image and pixel list.
+
+    ``dem``: the heights (:func:`_as_heights`); the cosine and sine tables of the pixel
+    centres; the step and number of steps; the highest height; the global :func:`slope_bound`;
+    and, built on first need (:meth:`pyramid`), the maximum-height and slope pyramid.
+    Cells are powers of 2 (:data:`CELL_PX`, :data:`LEVEL_RATIO`): the march finds them by shifts.
+    """
+
+    def __init__(self, dem_m, transform, *, max_reach_km: float = MAX_REACH_KM, step_px: float = STEP_PX,
+                 tolerance_m: float = TOLERANCE_M):
+        self.dem = dem = _as_heights(dem_m)
+        h, w = dem.shape
+        self.transform = transform
+        lat_mid = math.radians(transform.f + transform.e * h / 2.0)
+        px_km = math.radians(1.0) * MOON_RADIUS_KM * min(abs(transform.a) * max(math.cos(lat_mid), 1e-3),
+                                                          abs(transform.e))
+        self.step_km = step_px * px_km
+        self.max_steps = max(1, int(math.ceil(max_reach_km / self.step_km)))
+        self.blocks = _blocks(dem, CELL_PX)  # level 0 of the pyramid; its maxima give the global figures
+        self.hmax = float(self.blocks[0].max()) if self.blocks[0].size else -np.inf
+        self.empty = h < 2 or w < 2 or not np.isfinite(self.hmax)
+        self.tables = _trig_tables(float(transform.c), float(transform.a), w, float(transform.f), float(transform.e), h)
+        self.slope = 0.0 if self.empty else _global_slope(self.blocks, _ground_px_km(transform, dem.shape))
+        self.tolerance_m = float(tolerance_m)
+        self._pyramid = None
+
+    def pyramid(self):
+        """Per level (cells of 8, 64, 512 ... px): the highest height and the slope bound (m/km, x 1.05) over the
+        3 x 3 cells around each cell, flattened, with each level's offset, width, log2 cell size and skippable steps."""
+        if self._pyramid is None:
+            dem, tr = self.dem, self.transform
+            px = _ground_px_km(tr, dem.shape)
+            tops, slopes, offs, widths, cells, skips = [], [], [0], [], [], []
+            cell = CELL_PX
+            if px is not None and not self.empty:
+                top, gx, gy = self.blocks
+                while cell < max(dem.shape):
+                    tops.append(_dilate3(top).ravel())
+                    slopes.append((SLOPE_SAFETY * (_dilate3(gx) / px[0] + _dilate3(gy) / px[1])).ravel())
+                    offs.append(offs[-1] + top.size)
+                    widths.append(top.shape[1])
+                    cells.append(int(round(math.log2(cell))))
+                    skips.append(_skip_steps(tr, dem.shape, self.step_km, cell))
+                    top, gx, gy = (_coarsen(a, LEVEL_RATIO) for a in (top, gx, gy))
+                    cell *= LEVEL_RATIO
+            cat = (lambda a: np.concatenate(a)) if tops else (lambda a: np.zeros(0))
+            self._pyramid = (cat(tops), cat(slopes), np.array(offs[:-1], np.int64), np.array(widths, np.int64),
+                             np.array(cells, np.int64), np.array(skips, np.int64))
+        return self._pyramid
+
+    def march(self, sun_km, rows, cols, *, offset: int = 0, skip: bool = True, exact: bool = False) -> np.ndarray:
+        """Is DEM pixel ``(offset + rows[o], offset + cols[o])`` in the cast shadow of the Sun at ``sun_km``? (1-D bool)
+
+        ``skip=False``: every step of every ray, ``exact=True``: the sample coordinates from
+        ``atan2``/``asin`` (the reference the shortcuts are tested against).
+        """
+        rows, cols = np.ascontiguousarray(rows), np.ascontiguousarray(cols)
+        out = np.zeros(rows.shape, np.int8)
+        if self.empty or rows.size == 0:
+            return out.astype(bool)
+        tr = self.transform
+        prm = np.array([tr.c, tr.a, tr.f, tr.e, self.step_km, self.hmax, self.tolerance_m, MOON_RADIUS_KM,
+                        self.slope if skip else 0.0, offset])
+        sun = np.asarray(sun_km, dtype=np.float64)
+        none = (np.zeros(0), np.zeros(0), *(np.zeros(0, np.int64),) * 4)
+        if skip and self.slope > 0.0:  # first the rays the global slope bound answers; the pyramid if some ray needs it
+            _march_pixels(self.dem, prm, self.max_steps, exact, True, *self.tables, sun, rows, cols, *none, out)
+            todo = np.flatnonzero(out == 2)
+            if todo.size:
+                part = np.zeros(todo.size, np.int8)
+                _march_pixels(self.dem, prm, self.max_steps, exact, False, *self.tables, sun, rows[todo],
+                              cols[todo], *self.pyramid(), part)
+                out[todo] = part
+        else:
+            _march_pixels(self.dem, prm, self.max_steps, exact, False, *self.tables, sun, rows, cols,
+                          *(self.pyramid() if skip else none), out)
+        return out == 1
+
+
+@njit(cache=True)
+def _march_pixels(dem, prm, max_steps, exact, decide, cos_lon, sin_lon, cos_lat, sin_lat, sun, rows, cols,
+                  lev_top, lev_slope, lev_off, lev_width, lev_shift, lev_skip, out):
+    """The march of every pixel ``(rows[o], cols[o])`` into ``out[o]``: 1 shadowed, 0 lit, 2 (``decide``) not
+    answered by the global slope bound (``prm[8]``; 0: none); ``prm[9]``: offset of rows and columns."""
+    lon0, dlon, lat0, dlat, step_km, hmax_m, tol_m, radius, slope = prm[0], prm[1], prm[2], prm[3], prm[4], \
+        prm[5], prm[6], prm[7], prm[8]
+    off = int(prm[9])
+    h_, w_ = dem.shape
+    lon_mid = lon0 + dlon * w_ / 2.0
+    d2r = math.pi / 180.0
+    kx, ky = 1.0 / (d2r * dlon), 1.0 / (d2r * dlat)
+    n_lev = lev_shift.shape[0]
+    for o in range(rows.shape[0]):
+        i, j = off + np.int64(rows[o]), off + np.int64(cols[o])
+        h = dem[i, j]
+        if not np.isfinite(h):
+            continue  # no ground point: lit
+        r = radius + h / 1000.0
+        px, py, pz = r * cos_lat[i] * cos_lon[j], r * cos_lat[i] * sin_lon[j], r * sin_lat[i]
+        lx, ly, lz = sun[0] - px, sun[1] - py, sun[2] - pz
+        n = math.sqrt(lx * lx + ly * ly + lz * lz)
+        lx, ly, lz = lx / n, ly / n, lz / n
+        sin_e = (px * lx + py * ly + pz * lz) / r  # the Sun's elevation above the point's horizon
+        cos_e = math.sqrt(max(1.0 - sin_e * sin_e, 0.0))
+        if slope > 0.0 and sin_e > 0.0 and sin_e >= 0.001 * slope * cos_e:
+            continue  # tan(e) >= the steepest rise of the terrain: lit
+        if decide:
+            out[o] = 2
+            continue
+        rising = n_lev > 0 and sin_e >= 0.0  # |p + s l| grows with s, and the Sun's elevation along the ray
+        rise = 1000.0 * sin_e / cos_e if cos_e > 0.0 else np.inf  # m per km of ground, at least, from any sample
+        hray, ix, iy = h - 1e-6, j, i  # the start: the ray at the pixel's own height (less any rounding)
+        s = 0
+        while True:
+            if rising:  # the coarsest level whose 3 x 3 cells around the sample the next steps cannot reach into
+                lev = 0
+                while lev < n_lev:
+                    k = lev_off[lev] + (iy >> lev_shift[lev]) * lev_width[lev] + (ix >> lev_shift[lev])
+                    if hray >= lev_top[k] - tol_m or rise >= lev_slope[k]:
+                        lev += 1
+                    else:
+                        break
+                if lev > 0:
+                    s += lev_skip[lev - 1]
+                    if h + 1000.0 * (s + 1) * step_km * sin_e > hmax_m + 1e-3:
+                        break  # the next sample is certainly above every height: lit, as the march would find
+            s += 1
+            if s > max_steps:
+                break
+            qx, qy, qz = px + s * step_km * lx, py + s * step_km * ly, pz + s * step_km * lz
+            rq = math.sqrt(qx * qx + qy * qy + qz * qz)
+            hray = (rq - radius) * 1000.0
+            if hray > hmax_m:
+                break
+            if exact:
+                x, y = _sample_xy_exact(qx, qy, qz, lon0, dlon, lat0, dlat, lon_mid)
+            else:
+                x, y = _sample_xy(qx, qy, qz, cos_lon[j], sin_lon[j], cos_lat[i], sin_lat[i], i, j, kx, ky)
+            if x < 0.0 or y < 0.0 or x > w_ - 1 or y > h_ - 1:
+                break
+            ix, iy = min(int(x), w_ - 2), min(int(y), h_ - 2)
+            fx, fy = x - ix, y - iy
+            z = ((dem[iy, ix] * (1 - fx) + dem[iy, ix + 1] * fx) * (1 - fy)
+                 + (dem[iy + 1, ix] * (1 - fx) + dem[iy + 1, ix + 1] * fx) * fy)
+            if np.isfinite(z) and hray < z - tol_m:
+                out[o] = 1
+                break
 
 
 def cast_shadow_mask(dem_m, transform, sun_km, window=None, *, max_reach_km: float = MAX_REACH_KM,
-                     step_px: float = STEP_PX, tolerance_m: float = TOLERANCE_M, skip: bool = True) -> np.ndarray:
+                     step_px: float = STEP_PX, tolerance_m: float = TOLERANCE_M, skip: bool = True,
+                     exact: bool = False) -> np.ndarray:
     """True where a DEM pixel centre is in the cast shadow of the terrain for the Sun at ``sun_km``.
 
     ``dem_m``: heights (metres above the 1737.4 km sphere, NaN where unknown) on the
@@ -245,48 +394,25 @@ def cast_shadow_mask(dem_m, transform, sun_km, window=None, *, max_reach_km: flo
     decide (default: all; the rest of the grid is the margin that can cast shadows
     into it).  Returns a bool array of the window's shape.  Pixels whose own height is
     NaN are reported lit (they have no ground point); NaN terrain blocks nothing.
-    ``skip=False`` marches every step of every ray (the reference the shortcuts are tested against).
+    ``skip=False`` marches every step of every ray, ``exact=True`` finds each sample's
+    lon/lat with ``atan2``/``asin`` (together: the reference the shortcuts are tested against).
     """
     h, w = np.shape(dem_m)
     r0, r1, c0, c1 = window if window is not None else (0, h, 0, w)
-    if h < 2 or w < 2 or not np.isfinite(dem_m).any():
-        return np.zeros((r1 - r0, c1 - c0), bool)
-    dem, grid, step_km, max_steps = _march_args(dem_m, transform, step_px, max_reach_km)
-    near, n_skip = near_maximum(dem), (_skip_steps(transform, dem.shape, step_km, CELL_PX) if skip else 0)
-    return _march(dem, *grid, np.asarray(sun_km, dtype=np.float64), int(r0), int(r1), int(c0), int(c1), step_km,
-                  max_steps, float(np.nanmax(dem)), float(tolerance_m), MOON_RADIUS_KM, near, CELL_PX, n_skip,
-                  slope_bound(dem, transform) if skip else 0.0)
+    rows, cols = np.mgrid[r0:r1, c0:c1]
+    grid = MarchGrid(dem_m, transform, max_reach_km=max_reach_km, step_px=step_px, tolerance_m=tolerance_m)
+    return grid.march(sun_km, rows.ravel(), cols.ravel(), skip=skip, exact=exact).reshape(r1 - r0, c1 - c0)
 
 
-def near_maximum(dem_m) -> np.ndarray:
-    """The coarse maximum-height grid of a DEM that lets the march skip steps (:data:`CELL_PX` pixel cells)."""
-    return _cell_max(_as_heights(dem_m), CELL_PX)
-
-
-def cast_shadow_pixels(dem_m, transform, sun_km, rows, cols, *, hmax_m: float | None = None, near_max=None,
-                       slope: float | None = None,
+def cast_shadow_pixels(dem_m, transform, sun_km, rows, cols, *, grid: MarchGrid | None = None,
                        max_reach_km: float = MAX_REACH_KM, step_px: float = STEP_PX,
                        tolerance_m: float = TOLERANCE_M) -> np.ndarray:
     """:func:`cast_shadow_mask` of the DEM pixels ``(rows[o], cols[o])`` only (1-D bool).
 
     The same march pixel by pixel, so the answers equal the mask's at those pixels; the
-    solver asks only for pixels that would otherwise be observations.  ``dem_m`` should
-    already be float32 or float64 and C-contiguous (it is not copied then); ``hmax_m``: its maximum
-    (finite) height, ``near_max`` its :func:`near_maximum` and ``slope`` its :func:`slope_bound`, when the
-    caller has them.
+    solver asks only for pixels that would otherwise be observations.  ``grid``: the
+    :class:`MarchGrid` of ``dem_m`` when the caller keeps one (``dem_m`` and ``transform`` are then unused).
     """
-    rows = np.ascontiguousarray(rows, dtype=np.int64)
-    cols = np.ascontiguousarray(cols, dtype=np.int64)
-    h, w = np.shape(dem_m)
-    if h < 2 or w < 2 or rows.size == 0:
-        return np.zeros(rows.shape, bool)
-    dem, grid, step_km, max_steps = _march_args(dem_m, transform, step_px, max_reach_km)
-    if hmax_m is None:
-        if not np.isfinite(dem).any():
-            return np.zeros(rows.shape, bool)
-        hmax_m = float(np.nanmax(dem))
-    near = near_maximum(dem) if near_max is None else near_max
-    return _march_pixels(dem, *grid, np.asarray(sun_km, dtype=np.float64), rows, cols, step_km, max_steps,
-                         float(hmax_m), float(tolerance_m), MOON_RADIUS_KM, near, CELL_PX,
-                         _skip_steps(transform, dem.shape, step_km, CELL_PX),
-                         slope_bound(dem, transform) if slope is None else float(slope))
+    if grid is None:
+        grid = MarchGrid(dem_m, transform, max_reach_km=max_reach_km, step_px=step_px, tolerance_m=tolerance_m)
+    return grid.march(sun_km, rows, cols)

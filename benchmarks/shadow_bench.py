@@ -1,0 +1,142 @@
+#!/usr/bin/env python3
+"""The cast-shadow test of the prepare step alone, on the narrow-strip scene of ``make bench`` item 6.
+
+Records once (``--record``, with any checkout) the pixel lists the solver's prepare step asks
+``TileShadows.shadowed`` about, tile by tile and image by image, with the answers; then times
+(CPU time, user + sys) building each tile's :class:`~lunaralbedo.engine.terrain.TileShadows`
+(DEM read with its margin, the march's tables) and answering those lists, and checks that
+the answers equal the recorded ones.  ``--src DIR`` times another checkout (e.g. ``/work/main``)
+in a child process, so before and after run back to back on the same lists::
+
+    PYTHONPATH=$PWD python benchmarks/shadow_bench.py --record          # once (bench_out/strip_2000)
+    PYTHONPATH=$PWD python benchmarks/shadow_bench.py --src /work/main  # before, then after
+
+Per observation = per image pixel of the scene (24 x 320 x 2000), as item 6 counts.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pickle
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SCENE = REPO / "bench_out" / "strip_2000"
+CALLS = REPO / "bench_out" / "shadow_calls.pkl"
+N_OBS = 24 * 320 * 2000
+
+
+def cpu() -> float:
+    t = os.times()
+    return t.user + t.system
+
+
+def _scene():
+    from lunaralbedo.engine.scene import build_scene
+    from lunaralbedo.settings import load_settings
+
+    return build_scene(load_settings(SCENE / "settings.txt"))
+
+
+def record() -> None:
+    """Run the prepare step's gathering once and keep every ``shadowed`` call (tile, image, rows, cols, answer)."""
+    from lunaralbedo.engine import observations, terrain
+
+    sc = _scene()
+    calls = []
+    real = terrain.TileShadows.shadowed
+
+    def spy(self, k, rows, cols):
+        out = real(self, k, rows, cols)
+        calls.append((self._bench_tile, int(k), rows.astype("int32"), cols.astype("int32"), out.copy()))
+        return out
+
+    terrain.TileShadows.shadowed = spy
+    init = terrain.TileShadows.__init__
+
+    def init_spy(self, scene, tile, images):
+        init(self, scene, tile, images)
+        self._bench_tile = scene.tiles.index(tile)
+
+    terrain.TileShadows.__init__ = init_spy
+    for t in range(len(sc.tiles)):
+        for _ in observations.gather_blocks(sc, t):
+            pass
+    with open(CALLS, "wb") as f:
+        pickle.dump(calls, f)
+    n = sum(len(c[2]) for c in calls)
+    print(f"recorded {len(calls)} calls, {n} pixels, {sum(int(c[4].sum()) for c in calls)} shadowed")
+
+
+def timing(repeat: int) -> dict:
+    import numpy as np
+
+    from lunaralbedo.engine.terrain import TileShadows
+
+    sc = _scene()
+    with open(CALLS, "rb") as f:
+        calls = pickle.load(f)
+    by_tile: dict[int, list] = {}
+    for c in calls:
+        by_tile.setdefault(c[0], []).append(c)
+    t = next(iter(by_tile))  # compile / load the numba caches outside the timings
+    warm = TileShadows(sc, sc.tiles[t], sc.tile_images[t])
+    warm.shadowed(*by_tile[t][0][1:4])
+    build, march, differ, pixels = [], [], 0, 0
+    for _ in range(repeat):
+        b = m = 0.0
+        for t, cs in by_tile.items():
+            c0 = cpu()
+            ts = TileShadows(sc, sc.tiles[t], sc.tile_images[t])
+            c1 = cpu()
+            outs = [ts.shadowed(k, rows, cols) for _, k, rows, cols, _ in cs]
+            c2 = cpu()
+            b, m = b + c1 - c0, m + c2 - c1
+            differ += sum(int(np.count_nonzero(o != c[4])) for o, c in zip(outs, cs))
+        build.append(b)
+        march.append(m)
+    pixels = sum(len(c[2]) for c in calls)
+    b, m = min(build), min(march)
+    return {"tiles": len(by_tile), "calls": len(calls), "pixels": pixels, "shadowed": sum(int(c[4].sum()) for c in calls),
+            "differ": differ, "build_s": b, "march_s": m, "march_ns_per_pixel": 1e9 * m / pixels,
+            "march_ns_per_obs": 1e9 * m / N_OBS, "build_ns_per_obs": 1e9 * b / N_OBS,
+            "total_ns_per_obs": 1e9 * (b + m) / N_OBS}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--record", action="store_true", help="record the pixel lists (runs the prepare gathering once)")
+    ap.add_argument("--src", default=None, help="also time this checkout's lunaralbedo first (the 'before')")
+    ap.add_argument("--repeat", type=int, default=3, help="timed runs; the least CPU time is reported")
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.record:
+        record()
+        return
+    if args.child:
+        print(json.dumps(timing(args.repeat)))
+        return
+    runs = []
+    if args.src:
+        runs.append(("before", args.src))
+    runs.append(("after", str(REPO)))
+    for name, src in runs:
+        env = {**os.environ, "PYTHONPATH": src}
+        res = subprocess.run([sys.executable, __file__, "--child", "--repeat", str(args.repeat)], env=env, cwd=src,
+                             capture_output=True, text=True)
+        if res.returncode:
+            raise RuntimeError(res.stderr[-3000:])
+        r = json.loads(res.stdout.strip().splitlines()[-1])
+        print(f"{name} ({src}): {r['pixels']} pixels tested in {r['calls']} calls over {r['tiles']} tiles, "
+              f"{r['shadowed']} shadowed, {r['differ']} answers differ from the recorded ones; "
+              f"march {r['march_s']:.3f} s CPU = {r['march_ns_per_pixel']:.1f} ns/pixel = {r['march_ns_per_obs']:.1f} ns/obs; "
+              f"TileShadows build {r['build_s']:.3f} s = {r['build_ns_per_obs']:.1f} ns/obs; "
+              f"total {r['total_ns_per_obs']:.1f} ns/obs", flush=True)
+
+
+if __name__ == "__main__":
+    main()
