@@ -239,9 +239,12 @@ def read_onto_grid(
     copied pixel for pixel instead of warped.  ``nodata`` overrides the file's own value when the file
     has none.
     """
-    out = np.full(dst_shape, np.nan, dtype=np.float32)
+    out = None
     for t in _grid_shifts(info, dst_transform, dst_shape, dst_crs):
         got = _read_onto_grid_once(info, band, t, dst_shape, dst_crs, resampling, nodata)
+        if out is None:  # the first (usually only) shift fills an empty grid: its values as they are
+            out = got
+            continue
         fill = np.isnan(out)
         out[fill] = got[fill]
     return out

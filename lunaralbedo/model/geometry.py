@@ -163,13 +163,22 @@ def merge_dem_layers(layers, shape) -> np.ndarray:
     float64 sum runs in that order, so the result does not depend on anything else.
     Returns float64 metres, NaN where no DEM has a value.
     """
+    layers = iter(layers)
+    first = next(layers, None)
+    if first is None:
+        return np.full(shape, np.nan)
+    second = next(layers, None)
+    if second is None:  # one DEM: its values (the sum's 0.0 + h turns -0.0 into 0.0; NaN stays NaN)
+        out = np.array(np.broadcast_to(np.asarray(first, np.float64), shape))
+        out += 0.0
+        return out
     total = np.zeros(shape, np.float64)
     count = np.zeros(shape, np.int32)
-    for layer in layers:
-        d = np.asarray(layer)
+    for d in (first, second, *layers):
+        d = np.asarray(d)
         ok = np.isfinite(d)
-        total[ok] += d[ok]
-        count[ok] += 1
+        total += np.where(ok, d, 0.0)  # total is never -0.0, so adding 0.0 where there is no value changes nothing
+        count += ok
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(count > 0, total / count, np.nan)
 
@@ -182,9 +191,23 @@ def radius_to_height(values_m: np.ndarray, mode: str = "auto") -> tuple[np.ndarr
     """
     if mode not in ("auto", "radius", "height"):
         raise ValueError(f"mode must be auto, radius or height, got {mode!r}")
-    finite = values_m[np.isfinite(values_m)]
-    is_radius = mode == "radius" or (mode == "auto" and finite.size and float(np.median(finite)) > RADIUS_THRESHOLD_M)
+    is_radius = mode == "radius" or (mode == "auto" and _median_exceeds(values_m, RADIUS_THRESHOLD_M))
     return (values_m - MOON_RADIUS_M if is_radius else values_m), bool(is_radius)
+
+
+def _median_exceeds(values, threshold: float) -> bool:
+    """``median(finite values) > threshold`` (False when none), by counting: no sort unless the two middle
+    values straddle the threshold."""
+    values = np.asarray(values)
+    n = int(np.count_nonzero(np.isfinite(values)))
+    if n == 0:
+        return False
+    above = int(np.count_nonzero(values > threshold)) - int(np.count_nonzero(values == np.inf))  # +inf is not finite
+    if above >= n // 2 + 1:  # the middle value(s) all above
+        return True
+    if above <= (n - 1) // 2:  # the middle value(s) all at or below
+        return False
+    return float(np.median(values[np.isfinite(values)])) > threshold
 
 
 # --------------------------------------------------------------------------- kernels of the solver's prepare step
