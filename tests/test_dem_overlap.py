@@ -63,3 +63,22 @@ def test_the_rule_is_the_mean_of_the_dems_with_a_value():
     b = np.array([5.0, 2.0, np.nan, np.nan])
     np.testing.assert_array_equal(merge_dem_layers([a, b], (4,)), [3.0, 2.0, 3.0, np.nan])
     assert np.isnan(merge_dem_layers([], (2,))).all()
+    one = np.array([-0.0, 7.5, np.nan], np.float32)
+    got = merge_dem_layers(iter([one]), (3,))  # one DEM: its heights, as the sum 0.0 + h gives them
+    assert got.dtype == np.float64 and not np.signbit(got[0]) and got[1] == 7.5 and np.isnan(got[2])
+
+
+def test_radius_or_height_is_decided_by_the_median_of_the_finite_values():
+    from lunaralbedo.model.geometry import radius_to_height
+
+    r = 1737.4e3
+    rng = np.random.default_rng(0)
+    for n in range(1, 12):  # radius when more than half the finite values say so (ties: the two middle ones)
+        for k in range(n + 1):
+            v = np.concatenate([np.full(k, r + 100.0), np.full(n - k, 100.0), [np.nan, np.inf, -np.inf][: n % 4]])
+            rng.shuffle(v)
+            want = bool(np.median(v[np.isfinite(v)]) > 1e6)
+            assert radius_to_height(v)[1] == want, (n, k)
+    # two middle values that straddle the threshold: their mean decides
+    assert radius_to_height(np.array([0.0, 2.5e6]))[1] is True
+    assert radius_to_height(np.array([0.0, 1.5e6]))[1] is False
