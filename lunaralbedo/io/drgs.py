@@ -65,12 +65,13 @@ def _drg_bands(ds, info, profile, win, lit_threshold, saturation, lut):
     from ..model import shadows
     from ..model.weights import source_weights
 
-    value = ds.read(1, window=win, out_dtype=np.float32)
+    bands = ds.read((1, 2) if info.has_alpha else (1,), window=win)  # one decode of pixel-interleaved blocks
+    value = bands[0].astype(np.float32)
     valid = np.isfinite(value)
     if info.nodata is not None:
         valid &= value != np.float32(info.nodata)
     if info.has_alpha:
-        valid &= ds.read(2, window=win) > 0
+        valid &= bands[1] > 0
     dn = value
     if lut is not None:
         value = np.asarray(lut, np.float32)[np.clip(np.nan_to_num(value), 0, len(lut) - 1).astype(np.intp)]
@@ -79,7 +80,8 @@ def _drg_bands(ds, info, profile, win, lit_threshold, saturation, lut):
     usable = None
     if lit_threshold is not None or saturation is not None:  # lit and saturated are decided on the DN
         usable = shadows.usable_pixels(dn, valid, lit_threshold, saturation)
-    return np.where(valid, value, np.float32(0.0)).astype(np.float32), valid, source_weights(profile, r0, c0, valid), usable
+    np.copyto(value, np.float32(0.0), where=~valid)  # value is this call's own array (a copy of the DN)
+    return value, valid, source_weights(profile, r0, c0, valid), usable
 
 
 def _read_drg_once(info, profile, dst_transform, dst_shape, dst_crs, lit_threshold, saturation, lut, resampling):
@@ -97,11 +99,13 @@ def _read_drg_once(info, profile, dst_transform, dst_shape, dst_crs, lit_thresho
             val, valid, wt, usable = _drg_bands(ds, info, profile, win, lit_threshold, saturation, lut)
             if not valid.any():
                 return None
+            lit = valid & usable if usable is not None else valid.copy()
+            if (r1 - r0, c1 - c0) == tuple(dst_shape):  # the window lies inside the DRG: its bands as read
+                return val, valid, wt, lit
             out = (np.zeros(dst_shape, np.float32), np.zeros(dst_shape, bool), np.zeros(dst_shape, np.float32),
                    np.zeros(dst_shape, bool))
             inner = (slice(r0 - r, r1 - r), slice(c0 - c, c1 - c))
-            out[0][inner], out[1][inner], out[2][inner] = np.where(valid, val, 0), valid, np.where(valid, wt, 0)
-            out[3][inner] = valid & usable if usable is not None else valid
+            out[0][inner], out[1][inner], out[2][inner], out[3][inner] = val, valid, wt, lit  # 0 where not valid
             return out
         win = _source_window(ds, dst_transform, dst_shape, dst_crs)
         win = Window(win.col_off - 2, win.row_off - 2, win.width + 4, win.height + 4).round_offsets().round_lengths()
