@@ -12,9 +12,10 @@ by image and then by pixel:
 * ``index`` (global image ids) and ``start`` (offsets: image ``k`` owns
   ``start[k]:start[k+1]``).
 
-Per block pixel: ``dem`` and ``weights_sum`` (float32) and ``wblend_sum`` (float64,
-the denominator of eq. 7).  Memory is ~20-28 bytes per observation plus ~14 bytes
-per pixel of the block.
+Per block pixel: ``dem`` (float32) and ``weights_sum`` (float64, the sum of the blending
+weights: the ``weightsSum`` output and, without NORMALIZED_COST_FUN, the denominator of
+eq. 7), and with it ``wblend_sum`` (float64, eq. 7's denominator of the normalised
+weights).  Memory is ~20-28 bytes per observation plus ~12 bytes per pixel of the block.
 
 **Blocks of rows** bound the memory of a worker whatever TILE_SIZE and the number of
 images: a tile is processed in blocks of :func:`block_rows` rows, each with the one-row
@@ -216,10 +217,10 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut):
                                           r0 - b0, c0, w)[2:5]
         weights_sum[r0 - b0:r1 - b0, c0:c1] += wb  # float64, images in tile order
         # compact at once: only the window's blending weights stay (for eq. 7's denominator)
-        kept.append((k, (r0 - b0, r1 - b0, c0, c1), wb, pix, value, weight,
+        kept.append((k, (r0 - b0, r1 - b0, c0, c1), wb if s.use_normalized_cost_fun else None, pix, value, weight,
                      {n: np.asarray(layers[n]).astype(np.float32, copy=False) for n in layers}))
     weights_sum32 = weights_sum.astype(np.float32)
-    wblend_sum = np.zeros((h, w))
+    wblend_sum = np.zeros((h, w)) if s.use_normalized_cost_fun else None  # else the same sums as weights_sum
     names = model.layer_names + (("cos_i",) if with_cos_i else ())
     counts = [len(e[3]) for e in kept]
     start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
@@ -233,12 +234,14 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut):
             with np.errstate(invalid="ignore", divide="ignore"):
                 wb = np.where(wb > 0, wb / weights_sum32[r0:r1, c0:c1], 0.0).astype(np.float32)
                 weight = (weight / weights_sum32.ravel()[pix]).astype(np.float32)
-        wblend_sum[r0:r1, c0:c1] += wb
+            wblend_sum[r0:r1, c0:c1] += wb
         part = slice(start[i], start[i + 1])
         obs["pix"][part], obs["image"][part], obs["weight"][part] = pix, val, weight
         for n in names:
             obs[n][part] = layers[n]
-    per_pixel = {"weights_sum": weights_sum32, "wblend_sum": wblend_sum}
+    per_pixel = {"weights_sum": weights_sum}
+    if wblend_sum is not None:
+        per_pixel["wblend_sum"] = wblend_sum
     if geo is not None:
         per_pixel["dem"] = geo.dem
     return obs, per_pixel

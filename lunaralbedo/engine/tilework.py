@@ -316,7 +316,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
         alb[b0:b1] = a.reshape(b1 - b0, w_)
         if want_err:
             num = kernels.error_numerator(pix, obs["image"], t_obs * r, w, a, npix)
-            den = per_pixel["wblend_sum"].ravel()
+            den = per_pixel.get("wblend_sum", per_pixel["weights_sum"]).ravel()  # eq. 7's sum of blending weights
             with np.errstate(divide="ignore", invalid="ignore"):
                 err[b0:b1] = np.where(den > 0, num / den, np.nan).astype(np.float32).reshape(b1 - b0, w_)
     write_geotiff(out_dir / "albedo" / name, alb, tile.transform, scene.crs, nodata=float("nan"))
