@@ -297,14 +297,16 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
                 acc[7 * LANES + lane] += j1_ * c1
                 acc[8 * LANES + lane] += j1_ * c2
                 acc[9 * LANES + lane] += j2_ * c2
-        # eq. 4: each image's exposure sums, in lanes by position (a scatter: scalar)
+        # eq. 4: the terms, then each image's exposure sums in lanes by position (a scatter: scalar)
         for i in range(n):
-            a = A[i]
-            ro = R[i]
-            arw = (a * ro) * W[i]
+            ar = A[i] * R[i]
+            arw = ar * W[i]
+            PN[i] = img[i] * arw
+            PD[i] = ar * arw
+        for i in range(n):
             e = (ims[i] * EXP_LANES + i % EXP_LANES) * 2
-            expl[e] += img[i] * arw
-            expl[e + 1] += (a * ro) * arw
+            expl[e] += PN[i]
+            expl[e + 1] += PD[i]
         j0 = j1
     sums = np.zeros(N_SUMS)
     for m in range(N_SUMS):
