@@ -3,6 +3,7 @@ model's numba ``point`` gives what its NumPy functions give."""
 from __future__ import annotations
 
 import dataclasses
+import platform
 from types import SimpleNamespace
 
 import numpy as np
@@ -168,11 +169,11 @@ def test_lunar_lambert_point_is_eq2():
     g = rng.uniform(0.0, 1.2, 10000).astype(np.float32)
     a = rng.uniform(0.0, 1.5, 10000).astype(np.float32)
     c1, c2 = 1.37, 0.48
-    e = np.exp(np.float32(-c1) * a)
+    e = np.exp((np.float32(-c1) * a).astype(np.float64)).astype(np.float32)  # correctly rounded float32 e^x
     r = lunar_lambert.reflectance_from({"geometric": g, "alpha": a}, (c1, c2))
     d1, d2 = lunar_lambert.derivatives_from({"geometric": g, "alpha": a}, (c1, c2))
     assert r.dtype == d1.dtype == d2.dtype == np.float32
-    np.testing.assert_allclose(r, (e + np.float32(c2)) * g, rtol=3e-7)  # 1 ulp of exp (NumPy SIMD vs libm), then 2 products
+    np.testing.assert_allclose(r, (e + np.float32(c2)) * g, rtol=3e-7)  # 1 ulp of exp (vexp vs correctly rounded), then 2 products
     np.testing.assert_allclose(d1, -a * e * g, rtol=3e-7, atol=1e-38)
     np.testing.assert_array_equal(d2, g)
     # float64 (the forward model) stays float64
@@ -242,6 +243,39 @@ def test_sums_do_not_depend_on_anything_but_the_data():
         got = _run(pm, 0, (pm["r"], pm["d0"], pm["d0"]), (), t, 1)
         outs.append(tuple(np.asarray(v).tobytes() for v in got.values()))
     assert outs[0] == outs[1]
+
+
+@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64"), reason="checks x86 packed instructions")
+def test_the_fused_kernel_is_vectorised():
+    """LLVM vectorises the kernel's loops (a conditional load or a sum carried in a register would
+    make them scalar again): packed float32 products and packed float32 -> float64 conversions
+    for the lanes of the 10 global sums.  A fresh, uncached compile (numba cannot show cached code)."""
+    import re
+
+    from numba import njit
+
+    image, r, dr, wt, t = _stacks(seed=6)
+    obs = _compact(wt, image=image, weight=wt, geometric=r, alpha=np.abs(dr[0]))
+    pm = kernels.pixel_major(obs, wt[0].size, ["image", "weight", "geometric", "alpha"])
+    fresh = njit(error_model="numpy")(kernels.iterate_pixels.py_func)
+    k = len(t)
+    fresh(1, pm["offsets"], pm["image_of"], pm["image"], pm["weight"], pm["geometric"], pm["alpha"], pm["geometric"],
+          np.array([1.4, 0.5], np.float32), t, 2, 3, kernels.NO_SHADOW_TEST, pm["image"][:0], np.float32(0), pm["alpha"],
+          np.zeros(k), np.zeros(k), np.zeros((3, 3)), np.zeros(3), np.empty(0, np.float32))
+    asm = fresh.inspect_asm(fresh.signatures[0])
+    count = lambda ins: len(re.findall(r"\bv?" + ins + r"\b", asm))
+    assert count("mulps") >= 10 and count("cvtps2pd") >= 10 and count("addpd") >= 10
+
+
+def test_a_pixel_seen_by_more_images_than_the_kernel_takes_is_an_error():
+    m = kernels.PIXEL_MAX + 1  # one pixel under more images than a uint16 image number holds
+    pm = {"offsets": np.array([0, m], np.int32), "pixels": np.zeros(1, np.int32), "image_of": np.arange(m, dtype=np.int32),
+          "image": np.ones(m, np.float32), "weight": np.ones(m, np.float32), "r": np.ones(m, np.float32), "npix": 1}
+    with pytest.raises(ValueError, match="PIXEL_MAX"):
+        _run(pm, 0, (pm["r"],) * 3, (), np.ones(m, np.float32), 0)
+    pm.update(offsets=np.array([0, m - 1], np.int32), image_of=pm["image_of"][:-1], **{n: pm[n][:-1] for n in ("image", "weight", "r")})
+    got = _run(pm, 0, (pm["r"],) * 3, (), np.ones(m - 1, np.float32), 0)
+    assert got["alb"][0] == 1 and got["n_obs"] == m - 1 and got["q"] == 0  # PIXEL_MAX observations of one pixel: fine
 
 
 def test_memory_cache_keeps_within_budget_and_never_serves_a_replaced_entry(tmp_path):

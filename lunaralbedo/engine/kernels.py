@@ -7,8 +7,8 @@ them in pixel-major order (:func:`pixel_major`, once per block at prepare, see
 one pass, with the photometric model's ``point`` (R and dR/dp) inline; finalise's
 :func:`albedo` and :func:`error_numerator` take any order with a pixel per observation.
 Every product is formed in float32 as the former NumPy code did and summed into float64
-accumulators in one fixed sequential order, so results do not depend on workers or threads.
-``cache=True``, no fastmath (IEEE semantics, no reassociation).
+accumulators in one fixed order (fixed lanes for the global sums), so results do not depend on
+workers or threads.  ``cache=True``, no fastmath (IEEE semantics, no reassociation).
 """
 from __future__ import annotations
 
@@ -99,18 +99,50 @@ def _point(kind, l0, l1, l2, params):
     return l0, l1, l2
 
 
-#: Observations per chunk of :func:`iterate_pixels` (whole pixels; buffers stay in L1/L2).
+#: Observations per chunk of :func:`iterate_pixels` (whole pixels; a pixel with more is a chunk alone).
 CHUNK = 4096
+#: Most observations of one pixel :func:`iterate_pixels` takes (a tile with fewer than 65536
+#: images always fits); with :data:`CHUNK` and a pad, the row length of its float32 work
+#: buffer, whose rows then start in different L1 sets.
+PIXEL_MAX = 65536
+STRIDE = PIXEL_MAX + CHUNK + 32
+#: Lanes of the global sums (Q, the normal equations): observation ``i``
+#: of a chunk goes to lane ``i % LANES``; lanes are combined in lane order at the end.
+LANES = 64
+#: Lanes of each image's exposure sums, by position ``i % EXP_LANES`` in the chunk.
+EXP_LANES = 8
+#: Rows of the float32 work buffer; global sums (Q, then the normal equations' b0, b1, b2, a00,
+#: a01, a02, a11, a12, a22).
+_R, _D0, _D1, _T, _W, _A, _PN, _PD, _ROWS = range(9)
+N_SUMS = 10
+# int32 keys of float32 bits for the phase-angle range (positive floats keep their bits, negative
+# ones get their magnitude bits flipped: the keys order as the floats do; NaN keys exceed +inf's)
+_MAG, _MAX32, _MIN32 = np.int32(0x7FFFFFFF), np.int32(0x7FFFFFFF), np.int32(-0x80000000)
+_INF_KEY, _NINF_KEY = np.int32(0x7F800000), np.int32(-0x7F800001)
 
 
 @njit(cache=True)
-def _points(kind, l0, l1, l2, params, s0, s1, R, D0, D1):
-    """R and dR/dp of observations ``s0:s1`` into chunk buffers (a tight loop: no sums live across ``exp``)."""
-    for o in range(s0, s1):
-        r, d0, d1 = _point(kind, l0[o], l1[o], l2[o], params)
-        R[o - s0] = r
-        D0[o - s0] = d0
-        D1[o - s0] = d1
+def _carry_sums(s, p, first, n, half):
+    """One round of the per-pixel partial sums, between the two buffers of ``s`` (from the first
+    into the second when ``half`` is 1, else back): ``out[i] = (0 if first[i] else prev[i - 1]) + p[i]``
+    (elementwise, vectorised)."""
+    src = s[:STRIDE] if half == 1 else s[STRIDE:]
+    dst = s[STRIDE:] if half == 1 else s[:STRIDE]
+    dst[0] = 0.0 + p[0]
+    prev, out, p1, f1 = src[:n - 1], dst[1:n], p[1:n], first[1:n]
+    for k in range(n - 1):
+        out[k] = (0.0 if f1[k] else prev[k]) + p1[k]
+
+
+@njit(cache=True)
+def _carry_back(ends, src, dst, first, n, t):
+    """One round carrying each pixel's albedo back from its last observation: ``dst[i] = ends[i]``
+    where ``i`` ends a pixel, else ``src[i + 1]`` (``ends`` itself in the first round)."""
+    nxt = ends[1:n] if t == 1 else src[1:n]
+    e, out, last = ends[:n - 1], dst[:n - 1], first[1:n + 1]
+    for k in range(n - 1):
+        out[k] = e[k] if last[k] else nxt[k]
+    dst[n - 1] = ends[n - 1]
 
 
 @njit(cache=True, error_model="numpy")  # IEEE division: I / 0 is inf (lit), 0 / 0 NaN (shadow)
@@ -126,112 +158,179 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
     :math:`I/(\rho T) \ge t` on R or on the layer ``ratio`` (:data:`SHADOW_ON_R`, ...).
     ``n_cols`` Jacobian columns (``n_par`` derivatives, then R; 0: no parameter sums); ``alpha``
     (size 0: not wanted) gives the phase-angle range of the used observations.  ``exp_num``,
-    ``exp_den``, ``jtj``, ``jtr`` (float64) are filled; ``alb`` (float32 per pixel, or size 0)
-    gets the albedo.  Returns ``(Q, n_obs, alpha_min, alpha_max)``.
+    ``exp_den`` (float64) are added to, ``jtj``, ``jtr`` (float64) filled; ``alb`` (float32 per
+    pixel, or size 0) gets the albedo.  Returns ``(Q, n_obs, alpha_min, alpha_max)``.
 
-    Observations go in chunks of whole pixels, in flat loops over the chunk: R and dR/dp
-    (:func:`_points`), the albedo terms, each pixel's albedo, then the sums.  The float32 products are those of the former
-    image-major NumPy/numba code: the albedo equals :func:`albedo`'s bit for bit (each pixel sums
-    its images in tile order) and so do the exposure sums for the same R (each image sums its
-    pixels in row-major order); Q and the normal equations are float64 sums in pixel-major order
-    (equal to image-major sums within float64 rounding).  One fixed order: no dependence on
-    workers or threads.
+    Observations go in chunks of whole pixels, in flat loops over the chunk, nearly all of them
+    elementwise so that LLVM vectorises them (AVX2; ``tests/test_kernels.py`` checks the packed
+    instructions): R and dR/dp (the model's ``point``, whose ``exp`` is
+    :mod:`~lunaralbedo.model.photometry.vexp`), the weights after the shadow test, eq. 3's terms,
+    each pixel's albedo, then the terms of the sums.  The float32 products are formed as the
+    former image-major NumPy code formed them.  Eq. 3's float64 sums run over each pixel's
+    observations in tile order, ``((0 + p0) + p1) + ...``, as :func:`albedo` sums them, so the
+    albedo is the same bits; they are built for every observation at once, round ``t`` extending
+    each partial sum by one more observation (:func:`_carry_sums`), and the albedo is carried
+    back from each pixel's last observation (:func:`_carry_back`).  The global sums (Q and the
+    normal equations) go to :data:`LANES` float64 lanes by position in the chunk, updated
+    elementwise (vectorised with no sum reassociated), each image's exposure sums to
+    :data:`EXP_LANES` lanes (a scatter: scalar, as is the gather of the exposures); lanes are
+    added in lane order at the end.  These sums equal image-major ones within float64 rounding,
+    in one order fixed by the data alone: no dependence on workers or threads.  The phase-angle
+    range is an integer min / max of the angles' bits (order-free, vectorised).  The float32 work
+    rows are slices of one array at constant distances: LLVM then sees that they do not overlap
+    (numba arrays carry no ``noalias``; too many possibly overlapping arrays and it gives up).
     """
     zero = np.float32(0.0)
-    cap = CHUNK + texp.shape[0]  # a chunk holds whole pixels (at most one observation per image each)
-    R, D0, D1 = np.empty(cap, np.float32), np.empty(cap, np.float32), np.empty(cap, np.float32)
-    T, W, A = np.empty(cap, np.float32), np.empty(cap, np.float32), np.empty(cap, np.float32)
-    PN, PD = np.empty(cap, np.float32), np.empty(cap, np.float32)
+    nimg = texp.shape[0]
+    buf = np.empty(_ROWS * STRIDE, np.float32)
+    R, D0, D1 = buf[_R * STRIDE:(_R + 1) * STRIDE], buf[_D0 * STRIDE:(_D0 + 1) * STRIDE], buf[_D1 * STRIDE:(_D1 + 1) * STRIDE]
+    T, W, A = buf[_T * STRIDE:(_T + 1) * STRIDE], buf[_W * STRIDE:(_W + 1) * STRIDE], buf[_A * STRIDE:(_A + 1) * STRIDE]
+    PN, PD = buf[_PN * STRIDE:(_PN + 1) * STRIDE], buf[_PD * STRIDE:(_PD + 1) * STRIDE]
+    sums64 = np.empty(4 * STRIDE)  # eq. 3's float64 partial sums (numerator, denominator), two buffers each
+    SN, SD = sums64[:2 * STRIDE], sums64[2 * STRIDE:]
+    first = np.empty(STRIDE + 1, np.uint8)  # 1 where a pixel starts
+    acc = np.zeros(N_SUMS * LANES)
+    expl = np.zeros(2 * nimg * EXP_LANES)
     want_alb = alb.shape[0] > 0
     want_alpha = alpha.shape[0] > 0
-    q = 0.0
+    shadow_on = shadow != NO_SHADOW_TEST
     n_obs = 0
-    amin = np.inf
-    amax = -np.inf
-    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
-    b0 = b1 = b2 = 0.0
+    abits = alpha.view(np.int32)
+    kmin, kmax = _MAX32, _MIN32
     npx = offsets.shape[0] - 1
     j0 = 0
     while j0 < npx:
         s0 = offsets[j0]
-        j1 = j0 + 1
-        while j1 < npx and offsets[j1 + 1] - s0 <= CHUNK:
-            j1 += 1
+        j1 = max(j0 + 1, np.searchsorted(offsets, s0 + CHUNK, "right") - 1)  # whole pixels, <= CHUNK observations
         s1 = offsets[j1]
         n = s1 - s0
-        _points(kind, l0, l1, l2, params, s0, s1, R, D0, D1)
-        img = image[s0:s1]
-        # per observation: exposure, weight after the shadow test, eq. 3's numerator and denominator terms
+        npc = j1 - j0
+        if n > PIXEL_MAX:
+            raise ValueError("a pixel with more observations than iterate_pixels takes (PIXEL_MAX)")
+        off = offsets[j0:j1 + 1]
+        most = 0  # most observations of one pixel in the chunk
+        for jj in range(npc):
+            most = max(most, off[jj + 1] - off[jj])
+        img, wgt, ims = image[s0:s1], w[s0:s1], image_of[s0:s1]
+        g0, g1, g2 = l0[s0:s1], l1[s0:s1], l2[s0:s1]
+        # R and dR/dp
+        if kind == 1:
+            for i in range(n):
+                R[i], D0[i], D1[i] = _point(1, g0[i], g1[i], g2[i], params)
+        else:
+            for i in range(n):
+                R[i], D0[i], D1[i] = g0[i], g1[i], g2[i]
+        # per observation: exposure (a gather: scalar), weight after the shadow test, eq. 3's terms
         for i in range(n):
-            t = texp[image_of[s0 + i]]
-            wo = w[s0 + i]
-            if shadow != NO_SHADOW_TEST:
-                rho = R[i] if shadow == SHADOW_ON_R else ratio[s0 + i]
-                if not img[i] / (rho * t) >= thresh:  # NaN ratios are shadow, as in dynamic_lit
-                    wo = zero
-            n_obs += wo > 0
-            T[i] = t
-            W[i] = wo
-            tr = t * R[i]
-            trw = tr * wo
+            T[i] = texp[ims[i]]
+        if shadow_on:
+            rat = ratio[s0:s1] if shadow == SHADOW_ON_LAYER else R
+            for i in range(n):
+                lit = img[i] / (rat[i] * T[i]) >= thresh  # NaN ratios are shadow, as in dynamic_lit
+                W[i] = wgt[i] if lit else zero
+        else:
+            W[:n] = wgt
+        for i in range(n):
+            n_obs += W[i] > 0
+        if want_alpha:  # the range of the used phase angles: an integer min / max (order-free, vectorised)
+            ab = abits[s0:s1]
+            for i in range(n):
+                b = ab[i]
+                key = np.int32(b ^ ((b >> 31) & _MAG))  # float32 bits -> int32 in the floats' order
+                used = (W[i] > 0) & (key <= _INF_KEY) & (key >= _NINF_KEY)  # not NaN
+                kmin = min(kmin, key if used else _MAX32)
+                kmax = max(kmax, key if used else _MIN32)
+        for i in range(n):
+            tr = T[i] * R[i]
+            trw = tr * W[i]
             PN[i] = img[i] * trw
             PD[i] = tr * trw
-        # per pixel: the albedo (its images in tile order), 0 in the sums where there is none
-        for j in range(j0, j1):
-            num = 0.0
-            den = 0.0
-            for i in range(offsets[j] - s0, offsets[j + 1] - s0):
-                num += PN[i]
-                den += PD[i]
-            a = np.float32(num / den) if den > 0 else np.float32(np.nan)
-            if want_alb:
-                alb[j] = a
-            if a != a:
-                a = zero
-            for i in range(offsets[j] - s0, offsets[j + 1] - s0):
-                A[i] = a
-        # per observation: eq. 1, eq. 4, eq. 5
+        # eq. 3 per pixel, over the observations: each one's partial sums of its pixel's terms in
+        # tile order (round t extends them by one more observation back: ((0 + p0) + p1) + ...,
+        # the order of albedo()), the albedo where they end, then carried back over the pixel
+        first[:n + 1] = 0
+        for jj in range(npc):
+            first[off[jj] - s0] = 1
+        first[n] = 1  # past the last pixel
         for i in range(n):
-            k = image_of[s0 + i]
-            a = A[i]
-            t = T[i]
-            ro = R[i]
-            wo = W[i]
-            res = img[i] - a * (t * ro)
-            arw = (a * ro) * wo
-            q += res * res * wo
-            exp_num[k] += img[i] * arw
-            exp_den[k] += (a * ro) * arw
-            if n_cols:
+            SN[i] = 0.0 + PN[i]
+            SD[i] = 0.0 + PD[i]
+        for t in range(1, most):
+            _carry_sums(SN, PN, first, n, t % 2)
+            _carry_sums(SD, PD, first, n, t % 2)
+        sn = SN[STRIDE:] if most % 2 == 0 else SN[:STRIDE]
+        sd = SD[STRIDE:] if most % 2 == 0 else SD[:STRIDE]
+        for i in range(n):
+            PN[i] = np.float32(sn[i] / sd[i]) if sd[i] > 0 else np.float32(np.nan)
+        for t in range(1, most):
+            _carry_back(PN, A if t % 2 == 1 else PD, PD if t % 2 == 1 else A, first, n, t)
+        ap = PN if most == 1 else (PD if most % 2 == 0 else A)  # the albedo of each observation's pixel
+        if want_alb:
+            for jj in range(npc):
+                alb[j0 + jj] = ap[off[jj] - s0]
+        for i in range(n):
+            a = ap[i]
+            A[i] = a if a == a else zero
+        # per observation, the terms of eq. 1 and eq. 5 (columns: dR/dp_0, dR/dp_1 when present,
+        # then R) into the lanes, LANES observations at a time
+        for g in range(0, n, LANES):
+            a_, t_, r_, w_, d0_, d1_ = A[g:g + LANES], T[g:g + LANES], R[g:g + LANES], W[g:g + LANES], D0[g:g + LANES], D1[g:g + LANES]
+            im_ = img[g:g + LANES]
+            for lane in range(min(LANES, n - g)):  # elementwise over the lanes: vectorised, no reassociation
+                a = a_[lane]
+                t = t_[lane]
+                ro = r_[lane]
+                wo = w_[lane]
+                res = im_[lane] - a * (t * ro)
                 at = a * t
-                # columns in order: dR/dp_0, dR/dp_1 (when present), then R
-                c0 = at * D0[i] if n_par > 0 else at * ro
-                c1 = (at * D1[i] if n_par > 1 else at * ro) if n_par > 0 else zero
+                c0 = at * d0_[lane] if n_par > 0 else at * ro
+                c1 = (at * d1_[lane] if n_par > 1 else at * ro) if n_par > 0 else zero
                 c2 = at * ro if n_par > 1 else zero
                 j0_, j1_, j2_ = c0 * wo, c1 * wo, c2 * wo
-                b0 += j0_ * res
-                b1 += j1_ * res
-                b2 += j2_ * res
-                a00 += j0_ * c0
-                a01 += j0_ * c1
-                a02 += j0_ * c2
-                a11 += j1_ * c1
-                a12 += j1_ * c2
-                a22 += j2_ * c2
-        if want_alpha:
-            for i in range(n):
-                if W[i] > 0:
-                    amin = min(amin, alpha[s0 + i])
-                    amax = max(amax, alpha[s0 + i])
+                acc[lane] += res * res * wo
+                acc[LANES + lane] += j0_ * res
+                acc[2 * LANES + lane] += j1_ * res
+                acc[3 * LANES + lane] += j2_ * res
+                acc[4 * LANES + lane] += j0_ * c0
+                acc[5 * LANES + lane] += j0_ * c1
+                acc[6 * LANES + lane] += j0_ * c2
+                acc[7 * LANES + lane] += j1_ * c1
+                acc[8 * LANES + lane] += j1_ * c2
+                acc[9 * LANES + lane] += j2_ * c2
+        # eq. 4: the terms, then each image's exposure sums in lanes by position (a scatter: scalar)
+        for i in range(n):
+            ar = A[i] * R[i]
+            arw = ar * W[i]
+            PN[i] = img[i] * arw
+            PD[i] = ar * arw
+        for i in range(n):
+            e = (ims[i] * EXP_LANES + i % EXP_LANES) * 2
+            expl[e] += PN[i]
+            expl[e + 1] += PD[i]
         j0 = j1
+    sums = np.zeros(N_SUMS)
+    for m in range(N_SUMS):
+        for lane in range(LANES):
+            sums[m] += acc[m * LANES + lane]
+    for k in range(nimg):
+        num = 0.0
+        den = 0.0
+        for lane in range(EXP_LANES):
+            num += expl[(k * EXP_LANES + lane) * 2]
+            den += expl[(k * EXP_LANES + lane) * 2 + 1]
+        exp_num[k] += num
+        exp_den[k] += den
     if n_cols:
-        acc = np.array([[a00, a01, a02], [a01, a11, a12], [a02, a12, a22]])
-        vec = np.array([b0, b1, b2])
+        nrm = np.array([[sums[4], sums[5], sums[6]], [sums[5], sums[7], sums[8]], [sums[6], sums[8], sums[9]]])
         for m in range(n_cols):
-            jtr[m] = vec[m]
+            jtr[m] = sums[1 + m]
             for i in range(n_cols):
-                jtj[m, i] = acc[m, i]
-    return q, n_obs, amin, amax
+                jtj[m, i] = nrm[m, i]
+    amin, amax = np.inf, -np.inf
+    if kmin <= kmax:
+        ends = np.array([kmin ^ ((kmin >> 31) & _MAG), kmax ^ ((kmax >> 31) & _MAG)], np.int32).view(np.float32)
+        amin, amax = float(ends[0]), float(ends[1])
+    return sums[0], n_obs, amin, amax
 
 
 @njit(cache=True)

@@ -22,6 +22,7 @@ import numpy as np
 from numba import njit
 
 from .base import PhotometricModel
+from . import vexp
 from .pointwise import evaluate
 
 #: :math:`L(\alpha)` polynomial, alpha in degrees (eq. 2).
@@ -76,7 +77,7 @@ def point(g, alpha, _unused, c):
     The one implementation of the phase factor: the NumPy functions below run it over
     arrays (:func:`.pointwise.evaluate`) and the iterate kernel inlines it.
     """
-    e = math.exp(-c[0] * alpha)
+    e = vexp.exp(-c[0] * alpha)
     return (e + c[1]) * g, -alpha * e * g, g
 
 
