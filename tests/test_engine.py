@@ -55,7 +55,8 @@ def test_blocks_are_cached_pixel_major_and_read_as_they_are_over_the_memory_budg
                                                                                  monkeypatch):
     """The cache holds the iteration's order, so a block over the stack budget is read memory-mapped as it
     is (no reordering every pass) and gives the bytes of a run that keeps its stacks in memory; a cache
-    of another layout (no ``layout`` in its meta) is prepared again, not misread."""
+    of another layout (no ``layout`` in its meta) is prepared again, not misread; a finished tile's blocks
+    are deleted by its finalise task."""
     import numpy as np
 
     from lunaralbedo.engine import tilework
@@ -89,6 +90,14 @@ def test_blocks_are_cached_pixel_major_and_read_as_they_are_over_the_memory_budg
     solve(scene / "settings.txt", out=out, workers=1, plots=False)
     assert tilework.STACKS.nbytes == 0
     same_results(reference, out)
+
+    # a finished tile drops its cached blocks (not its meta); a task run again reports the tile as done
+    state = tilework.SolveState(np.ones(len(sc.images)), sc.settings.initial_params.copy())
+    first = tilework.finalize_tile(t, scene=sc, cache_root=cache, out_dir=tmp_path / "tiles", state=state)
+    assert first["reused"] is False and first["valid_pixels"] > 0
+    assert not list(folder.glob("block_*")) and (folder / "meta.json").is_file()
+    again = tilework.finalize_tile(t, scene=sc, cache_root=cache, out_dir=tmp_path / "tiles", state=state)
+    assert again == {**first, "reused": True}
 
 
 def _start(scene: Path, out: Path, *extra: str) -> subprocess.Popen:

@@ -20,6 +20,7 @@ fit the memory budget is read as it is, memory-mapped, and never reordered again
 from __future__ import annotations
 
 import os
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -286,7 +287,12 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     ``weightsSum`` is written last, so with ``skip_done`` (a resumed run whose final
     state was already fixed) a tile that has it is complete and is not redone.  The
     blocks are read one at a time; a whole-tile raster is held for each output while it
-    is written (4 bytes per pixel, 8 for albedo and error together).
+    is written (4 bytes per pixel, 8 for albedo and error together).  Once the tile is
+    complete its cached blocks are deleted (nothing reads them again, a resumed run
+    neither), so the cache goes in parallel over the workers instead of in one serial
+    delete at the end; the tile's ``meta.json`` stays for the report.  A task that runs
+    again after that (a retried Dask task) finds the tile complete and its blocks gone,
+    and reports it as reused.
     """
     s = scene.settings
     tile = scene.tiles[t]
@@ -297,7 +303,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
         STACKS.discard(folder / f"block_{i:04d}")  # the iterations are over: free the memory
     h, w_ = tile.height, tile.width
     name = f"{tile.name}.tif"
-    if skip_done and (out_dir / "weightsSum" / name).exists():
+    if (out_dir / "weightsSum" / name).exists() and (skip_done or not (folder / "block_0000").exists()):
         import rasterio
 
         with rasterio.open(out_dir / "albedo" / name) as ds:
@@ -330,6 +336,8 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
                       nodata=float("nan"))
     write_geotiff(out_dir / "weightsSum" / name, _per_pixel_tile(folder, meta, "weights_sum", (h, w_)), tile.transform,
                   scene.crs)
+    for i in range(len(meta["blocks"])):  # the tile is complete: its observations are not needed again
+        shutil.rmtree(folder / f"block_{i:04d}", ignore_errors=True)
     return {**_tile_images(scene, t, idx), "valid_pixels": valid, "reused": False}
 
 
