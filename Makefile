@@ -44,3 +44,4 @@ sample-data: $(STAMP)
 
 clean:
 	rm -rf $(DEMO) build *.egg-info .pytest_cache
+	find lunaralbedo -name '*.nbi' -o -name '*.nbc' | xargs rm -f  # numba caches (docs/architecture.md)

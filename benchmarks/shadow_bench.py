@@ -5,11 +5,11 @@ Records once (``--record``, with any checkout) the pixel lists the solver's prep
 ``TileShadows.shadowed`` about, tile by tile and image by image, with the answers; then times
 (CPU time, user + sys) building each tile's :class:`~lunaralbedo.engine.terrain.TileShadows`
 (DEM read with its margin, the march's tables) and answering those lists, and checks that
-the answers equal the recorded ones.  ``--src DIR`` times another checkout (e.g. ``/work/main``)
+the answers equal the recorded ones.  ``--src DIR`` times another checkout (e.g. the previous release)
 in a child process, so before and after run back to back on the same lists::
 
     PYTHONPATH=$PWD python benchmarks/shadow_bench.py --record          # once (bench_out/strip_2000)
-    PYTHONPATH=$PWD python benchmarks/shadow_bench.py --src /work/main  # before, then after
+    PYTHONPATH=$PWD python benchmarks/shadow_bench.py --src OTHER_CHECKOUT  # before, then after
 
 Per observation = per image pixel of the scene (24 x 320 x 2000), as item 6 counts.
 """
