@@ -21,7 +21,6 @@ import os
 import pickle
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
