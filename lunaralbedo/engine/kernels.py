@@ -272,8 +272,14 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
             a = ap[i]
             A[i] = a if a == a else zero
         # per observation, the terms of eq. 1 and eq. 5 (columns: dR/dp_0, dR/dp_1 when present,
-        # then R) into the lanes, LANES observations at a time
-        for g in range(0, n, LANES):
+        # then R) into the lanes, LANES observations at a time; eq. 1 alone when no parameter is fitted
+        if not n_cols:
+            for g in range(0, n, LANES):
+                a_, t_, r_, w_, im_ = A[g:g + LANES], T[g:g + LANES], R[g:g + LANES], W[g:g + LANES], img[g:g + LANES]
+                for lane in range(min(LANES, n - g)):
+                    res = im_[lane] - a_[lane] * (t_[lane] * r_[lane])
+                    acc[lane] += res * res * w_[lane]
+        for g in range(0, n if n_cols else 0, LANES):
             a_, t_, r_, w_, d0_, d1_ = A[g:g + LANES], T[g:g + LANES], R[g:g + LANES], W[g:g + LANES], D0[g:g + LANES], D1[g:g + LANES]
             im_ = img[g:g + LANES]
             for lane in range(min(LANES, n - g)):  # elementwise over the lanes: vectorised, no reassociation
