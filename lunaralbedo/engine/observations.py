@@ -219,8 +219,10 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut):
         # compact at once: only the window's blending weights stay (for eq. 7's denominator)
         kept.append((k, (r0 - b0, r1 - b0, c0, c1), wb if s.use_normalized_cost_fun else None, pix, value, weight,
                      {n: np.asarray(layers[n]).astype(np.float32, copy=False) for n in layers}))
-    weights_sum32 = weights_sum.astype(np.float32)
-    wblend_sum = np.zeros((h, w)) if s.use_normalized_cost_fun else None  # else the same sums as weights_sum
+    if s.use_normalized_cost_fun:  # the weights are divided by their float32 sums; eq. 7 then has its own denominator
+        weights_sum32, wblend_sum = weights_sum.astype(np.float32), np.zeros((h, w))
+    else:
+        wblend_sum = None  # eq. 7's denominator is weights_sum itself
     names = model.layer_names + (("cos_i",) if with_cos_i else ())
     counts = [len(e[3]) for e in kept]
     start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
