@@ -234,9 +234,9 @@ def test_ingest_cubes_in_parallel_match_serial(tmp_path):
     "kind, expect",
     [
         ("slurm", ["#SBATCH -p normal", "#SBATCH -A lunar", "#SBATCH -t 04:00:00", "--nworkers 4", "--nthreads 1",
-                   "export MALLOC_MMAP_THRESHOLD_="]),
+                   "export MALLOC_MMAP_THRESHOLD_=", "export DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False"]),
         ("pbs", ["#PBS -q normal", "#PBS -l walltime=04:00:00", "ncpus=4", "--nworkers 4", "--nthreads 1",
-                 "export MALLOC_MMAP_THRESHOLD_="]),
+                 "export MALLOC_MMAP_THRESHOLD_=", "export DASK_DISTRIBUTED__ADMIN__TICK__INTERVAL=1s"]),
     ],
 )
 def test_batch_cluster_job_scripts(kind, expect):
@@ -251,3 +251,26 @@ def test_batch_cluster_job_scripts(kind, expect):
         cluster.close()
     for e in expect:
         assert e in script, script
+
+
+def test_local_workers_run_without_dashboard_monitors():
+    """A local cluster's workers and scheduler get DASK_CONFIG (no task profiler, slow ticks) and WORKER_ENV."""
+    import os
+
+    import dask
+
+    from lunaralbedo.parallel.executor import make_executor
+    from lunaralbedo.parallel.workers import DASK_CONFIG
+
+    ex = make_executor(2)
+    try:
+        seen = ex.client.run(lambda: ({k: dask.config.get(k) for k in DASK_CONFIG},
+                                      os.environ.get("MALLOC_MMAP_THRESHOLD_")))
+        tick_ms = ex.client.run_on_scheduler(lambda dask_scheduler: dask_scheduler.periodic_callbacks["tick"].callback_time)
+        assert ex.map(abs, [-3, 2, -1]) == [3, 2, 1]  # results in the order of the items
+    finally:
+        ex.close()
+    assert len(seen) == 2
+    for config, malloc in seen.values():
+        assert config == DASK_CONFIG and malloc == str(64 * 2**20)
+    assert tick_ms == 1000  # the scheduler's event-loop tick, 20 ms by Dask's default

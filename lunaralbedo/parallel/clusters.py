@@ -74,7 +74,8 @@ def jobqueue_cluster(kind: str, opts: dict):
     kwargs.setdefault("processes", kwargs["cores"])
     kwargs.setdefault("scheduler_options", {"dashboard_address": None})
     kwargs.setdefault("job_script_prologue", [f"export {k}={v}" for k, v in WORKER_ENV.items()])
-    return cls(**kwargs)
+    with worker_config():  # the scheduler runs here; the jobs' workers get WORKER_ENV from the prologue
+        return cls(**kwargs)
 
 
 def jobqueue_client(kind: str, opts: dict):

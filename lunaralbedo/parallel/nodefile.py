@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 from ..errors import LunarAlbedoError
-from .workers import WORKER_ENV
+from .workers import WORKER_ENV, worker_config
 
 REMOTE_SHELL_ENV = "LUNARALBEDO_REMOTE_SHELL"
 _LOCAL_NAMES = {"localhost", "127.0.0.1", socket.gethostname(), socket.getfqdn()}
@@ -57,7 +57,8 @@ def nodefile_client(hosts: list[str], processes_per_node: int, timeout: float = 
     """Start a scheduler here and workers on ``hosts``; return ``(client, [owned objects])``."""
     from distributed import Client, LocalCluster
 
-    cluster = LocalCluster(n_workers=0, host="0.0.0.0", scheduler_port=0, dashboard_address=None, silence_logs=40)
+    with worker_config():  # the scheduler's settings (the workers get theirs from WORKER_ENV)
+        cluster = LocalCluster(n_workers=0, host="0.0.0.0", scheduler_port=0, dashboard_address=None, silence_logs=40)
     port = cluster.scheduler_address.rsplit(":", 1)[1]
     address = f"tcp://{socket.getfqdn()}:{port}"
     shell = shlex.split(os.environ.get(REMOTE_SHELL_ENV, "ssh -o BatchMode=yes"))
