@@ -82,13 +82,17 @@ class DaskExecutor:
         if not items:
             return []
         args = {k: (self._scatter(v) if k in shared else v) for k, v in kwargs.items()}
-        futures = [self.client.submit(run_task, fn, x, pure=False, **args) for x in items]
+        # one graph update for all items, and ``gather`` (which raises the first task error as it
+        # comes): 1.7 ms of this process's CPU per task, against 4.5 ms for one ``submit`` per item
+        # followed by ``as_completed`` (docs/performance.md, section 0b); that loop only feeds the bar
+        futures = self.client.map(run_task, [fn] * len(items), items, pure=False, **args)
         try:
-            with tqdm(total=len(futures), desc=desc, disable=not self.progress, leave=False) as bar:
-                for fut in as_completed(futures):
-                    if fut.status == "error":
-                        raise _first_error(fut)
-                    bar.update(1)
+            if self.progress:
+                with tqdm(total=len(futures), desc=desc, leave=False) as bar:
+                    for fut in as_completed(futures):
+                        if fut.status == "error":
+                            raise _first_error(fut)
+                        bar.update(1)
             return self.client.gather(futures)
         except BaseException as exc:
             self.client.cancel(futures)  # the first real error is raised; the remaining tasks stop
