@@ -230,8 +230,6 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
                 W[i] = wgt[i] if lit else zero
         else:
             W[:n] = wgt
-        for i in range(n):
-            n_obs += W[i] > 0
         if want_alpha:  # the range of the used phase angles: an integer min / max (order-free, vectorised)
             ab = abits[s0:s1]
             for i in range(n):
@@ -240,11 +238,18 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
                 used = (W[i] > 0) & (key <= _INF_KEY) & (key >= _NINF_KEY)  # not NaN
                 kmin = min(kmin, key if used else _MAX32)
                 kmax = max(kmax, key if used else _MIN32)
+        # eq. 3's terms, each observation's first partial sums (see below) and the count, in one pass
         for i in range(n):
+            wo = W[i]
+            n_obs += wo > 0
             tr = T[i] * R[i]
-            trw = tr * W[i]
-            PN[i] = img[i] * trw
-            PD[i] = tr * trw
+            trw = tr * wo
+            pn = img[i] * trw
+            pd = tr * trw
+            PN[i] = pn
+            PD[i] = pd
+            SN[i] = 0.0 + pn
+            SD[i] = 0.0 + pd
         # eq. 3 per pixel, over the observations: each one's partial sums of its pixel's terms in
         # tile order (round t extends them by one more observation back: ((0 + p0) + p1) + ...,
         # the order of albedo()), the albedo where they end, then carried back over the pixel
@@ -252,9 +257,6 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
         for jj in range(npc):
             first[off[jj] - s0] = 1
         first[n] = 1  # past the last pixel
-        for i in range(n):
-            SN[i] = 0.0 + PN[i]
-            SD[i] = 0.0 + PD[i]
         for t in range(1, most):
             _carry_sums(SN, PN, first, n, t % 2)
             _carry_sums(SD, PD, first, n, t % 2)
