@@ -20,13 +20,12 @@ fit the memory budget is read as it is, memory-mapped, and never reordered again
 from __future__ import annotations
 
 import os
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..io.cache import MemoryCache, building, load_stack, save_meta, save_stack
+from ..io.cache import MemoryCache, building, discard, load_stack, save_meta, save_stack
 from ..io.rasters import write_geotiff
 from ..model import exposure_init, shadows, updates
 from . import kernels, observations
@@ -68,6 +67,8 @@ class TileSums:
 
 #: Version of the cache layout above (2: pixel-major observations); ``meta.json`` records it.
 CACHE_LAYOUT = 2
+#: Folder of the cache root where finished tiles' blocks go to be deleted in the background.
+TRASH = ".discarded"
 
 
 def _cache_dir(cache_root: Path, scene: Scene, t: int) -> Path:
@@ -336,8 +337,8 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
                       nodata=float("nan"))
     write_geotiff(out_dir / "weightsSum" / name, _per_pixel_tile(folder, meta, "weights_sum", (h, w_)), tile.transform,
                   scene.crs)
-    for i in range(len(meta["blocks"])):  # the tile is complete: its observations are not needed again
-        shutil.rmtree(folder / f"block_{i:04d}", ignore_errors=True)
+    # the tile is complete: its observations are not needed again (deleted in the background)
+    discard([folder / f"block_{i:04d}" for i in range(len(meta["blocks"]))], cache_root / TRASH)
     return {**_tile_images(scene, t, idx), "valid_pixels": valid, "reused": False}
 
 

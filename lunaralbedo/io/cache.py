@@ -13,6 +13,7 @@ import os
 import shutil
 import tempfile
 import threading
+import uuid
 from collections import OrderedDict
 from contextlib import contextmanager
 from pathlib import Path
@@ -91,6 +92,50 @@ def building(folder: str | Path):
         if isinstance(exc, OSError) and str(tmp) in str(exc.filename or ""):  # name the entry, not the temporary
             raise OSError(exc.errno, exc.strerror or str(exc), str(folder)) from exc
         raise
+
+
+_DELETER = None
+_DELETER_LOCK = threading.Lock()
+
+
+def _deleter():
+    """This process's one background thread that deletes discarded entries (created on first use)."""
+    global _DELETER
+    with _DELETER_LOCK:
+        if _DELETER is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            _DELETER = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lunaralbedo-delete")
+        return _DELETER
+
+
+def discard(folders, trash: str | Path) -> None:
+    """Remove cache entries without waiting for it: each folder is renamed into ``trash`` (created
+    if its parent exists; a rename is instant) and deleted by a background thread of this process.
+
+    Deleting a file whose pages the kernel is still writing to disk waits for that write: on
+    the 50-image benchmark scene the workers' finalise tasks spent 5.7 s each blocked so
+    (docs/performance.md, section 0b).  In the background the wait overlaps the next task.
+    An entry that cannot be renamed (no parent for ``trash``, another file system) is deleted
+    here and now.  Whatever is left goes with the run's checkpoint folder.
+    """
+    trash = Path(trash)
+    for folder in map(Path, folders):
+        if not folder.exists():
+            continue
+        try:
+            trash.mkdir(exist_ok=True)
+            gone = trash / uuid.uuid4().hex
+            os.rename(folder, gone)
+        except OSError:
+            shutil.rmtree(folder, ignore_errors=True)
+            continue
+        _deleter().submit(shutil.rmtree, gone, ignore_errors=True)
+
+
+def wait_for_discarded() -> None:
+    """Wait until this process's background deletions (:func:`discard`) are done."""
+    _deleter().submit(lambda: None).result()
 
 
 def _stamp(folder: Path):
