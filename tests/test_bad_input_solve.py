@@ -131,3 +131,32 @@ def test_debug_prints_the_traceback(scene):
     res = cli("--debug", "solve", scene / "settings.txt", "-o", scene.parent / "out", "--quiet", "--workers", "1")
     assert res.exit_code == 2
     assert "Traceback" in res.stderr and res.stderr.strip().splitlines()[-1].startswith("error: ")
+
+
+def test_a_failed_run_folder_is_renamed_away_before_it_is_deleted(tmp_path, monkeypatch):
+    """remove_tree: the folder is gone at once (renamed, then deleted: a task still writing by its old path
+    finds nothing), nothing is left beside it, and where the rename fails it is deleted in place."""
+    import os
+
+    from lunaralbedo.io import atomic
+    from lunaralbedo.io.cache import save_stack
+
+    out = tmp_path / "out"
+    (out / "checkpoint" / "cache").mkdir(parents=True)
+    seen = []
+    real = atomic.shutil.rmtree
+
+    def rmtree(path, ignore_errors=False):
+        seen.append(Path(path))
+        with pytest.raises(FileNotFoundError):  # a late task of the failed run: its cache root is gone
+            save_stack(out / "checkpoint" / "cache" / "tile_0E0N", {"x": np.zeros(3, np.float32)}, {})
+        real(path, ignore_errors=ignore_errors)
+
+    monkeypatch.setattr(atomic.shutil, "rmtree", rmtree)
+    atomic.remove_tree(out)
+    assert seen[0].name.startswith(atomic.TMP_PREFIX) and not out.exists() and list(tmp_path.iterdir()) == []
+    (out / "x").mkdir(parents=True)
+    monkeypatch.setattr(atomic.shutil, "rmtree", real)
+    monkeypatch.setattr(os, "rename", lambda *a: (_ for _ in ()).throw(OSError("cross-device")))
+    atomic.remove_tree(out)
+    assert list(tmp_path.iterdir()) == []

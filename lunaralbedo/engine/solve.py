@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import ResumeError, SettingsError, SolverError, typed_error
 from ..io import outputs
-from ..io.atomic import remove_stale_temporaries
+from ..io.atomic import remove_stale_temporaries, remove_tree
 from ..io.guard import check_output_dir
 from ..model import exposure_init, updates
 from ..settings import Settings, load_settings
@@ -189,7 +189,7 @@ def solve(
         typed = typed_error(exc)
         resumable = (out / CHECKPOINT_DIR).exists() and not (typed is not None and typed.exit_code == 2)
         if created and not resume and not resumable:
-            shutil.rmtree(out, ignore_errors=True)  # bad input (or nothing to resume): leave nothing behind
+            remove_tree(out)  # bad input (or nothing to resume): leave nothing behind
         raise
     finally:
         executor.close()
