@@ -13,13 +13,14 @@ import os
 import shutil
 import tempfile
 import threading
-import uuid
 from collections import OrderedDict
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
+
+from .atomic import move_aside
 
 
 def _ensure_parent(folder: Path) -> None:
@@ -123,14 +124,13 @@ def discard(folders, trash: str | Path) -> None:
     for folder in map(Path, folders):
         if not folder.exists():
             continue
-        try:
+        with suppress(OSError):
             trash.mkdir(exist_ok=True)
-            gone = trash / uuid.uuid4().hex
-            os.rename(folder, gone)
-        except OSError:
+        gone = move_aside(folder, trash) if trash.is_dir() else folder
+        if gone == folder:
             shutil.rmtree(folder, ignore_errors=True)
-            continue
-        _deleter().submit(shutil.rmtree, gone, ignore_errors=True)
+        else:
+            _deleter().submit(shutil.rmtree, gone, ignore_errors=True)
 
 
 def wait_for_discarded() -> None:
