@@ -289,9 +289,10 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     state was already fixed) a tile that has it is complete and is not redone.  The
     blocks are read one at a time; a whole-tile raster is held for each output while it
     is written (4 bytes per pixel, 8 for albedo and error together).  Once the tile is
-    complete its cached blocks are deleted (nothing reads them again, a resumed run
-    neither), so the cache goes in parallel over the workers instead of in one serial
-    delete at the end; the tile's ``meta.json`` stays for the report.  A task that runs
+    complete its cached blocks are discarded (nothing reads them again, a resumed run
+    neither): moved into :data:`TRASH` at once and deleted on a background thread
+    (:func:`lunaralbedo.io.cache.discard`), so the cache goes in parallel over the workers
+    and no task waits for the disk; the tile's ``meta.json`` stays for the report.  A task that runs
     again after that (a retried Dask task) finds the tile complete and its blocks gone,
     and reports it as reused.
     """
