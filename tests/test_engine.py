@@ -234,9 +234,11 @@ def test_ingest_cubes_in_parallel_match_serial(tmp_path):
     "kind, expect",
     [
         ("slurm", ["#SBATCH -p normal", "#SBATCH -A lunar", "#SBATCH -t 04:00:00", "--nworkers 4", "--nthreads 1",
-                   "export MALLOC_MMAP_THRESHOLD_=", "export DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False"]),
+                   "export MALLOC_MMAP_THRESHOLD_=67108864", "export MALLOC_TRIM_THRESHOLD_=268435456",
+                   "export DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False"]),
         ("pbs", ["#PBS -q normal", "#PBS -l walltime=04:00:00", "ncpus=4", "--nworkers 4", "--nthreads 1",
-                 "export MALLOC_MMAP_THRESHOLD_=", "export DASK_DISTRIBUTED__ADMIN__TICK__INTERVAL=1s"]),
+                 "export MALLOC_MMAP_THRESHOLD_=67108864", "export MALLOC_TRIM_THRESHOLD_=268435456",
+                 "export DASK_DISTRIBUTED__ADMIN__TICK__INTERVAL=1s"]),
     ],
 )
 def test_batch_cluster_job_scripts(kind, expect):
@@ -253,24 +255,63 @@ def test_batch_cluster_job_scripts(kind, expect):
         assert e in script, script
 
 
+#: Minor page faults of allocating, filling and freeing a 2 MiB NumPy array ten times (512 pages of 4 KiB; NumPy
+#: asks for huge pages from 4 MiB on, which would hide the count).
+FAULTS_OF_REUSE = """
+import resource, numpy as np
+def faults_of_reuse():
+    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for _ in range(10):
+        a = np.empty(2**18)
+        a[:] = 1.0
+        del a
+    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0
+"""
+
+
+def test_tune_malloc_lets_freed_arrays_be_reused():
+    """Under Dask's nanny setting (MALLOC_TRIM_THRESHOLD_=65536) every freed array goes back to the kernel and
+    the next one is page-faulted in anew; after tune_malloc() the heap keeps it for the next."""
+    code = FAULTS_OF_REUSE + """
+from lunaralbedo.parallel.workers import tune_malloc
+before = faults_of_reuse()
+ok = tune_malloc()
+faults_of_reuse()  # the first array after the change may still fault in
+print(before, ok, faults_of_reuse())
+"""
+    env = {**os.environ, "MALLOC_TRIM_THRESHOLD_": "65536"}
+    env.pop("MALLOC_MMAP_THRESHOLD_", None)
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    before, ok, after = out.stdout.split()
+    assert ok == "True"
+    assert int(before) >= 8 * 512, out.stdout  # every array faulted in again
+    assert int(after) <= 512, out.stdout  # reused: at most one array's pages in ten rounds
+
+
 def test_local_workers_run_without_dashboard_monitors():
-    """A local cluster's workers and scheduler get DASK_CONFIG (no task profiler, slow ticks) and WORKER_ENV."""
+    """A local cluster's workers and scheduler get DASK_CONFIG (no task profiler, slow ticks) and WORKER_ENV,
+    whose malloc settings take effect: the workers reuse freed arrays instead of faulting them in again."""
     import os
 
     import dask
 
     from lunaralbedo.parallel.executor import make_executor
-    from lunaralbedo.parallel.workers import DASK_CONFIG
+    from lunaralbedo.parallel.workers import DASK_CONFIG, MALLOC_ENV
 
     ex = make_executor(2)
     try:
         seen = ex.client.run(lambda: ({k: dask.config.get(k) for k in DASK_CONFIG},
-                                      os.environ.get("MALLOC_MMAP_THRESHOLD_")))
+                                      {k: os.environ.get(k) for k in MALLOC_ENV}))
+        scope: dict = {}
+        exec(FAULTS_OF_REUSE, scope)
+        ex.client.run(scope["faults_of_reuse"])  # the first array may fault in
+        faults = ex.client.run(scope["faults_of_reuse"])
         tick_ms = ex.client.run_on_scheduler(lambda dask_scheduler: dask_scheduler.periodic_callbacks["tick"].callback_time)
         assert ex.map(abs, [-3, 2, -1]) == [3, 2, 1]  # results in the order of the items
     finally:
         ex.close()
-    assert len(seen) == 2
+    assert len(seen) == 2 and len(faults) == 2
     for config, malloc in seen.values():
-        assert config == DASK_CONFIG and malloc == str(64 * 2**20)
+        assert config == DASK_CONFIG and malloc == {k: str(v) for k, v in MALLOC_ENV.items()}
+    assert all(f <= 512 for f in faults.values()), faults
     assert tick_ms == 1000  # the scheduler's event-loop tick, 20 ms by Dask's default

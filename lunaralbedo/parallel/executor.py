@@ -14,6 +14,7 @@ from tqdm.auto import tqdm
 from ..errors import ClusterError, LunarAlbedoError, typed_error
 from . import clusters
 from .nodefile import nodefile_client, pbs_nodes
+from .workers import tune_malloc
 
 
 class SerialExecutor:
@@ -201,6 +202,7 @@ def make_executor(
     if hosts:
         client, owned = nodefile_client(hosts, max(1, workers))
         return DaskExecutor(client, f"PBS_NODEFILE ({len(hosts)} nodes x {max(1, workers)} processes)", progress, owned=owned)
+    tune_malloc()  # for tasks run in this process (one worker, threads); Dask workers get WORKER_ENV
     if workers <= 1:
         return SerialExecutor(progress)
     if local == "processes":

@@ -23,13 +23,44 @@ def _env_name(key: str) -> str:
     return "DASK_" + "__".join(part.upper().replace("-", "_") for part in key.split("."))
 
 
-#: Environment of worker processes.  Dask's nanny sets MALLOC_TRIM_THRESHOLD_, which
-#: freezes glibc's mmap threshold at 128 KiB: every multi-megabyte NumPy temporary is
-#: then a fresh mmap with page faults (measured 1.5-2x slower tile tasks).  A 64 MiB
-#: threshold lets temporaries reuse heap memory, as in a plain Python process.  The
-#: :data:`DASK_CONFIG` settings go along as Dask's environment variables, for workers
-#: started by batch jobs or ``dask worker`` on PBS_NODEFILE nodes.
-WORKER_ENV = {"MALLOC_MMAP_THRESHOLD_": 64 * 2**20, **{_env_name(k): v for k, v in DASK_CONFIG.items()}}
+#: glibc malloc settings of the processes that run tile tasks.  A tile task allocates and
+#: frees NumPy and numba arrays of 1-60 MB; with glibc's defaults many of them are fresh
+#: mmaps, and Dask's nanny sets MALLOC_TRIM_THRESHOLD_ to 64 KiB, which freezes glibc's
+#: mmap threshold at 128 KiB and hands freed heap memory back at once: each array is then
+#: page-faulted in anew, at ~2.5 µs per 4 KiB page on this project's machine (measured:
+#: 150 000 faults and 0.3-0.4 s of kernel time in preparing the strip scene of
+#: docs/performance.md, 15 000 with these).  Arrays up to 64 MiB come from the heap, and up to
+#: 256 MiB of freed memory at its top is kept for the next block or tile: the peak resident
+#: memory does not change (what is kept was in use just before).
+MALLOC_ENV = {"MALLOC_MMAP_THRESHOLD_": 64 * 2**20, "MALLOC_TRIM_THRESHOLD_": 256 * 2**20}
+
+#: Environment of worker processes: :data:`MALLOC_ENV` (it overrides the nanny's own
+#: MALLOC_TRIM_THRESHOLD_), and the :data:`DASK_CONFIG` settings as Dask's environment
+#: variables, for workers started by batch jobs or ``dask worker`` on PBS_NODEFILE nodes.
+WORKER_ENV = {**MALLOC_ENV, **{_env_name(k): v for k, v in DASK_CONFIG.items()}}
+
+#: mallopt(3) parameter numbers of glibc's <malloc.h>.
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+
+
+def tune_malloc() -> bool:
+    """Apply :data:`MALLOC_ENV` to this process (``mallopt``) for tile tasks run in it; False where
+    the C library has no ``mallopt`` (not glibc): nothing changes there.
+
+    Called for in-process runs (one worker, thread pools); worker processes get
+    :data:`MALLOC_ENV` in their environment, which glibc reads at start.  Process-wide: a
+    notebook that ran a solve keeps up to 256 MiB of freed memory for reuse.
+    """
+    import ctypes
+
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return False
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    trimmed = mallopt(_M_TRIM_THRESHOLD, MALLOC_ENV["MALLOC_TRIM_THRESHOLD_"])
+    mapped = mallopt(_M_MMAP_THRESHOLD, MALLOC_ENV["MALLOC_MMAP_THRESHOLD_"]) or mallopt(_M_MMAP_THRESHOLD, 32 * 2**20)
+    return bool(trimmed and mapped)  # 32 MiB: the most older glibc versions accept
 
 
 def worker_config():
