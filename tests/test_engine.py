@@ -270,22 +270,29 @@ def faults_of_reuse():
 
 
 def test_tune_malloc_lets_freed_arrays_be_reused():
-    """Under Dask's nanny setting (MALLOC_TRIM_THRESHOLD_=65536) every freed array goes back to the kernel and
-    the next one is page-faulted in anew; after tune_malloc() the heap keeps it for the next."""
+    """In the state Dask's nanny leaves glibc in (MALLOC_TRIM_THRESHOLD_=65536: trim threshold 64 KiB, mmap
+    threshold frozen at 128 KiB) every freed array goes back to the kernel and the next one is page-faulted
+    in anew; after tune_malloc() the heap keeps it for the next.  A user's own MALLOC_* variable is left alone."""
     code = FAULTS_OF_REUSE + """
+import ctypes
 from lunaralbedo.parallel.workers import tune_malloc
+mallopt = ctypes.CDLL(None).mallopt
+assert mallopt(-1, 65536) and mallopt(-3, 128 * 1024)  # M_TRIM_THRESHOLD, M_MMAP_THRESHOLD: the nanny's state
 before = faults_of_reuse()
 ok = tune_malloc()
 faults_of_reuse()  # the first array after the change may still fault in
 print(before, ok, faults_of_reuse())
 """
-    env = {**os.environ, "MALLOC_TRIM_THRESHOLD_": "65536"}
-    env.pop("MALLOC_MMAP_THRESHOLD_", None)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     before, ok, after = out.stdout.split()
     assert ok == "True"
     assert int(before) >= 8 * 512, out.stdout  # every array faulted in again
     assert int(after) <= 512, out.stdout  # reused: at most one array's pages in ten rounds
+    out = subprocess.run([sys.executable, "-c", code], env={**env, "MALLOC_TRIM_THRESHOLD_": "65536"},
+                         capture_output=True, text=True, check=True)
+    before, ok, after = out.stdout.split()
+    assert ok == "False" and int(after) >= 8 * 512, out.stdout  # the user's setting stays in force
 
 
 def test_local_workers_run_without_dashboard_monitors():

@@ -45,7 +45,8 @@ _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
 
 def tune_malloc() -> bool:
     """Apply :data:`MALLOC_ENV` to this process (``mallopt``) for tile tasks run in it; False where
-    the C library has no ``mallopt`` (not glibc): nothing changes there.
+    the C library has no ``mallopt`` (not glibc) or the user set one of its variables: nothing
+    changes then.
 
     Called for in-process runs (one worker, thread pools); worker processes get
     :data:`MALLOC_ENV` in their environment, which glibc reads at start.  Process-wide: a
@@ -53,9 +54,11 @@ def tune_malloc() -> bool:
     """
     import ctypes
 
+    if any(k in os.environ for k in MALLOC_ENV):  # the user's own settings win, as with Dask's nanny
+        return False
     try:
         mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):
+    except (OSError, AttributeError, TypeError):  # no mallopt (macOS), no CDLL(None) (Windows)
         return False
     mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
     trimmed = mallopt(_M_TRIM_THRESHOLD, MALLOC_ENV["MALLOC_TRIM_THRESHOLD_"])
