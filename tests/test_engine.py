@@ -61,7 +61,7 @@ def test_blocks_are_cached_pixel_major_and_read_as_they_are_over_the_memory_budg
 
     from lunaralbedo.engine import tilework
     from lunaralbedo.engine.scene import build_scene
-    from lunaralbedo.io.cache import load_stack
+    from lunaralbedo.io.cache import load_stack, mapped
     from lunaralbedo.settings import load_settings
 
     sc = build_scene(load_settings(scene / "settings.txt"))
@@ -85,7 +85,7 @@ def test_blocks_are_cached_pixel_major_and_read_as_they_are_over_the_memory_budg
     monkeypatch.setattr(tilework.STACKS, "budget", 0)
     tilework.STACKS.clear()
     got = tilework.pixel_stack(folder / "block_0000", cache)
-    assert isinstance(got["image"], np.memmap) and tilework.STACKS.nbytes == 0
+    assert mapped(got["image"]) and tilework.STACKS.nbytes == 0
     out = tmp_path / "out"
     solve(scene / "settings.txt", out=out, workers=1, plots=False)
     assert tilework.STACKS.nbytes == 0

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from lunaralbedo.engine import kernels, tilework
-from lunaralbedo.io.cache import MemoryCache, save_stack
+from lunaralbedo.io.cache import MemoryCache, load_stack, mapped, save_stack
 from lunaralbedo.model import shadows, updates
 from lunaralbedo.model.photometry import REGISTRY, lunar_lambert
 
@@ -276,6 +276,36 @@ def test_a_pixel_seen_by_more_images_than_the_kernel_takes_is_an_error():
     pm.update(offsets=np.array([0, m - 1], np.int32), image_of=pm["image_of"][:-1], **{n: pm[n][:-1] for n in ("image", "weight", "r")})
     got = _run(pm, 0, (pm["r"],) * 3, (), np.ones(m - 1, np.float32), 0)
     assert got["alb"][0] == 1 and got["n_obs"] == m - 1 and got["q"] == 0  # PIXEL_MAX observations of one pixel: fine
+
+
+def test_cached_arrays_are_read_only_file_mappings_equal_to_numpys(tmp_path):
+    """load_stack maps each array of an entry (no np.memmap set-up); the values, types and shapes are np.load's,
+    MemoryCache copies an entry it keeps into memory, and a cut-short file fails as np.load fails."""
+    rng = np.random.default_rng(3)
+    arrays = {"f32": rng.random(1001, dtype=np.float32), "f64": rng.random((7, 9)), "u16": np.arange(50, dtype=np.uint16),
+              "i32": -np.arange(13, dtype=np.int32), "fortran": np.asfortranarray(rng.random((4, 6))),
+              "empty": np.zeros(0, np.float32), "big": np.arange(70_000, dtype=np.int64)}  # a header of format 1.0 or 2.0 alike
+    folder = tmp_path / "cache" / "tile"
+    folder.parent.mkdir()
+    save_stack(folder, arrays, {"v": 1})
+    np.save(folder / "fortran.npy", arrays["fortran"])  # as NumPy writes it, in Fortran order
+    got, meta = load_stack(folder)
+    assert meta == {"v": 1} and sorted(got) == sorted(arrays)
+    for k, a in arrays.items():
+        ref = np.load(folder / f"{k}.npy", mmap_mode="r")
+        assert got[k].dtype == a.dtype and got[k].shape == a.shape and np.array_equal(got[k], a) and np.array_equal(got[k], ref), k
+        assert not got[k].flags.writeable, k
+        assert mapped(got[k]) == (a.size > 0), k  # an empty array has nothing to map
+    assert got["fortran"].flags.f_contiguous
+    assert not mapped(np.array(got["f32"])) and not mapped(np.zeros(3)) and mapped(np.load(folder / "f32.npy", mmap_mode="r"))
+    kept = MemoryCache(budget=10**6).get(folder, lambda arrays, meta: arrays)
+    assert all(not mapped(v) for v in kept.values()) and np.array_equal(kept["f32"], arrays["f32"])  # read into memory
+    over = MemoryCache(budget=0).get(folder, lambda arrays, meta: arrays)
+    assert mapped(over["f32"])  # over the budget: served mapped, as built
+    raw = (folder / "f32.npy").read_bytes()
+    (folder / "f32.npy").write_bytes(raw[:-8])
+    with pytest.raises(ValueError):
+        load_stack(folder)
 
 
 def test_memory_cache_keeps_within_budget_and_never_serves_a_replaced_entry(tmp_path):
