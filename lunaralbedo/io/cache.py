@@ -64,9 +64,9 @@ def _map_npy(path: Path) -> np.ndarray:
     """The array of a ``.npy`` file, memory-mapped read-only: a view of an :class:`mmap.mmap` (see :func:`mapped`).
 
     What ``np.load(path, mmap_mode="r")`` gives, without its path resolution and
-    ``np.memmap`` set-up: 0.3 ms per file, which the iterations paid for every array of
-    every block over the memory budget in every pass (~5 ns per observation and
-    iteration on the 50-image benchmark scene, as much as the kernel's own half).
+    ``np.memmap`` set-up: 0.15 instead of 0.28 ms per file, which the iterations pay for
+    every array of every block over the memory budget in every pass (~1.5 ns less per
+    observation and iteration on the 50-image benchmark scene; docs/performance.md, 0c).
     """
     with open(path, "rb") as f:
         version = np.lib.format.read_magic(f)

@@ -31,7 +31,8 @@ def _env_name(key: str) -> str:
 #: 150 000 faults and 0.3-0.4 s of kernel time in preparing the strip scene of
 #: docs/performance.md, 15 000 with these).  Arrays up to 64 MiB come from the heap, and up to
 #: 256 MiB of freed memory at its top is kept for the next block or tile: the peak resident
-#: memory does not change (what is kept was in use just before).
+#: memory changes little (what is kept was in use just before; measured +28 MB on the strip,
+#: docs/performance.md section 0c).
 MALLOC_ENV = {"MALLOC_MMAP_THRESHOLD_": 64 * 2**20, "MALLOC_TRIM_THRESHOLD_": 256 * 2**20}
 
 #: Environment of worker processes: :data:`MALLOC_ENV` (it overrides the nanny's own
