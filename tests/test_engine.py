@@ -322,3 +322,33 @@ def test_local_workers_run_without_dashboard_monitors():
         assert config == DASK_CONFIG and malloc == {k: str(v) for k, v in MALLOC_ENV.items()}
     assert all(f <= 512 for f in faults.values()), faults
     assert tick_ms == 1000  # the scheduler's event-loop tick, 20 ms by Dask's default
+
+
+#: The address of the worker running a task, after ``pause`` seconds (defined by value: workers cannot import tests).
+WHERE = """
+def where(item, pause=0.0):
+    import time
+    from distributed import get_worker
+    time.sleep(pause)
+    return get_worker().address
+"""
+
+
+def test_tasks_with_a_home_run_again_on_the_worker_that_ran_them_first():
+    """The solver's tile tasks carry ``home="tiles"``: a tile's iterations and finalise go to the worker that
+    prepared it, where its blocks are held in memory (per process) and freed.  Without the label, quick
+    tasks go wherever a worker is free (2 to the power 8 ways for 8 items)."""
+    from lunaralbedo.parallel.executor import make_executor
+
+    scope: dict = {}
+    exec(WHERE, scope)
+    items = [f"tile_{i}" for i in range(8)]
+    ex = make_executor(2)
+    try:
+        first = ex.map(scope["where"], items, home="tiles", pause=0.1)  # placed as the workers come free
+        again = [ex.map(scope["where"], items, home="tiles") for _ in range(3)]
+        workers = set(ex.client.scheduler_info()["workers"])
+    finally:
+        ex.close()
+    assert set(first) == workers and len(workers) == 2  # both workers took tiles
+    assert all(a == first for a in again), (first, again)

@@ -220,7 +220,10 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     if lut is not None:  # the cached stacks hold g(DN): one cache per response, never a stale one on --resume
         cache = cache / f"g-{lut_digest(lut)}"
     cache.mkdir(parents=True, exist_ok=True)  # tasks create entries inside it, never the run's folders
-    metas = executor.map(prepare_tile, tiles, "prepare", shared=("scene",), scene=scene, cache_root=cache, lut=lut)
+    def on_tiles(fn, desc, **kwargs):  # the scene sent to each worker once; a tile stays on the worker that prepared it
+        return executor.map(fn, tiles, desc, shared=("scene",), home="tiles", scene=scene, cache_root=cache, **kwargs)
+
+    metas = on_tiles(prepare_tile, "prepare", lut=lut)
     t_init = _reduce_init(scene, metas, method) if t_known is None else t_known
     timings["prepare"] = time.perf_counter() - t1
     if ck is None:
@@ -242,7 +245,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     t2 = time.perf_counter()
     want_phase = bool(s.model.parameters)
     while not ck["done"] and ck["iteration"] < max_iter:
-        parts = executor.map(iterate_tile, tiles, f"iteration {ck['iteration'] + 1}", shared=("scene",), scene=scene, cache_root=cache, state=state, want_phase=want_phase)
+        parts = on_tiles(iterate_tile, f"iteration {ck['iteration'] + 1}", state=state, want_phase=want_phase)
         sums = _reduce_iteration(len(scene.images), len(s.model.parameters), parts)
         q_prev = ck["q"][-1] if ck["q"] else None
         ck["q"].append(sums.q)
@@ -258,10 +261,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     if not skip_done:
         ck["finalising"] = True  # from here on the state is fixed; finished tiles can be kept
         outputs.write_json(out / STATE_FILE, ck)
-    tile_reports = executor.map(
-        finalize_tile, tiles, "write tiles", shared=("scene",), scene=scene, cache_root=cache, out_dir=out / TILES_DIR,
-        state=state, skip_done=skip_done,
-    )
+    tile_reports = on_tiles(finalize_tile, "write tiles", out_dir=out / TILES_DIR, state=state, skip_done=skip_done)
     resume_info["tiles_written_before"] = sum(bool(r.pop("reused")) for r in tile_reports)
     timings["finalise"] = time.perf_counter() - t3
     return _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info)

@@ -4,6 +4,12 @@ Every executor offers ``map(fn, items, desc)`` that returns results **in the ord
 of the items**, whatever order workers finish in (the solver reduces them in
 that order, so results are identical for any number of workers), and
 ``compute(tasks)`` for a graph of ``dask.delayed`` tasks (the export's).
+
+``map(..., home=label)`` keeps an item on one worker across maps: the first map with a
+label notes which worker ran each item, and later maps with that label ask for the same
+worker (a loose restriction: an idle worker may still take the task).  The solver labels
+its tile tasks, so a tile's iterations run where its cached blocks are held in memory
+(:data:`lunaralbedo.engine.tilework.STACKS` is per process) and its finalise task frees them there.
 """
 from __future__ import annotations
 
@@ -26,8 +32,9 @@ class SerialExecutor:
     def __init__(self, progress: bool = False):
         self.progress = progress
 
-    def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), **kwargs: Any) -> list:
-        items = list(items)
+    def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), home: str | None = None,
+            **kwargs: Any) -> list:
+        items = list(items)  # one process: every item is at home
         return [fn(x, **kwargs) for x in tqdm(items, desc=desc, disable=not self.progress, leave=False)]
 
     def compute(self, tasks: list) -> list:
@@ -48,7 +55,8 @@ class LocalPoolExecutor(SerialExecutor):
         self.workers = workers
         self.description = f"thread pool ({workers} threads)"
 
-    def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), **kwargs: Any) -> list:
+    def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), home: str | None = None,
+            **kwargs: Any) -> list:
         from concurrent.futures import ThreadPoolExecutor
 
         items = list(items)
@@ -72,21 +80,21 @@ class DaskExecutor:
         self.progress = progress
         self._owned = owned
         self._scattered: dict[int, tuple[Any, Any]] = {}
+        self._homes: dict[str, dict] = {}  # label -> {item: worker address}
         info = client.scheduler_info() or {}
         self.workers = max(1, len(info.get("workers", {})))
 
-    def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), **kwargs: Any) -> list:
-        """Run ``fn(item, **kwargs)`` for every item; ``shared`` names large kwargs sent to each worker once."""
+    def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), home: str | None = None,
+            **kwargs: Any) -> list:
+        """Run ``fn(item, **kwargs)`` for every item; ``shared`` names large kwargs sent to each worker once;
+        ``home``: keep each (hashable) item on the worker that ran it in the first map with this label."""
         from distributed import as_completed
 
         items = list(items)
         if not items:
             return []
         args = {k: (self._scatter(v) if k in shared else v) for k, v in kwargs.items()}
-        # one graph update for all items, and ``gather`` (which raises the first task error as it
-        # comes): 1.7 ms of this process's CPU per task, against 4.5 ms for one ``submit`` per item
-        # followed by ``as_completed`` (docs/performance.md, section 0b); that loop only feeds the bar
-        futures = self.client.map(run_task, [fn] * len(items), items, pure=False, **args)
+        futures = self._submit(fn, items, args, self._homes.get(home) if home else None)
         try:
             if self.progress:
                 with tqdm(total=len(futures), desc=desc, leave=False) as bar:
@@ -94,13 +102,40 @@ class DaskExecutor:
                         if fut.status == "error":
                             raise _first_error(fut)
                         bar.update(1)
-            return self.client.gather(futures)
+            results = self.client.gather(futures)
+            if home and home not in self._homes:
+                self._homes[home] = self._placement(items, futures)
+            return results
         except BaseException as exc:
             self.client.cancel(futures)  # the first real error is raised; the remaining tasks stop
             typed = _typed(exc)
             if typed is exc:
                 raise
             raise typed from exc
+
+    def _submit(self, fn: Callable, items: list, args: dict, homes: dict | None) -> list:
+        """Futures of ``run_task(fn, item, **args)`` in item order, each item asked of its worker in ``homes``.
+
+        One graph update per worker (one for all items without homes), as ``gather`` then
+        raises the first task error as it comes: 1.7 ms of this process's CPU per task, against
+        4.5 ms for one ``submit`` per item followed by ``as_completed`` (docs/performance.md,
+        section 0b); that loop only feeds the bar.
+        """
+        groups: dict = {}
+        for i, item in enumerate(items):
+            groups.setdefault(homes.get(item) if homes else None, []).append(i)
+        futures: list = [None] * len(items)
+        for worker, at in groups.items():
+            where = {} if worker is None else {"workers": [worker], "allow_other_workers": True}
+            for i, f in zip(at, self.client.map(run_task, [fn] * len(at), [items[i] for i in at], pure=False,
+                                                **where, **args)):
+                futures[i] = f
+        return futures
+
+    def _placement(self, items: list, futures: list) -> dict:
+        """``{item: address of the worker holding its result}`` (the worker that ran it)."""
+        held = self.client.who_has(futures)
+        return {item: held[f.key][0] for item, f in zip(items, futures) if held.get(f.key)}
 
     def compute(self, tasks: list) -> list:
         """Compute a list of ``dask.delayed`` objects on the cluster, in order."""
