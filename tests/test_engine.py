@@ -325,8 +325,8 @@ def test_local_workers_run_without_dashboard_monitors():
 
 
 #: The address of the worker running a task, after ``pause`` seconds (defined by value: workers cannot import tests).
-WHERE = """
-def where(item, pause=0.0):
+ADDRESS_OF_WORKER = """
+def address_of_worker(item, pause=0.0):
     import time
     from distributed import get_worker
     time.sleep(pause)
@@ -341,12 +341,12 @@ def test_tasks_with_a_home_run_again_on_the_worker_that_ran_them_first():
     from lunaralbedo.parallel.executor import make_executor
 
     scope: dict = {}
-    exec(WHERE, scope)
+    exec(ADDRESS_OF_WORKER, scope)
     items = [f"tile_{i}" for i in range(8)]
     ex = make_executor(2)
     try:
-        first = ex.map(scope["where"], items, home="tiles", pause=0.1)  # placed as the workers come free
-        again = [ex.map(scope["where"], items, home="tiles") for _ in range(3)]
+        first = ex.map(scope["address_of_worker"], items, home="tiles", pause=0.1)  # placed as the workers come free
+        again = [ex.map(scope["address_of_worker"], items, home="tiles") for _ in range(3)]
         workers = set(ex.client.scheduler_info()["workers"])
     finally:
         ex.close()
