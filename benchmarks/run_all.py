@@ -14,7 +14,10 @@ Prints, in one run on this machine:
    accuracy comparison with OpenCV and more sizes);
 6-10. the scenes of issue 15 (``benchmarks/scale_bench.py``): the narrow strip at legacy tile
    size, exposure initialisation for 10^3-10^5 images, orthoprojection, memory bandwidth,
-   peak memory of one 4000 x 4000 px tile under 16 images (blocks of rows).
+   peak memory of one 4000 x 4000 px tile under 16 images (blocks of rows);
+11. what two workers cost each other (``benchmarks/contention_bench.py``): the plain pass, the
+   strip's prepare and iterate steps alone and in two processes at once, and the ceiling of
+   the 1 -> 2 speed-up that follows (needs item 6's scene).
 
 Scenes are rendered once into ``bench_out/`` and reused.  ``--quick`` uses smaller scenes
 (a smoke run, not the figures of docs/performance.md).
@@ -79,7 +82,7 @@ def main() -> int:
     ap.add_argument("--out", default="bench_out")
     ap.add_argument("--quick", action="store_true", help="small scenes (smoke run)")
     ap.add_argument("--json", default=None, help="also write the figures as JSON here")
-    ap.add_argument("--only", default="1,2,3,4,5,6,7,8,9,10", help="comma-separated items to run (3 comes with 1)")
+    ap.add_argument("--only", default="1,2,3,4,5,6,7,8,9,10,11", help="comma-separated items to run (3 comes with 1)")
     ap.add_argument("--before", default=None, help="source tree of a previous implementation to measure too (items 6, 8, 10)")
     args = ap.parse_args()
     root = (REPO / args.out).resolve()
@@ -102,6 +105,10 @@ def main() -> int:
     from scale_bench import run_scale_items  # noqa: E402  (items 6-10: issue 15)
 
     run_scale_items(root, q, figures, only, Path(args.before).resolve() if args.before else None)
+    if 11 in only:
+        from contention_bench import contention  # noqa: E402
+
+        contention(root, figures)
     if args.json:
         Path(args.json).write_text(json.dumps(figures, indent=2))
     return 0
