@@ -352,3 +352,67 @@ def test_tasks_with_a_home_run_again_on_the_worker_that_ran_them_first():
         ex.close()
     assert set(first) == workers and len(workers) == 2  # both workers took tiles
     assert all(a == first for a in again), (first, again)
+
+
+def test_placed_homes_share_the_work_evenly_and_are_kept():
+    """``place`` gives each worker about the same total cost (longest first, to the least loaded
+    worker), and later maps with the label run every item on the worker it was given."""
+    from lunaralbedo.parallel.executor import make_executor
+
+    scope: dict = {}
+    exec(ADDRESS_OF_WORKER, scope)
+    costs = {f"tile_{i}": float(c) for i, c in enumerate([1, 8, 3, 6, 2, 7, 5, 4])}  # 36 in all
+    ex = make_executor(2)
+    try:
+        ex.place("tiles", costs)
+        ran = [ex.map(scope["address_of_worker"], list(costs), home="tiles") for _ in range(2)]
+        workers = sorted(ex.client.scheduler_info()["workers"])
+    finally:
+        ex.close()
+    assert ran[0] == ran[1]
+    load = {w: sum(c for item, c in costs.items() if ran[0][list(costs).index(item)] == w) for w in workers}
+    assert sorted(load.values()) == [18.0, 18.0], load  # LPT: 8+5+4+1 and 7+6+3+2
+    assert ran[0][list(costs).index("tile_1")] == workers[0]  # the costliest item goes to the first address
+
+
+#: The process and the modules already imported where a task runs (defined by value, as above).
+PID_AND_MODULES = """
+def pid_and_modules(item, names=()):
+    import os, sys
+    return os.getpid(), [n for n in names if n in sys.modules]
+"""
+
+
+def test_a_cluster_started_in_the_background_runs_early_work_here_and_the_rest_on_its_workers():
+    """``background=True``: the local cluster starts in a thread; a ``meanwhile`` map issued at once runs in
+    this process, a plain map waits for the workers, which imported the ``preload`` modules as they started."""
+    from lunaralbedo.parallel.executor import make_executor
+
+    scope: dict = {}
+    exec(PID_AND_MODULES, scope)
+    fn, module, other = scope["pid_and_modules"], "lunaralbedo.model.exposure_init", "lunaralbedo.model.response_fit"
+    t0 = time.perf_counter()
+    ex = make_executor(2, background=True, preload=(module,))
+    returned_after = time.perf_counter() - t0
+    try:
+        early = ex.map(fn, [0, 1], meanwhile=True)
+        later = ex.map(fn, [0, 1, 2, 3], names=(module, other))
+        late_meanwhile = ex.map(fn, [0], meanwhile=True)
+    finally:
+        ex.close()
+    assert returned_after < 0.5  # the start itself takes ~1-2 s
+    assert {pid for pid, _ in early} == {os.getpid()}
+    assert os.getpid() not in {pid for pid, _ in later} and all(mods == [module] for _, mods in later)  # preloaded, not the other
+    assert late_meanwhile[0][0] != os.getpid()  # once the workers are up, meanwhile maps go to them too
+
+
+def test_a_cluster_that_fails_to_start_in_the_background_is_a_cluster_error_at_first_use():
+    from lunaralbedo.errors import ClusterError
+    from lunaralbedo.parallel.executor import make_executor
+
+    ex = make_executor(2, memory_limit="a lot", background=True)
+    try:
+        with pytest.raises(ClusterError, match="local cluster of 2 processes"):
+            ex.map(abs, [-1])
+    finally:
+        ex.close()  # nothing to close, no error

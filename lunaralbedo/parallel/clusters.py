@@ -41,7 +41,8 @@ def connect(address: str):
         raise ClusterError(f"cannot connect to Dask scheduler {address}: {exc}") from None
 
 
-def local_cluster(workers: int, memory_limit: str | None):
+def local_cluster(workers: int, memory_limit: str | None, preload: tuple = ()):
+    """``workers`` local worker processes of one thread each; ``preload``: modules each worker imports as it starts."""
     from distributed import Client, LocalCluster
 
     with worker_config():
@@ -52,6 +53,7 @@ def local_cluster(workers: int, memory_limit: str | None):
             dashboard_address=None,
             memory_limit=memory_limit or "auto",
             silence_logs=40,
+            preload=list(preload),
         )
     return Client(cluster), [cluster]
 

@@ -5,14 +5,17 @@ of the items**, whatever order workers finish in (the solver reduces them in
 that order, so results are identical for any number of workers), and
 ``compute(tasks)`` for a graph of ``dask.delayed`` tasks (the export's).
 
-``map(..., home=label)`` keeps an item on one worker across maps: the first map with a
-label notes which worker ran each item, and later maps with that label ask for the same
-worker (a loose restriction: an idle worker may still take the task).  The solver labels
-its tile tasks, so a tile's iterations run where its cached blocks are held in memory
-(:data:`lunaralbedo.engine.tilework.STACKS` is per process) and its finalise task frees them there.
+``map(..., home=label)`` keeps an item on one worker across maps: ``place(label, costs)``
+sets each item's worker so that they share the work evenly, else the first map with a
+label notes which worker ran each item; later maps with that label ask for the same
+worker (a loose restriction: an idle worker may still take the task).  The solver places
+its tiles by their observation counts once they are prepared, so a tile's iterations run
+where its cached blocks are held in memory (:data:`lunaralbedo.engine.tilework.STACKS` is
+per process) and its finalise task frees them there.
 """
 from __future__ import annotations
 
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, Callable, Iterable
 
 from tqdm.auto import tqdm
@@ -33,9 +36,12 @@ class SerialExecutor:
         self.progress = progress
 
     def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), home: str | None = None,
-            **kwargs: Any) -> list:
+            meanwhile: bool = False, **kwargs: Any) -> list:
         items = list(items)  # one process: every item is at home
         return [fn(x, **kwargs) for x in tqdm(items, desc=desc, disable=not self.progress, leave=False)]
+
+    def place(self, label: str, costs: dict) -> None:
+        """Homes for the items of ``costs`` in later maps labelled ``label`` (one process: nothing to place)."""
 
     def compute(self, tasks: list) -> list:
         """Compute a list of ``dask.delayed`` objects, in order."""
@@ -56,9 +62,7 @@ class LocalPoolExecutor(SerialExecutor):
         self.description = f"thread pool ({workers} threads)"
 
     def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), home: str | None = None,
-            **kwargs: Any) -> list:
-        from concurrent.futures import ThreadPoolExecutor
-
+            meanwhile: bool = False, **kwargs: Any) -> list:
         items = list(items)
         with ThreadPoolExecutor(self.workers) as pool:
             it = pool.map(lambda x: fn(x, **kwargs), items)
@@ -71,28 +75,48 @@ class LocalPoolExecutor(SerialExecutor):
 
 
 class DaskExecutor:
-    """Runs tasks on a ``distributed.Client`` (local processes, a remote scheduler, or a job-queue cluster)."""
+    """Runs tasks on a ``distributed.Client`` (local processes, a remote scheduler, or a job-queue cluster).
 
-    def __init__(self, client, description: str, progress: bool = False, owned=(), own_client: bool = True):
-        self.client = client
+    ``client`` may also be a :class:`concurrent.futures.Future` of ``(client, owned)``: a cluster
+    still starting in a background thread (:func:`make_executor` with ``background=True``).
+    Until it is up, maps with ``meanwhile=True`` run on ``workers`` threads of this process;
+    anything else waits for it (and raises its :class:`ClusterError` if it failed to start).
+    """
+
+    def __init__(self, client, description: str, progress: bool = False, owned=(), own_client: bool = True,
+                 workers: int | None = None):
+        self._client = client
         self._own_client = own_client
         self.description = description
         self.progress = progress
         self._owned = owned
         self._scattered: dict[int, tuple[Any, Any]] = {}
         self._homes: dict[str, dict] = {}  # label -> {item: worker address}
-        info = client.scheduler_info() or {}
-        self.workers = max(1, len(info.get("workers", {})))
+        self.workers = workers or max(1, len((self.client.scheduler_info() or {}).get("workers", {})))
+
+    @property
+    def client(self):
+        """The ``distributed.Client`` (waits for a cluster starting in the background)."""
+        if isinstance(self._client, Future):
+            self._client, owned = self._client.result()
+            self._owned = (*self._owned, *owned)
+        return self._client
+
+    def _starting(self) -> bool:
+        return isinstance(self._client, Future) and not self._client.done()
 
     def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), home: str | None = None,
-            **kwargs: Any) -> list:
+            meanwhile: bool = False, **kwargs: Any) -> list:
         """Run ``fn(item, **kwargs)`` for every item; ``shared`` names large kwargs sent to each worker once;
-        ``home``: keep each (hashable) item on the worker that ran it in the first map with this label."""
+        ``home``: keep each (hashable) item on the worker that ran it in the first map with this label;
+        ``meanwhile``: run in this process's threads if the workers are still starting (GDAL reads)."""
         from distributed import as_completed
 
         items = list(items)
         if not items:
             return []
+        if meanwhile and self._starting():
+            return LocalPoolExecutor(self.workers, self.progress).map(fn, items, desc, **kwargs)
         args = {k: (self._scatter(v) if k in shared else v) for k, v in kwargs.items()}
         futures = self._submit(fn, items, args, self._homes.get(home) if home else None)
         try:
@@ -132,6 +156,26 @@ class DaskExecutor:
                 futures[i] = f
         return futures
 
+    def place(self, label: str, costs: dict) -> None:
+        """Homes for the maps labelled ``label``, balanced by ``costs`` ({item: work, any unit}).
+
+        Longest processing time first: items by decreasing cost (ties in item order), each to
+        the worker with the least work so far (ties: the first address).  Every worker then gets
+        about the same share of each later map, whose tasks all end near the same time (a map is
+        a barrier: the solver reduces its results before the next), where the homes of a first
+        map follow whichever worker happened to be free.  Deterministic for given workers.
+        """
+        addresses = sorted((self.client.scheduler_info() or {}).get("workers", {}))
+        if not addresses:
+            return
+        load = dict.fromkeys(addresses, 0.0)
+        homes = {}
+        for item, cost in sorted(costs.items(), key=lambda kv: -kv[1]):  # stable: ties keep item order
+            worker = min(addresses, key=load.__getitem__)
+            homes[item] = worker
+            load[worker] += cost
+        self._homes[label] = homes
+
     def _placement(self, items: list, futures: list) -> dict:
         """``{item: address of the worker holding its result}`` (the worker that ran it)."""
         held = self.client.who_has(futures)
@@ -154,7 +198,11 @@ class DaskExecutor:
 
     def close(self) -> None:
         self._scattered.clear()
-        for obj in ((self.client,) if self._own_client else ()) + tuple(self._owned):
+        try:
+            client = self.client  # a cluster still starting is waited for, then closed
+        except LunarAlbedoError:  # it failed to start: nothing to close
+            return
+        for obj in ((client,) if self._own_client else ()) + tuple(self._owned):
             try:
                 obj.close()
             except Exception:  # noqa: BLE001 - closing is best effort
@@ -212,6 +260,8 @@ def make_executor(
     memory_limit: str | None = None,
     client=None,
     local: str = "processes",
+    background: bool = False,
+    preload: tuple = (),
 ):
     """Choose an executor; the same rules for ``ingest``, ``solve`` and ``export-kml``.
 
@@ -224,6 +274,11 @@ def make_executor(
     * otherwise ``workers`` local workers (1: in-process, no Dask): processes of a
       local Dask cluster, or with ``local="threads"`` a thread pool of this process
       (for GDAL-bound tasks that release the GIL, such as the export's).
+
+    ``background=True`` starts a local cluster in a background thread and returns at once
+    (:class:`DaskExecutor` then waits for it where it must); ``preload``: modules its
+    workers import as they start, so that the first tasks do not wait for the imports.
+    The solver overlaps the ~1-2 s of that start with building its scene (docs/scaling.md).
     """
     if client is not None:
         return DaskExecutor(client, "Dask client", progress, own_client=False)
@@ -241,8 +296,14 @@ def make_executor(
     if workers <= 1:
         return SerialExecutor(progress)
     if local == "processes":
-        client, owned = _starting(f"local cluster of {workers} processes", clusters.local_cluster, workers, memory_limit)
-        return DaskExecutor(client, f"local cluster ({workers} processes)", progress, owned=owned)
+        what, description = f"local cluster of {workers} processes", f"local cluster ({workers} processes)"
+        if background:
+            pool = ThreadPoolExecutor(1, thread_name_prefix="lunaralbedo-cluster-start")
+            pending = pool.submit(_starting, what, clusters.local_cluster, workers, memory_limit, preload)
+            pool.shutdown(wait=False)  # the start goes on; its thread ends with it
+            return DaskExecutor(pending, description, progress, workers=workers)
+        client, owned = _starting(what, clusters.local_cluster, workers, memory_limit, preload)
+        return DaskExecutor(client, description, progress, owned=owned)
     if local == "threads":
         return LocalPoolExecutor(workers, progress)
     raise ValueError(f"local workers must be 'processes' or 'threads', got {local!r}")
