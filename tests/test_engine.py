@@ -416,3 +416,20 @@ def test_a_cluster_that_fails_to_start_in_the_background_is_a_cluster_error_at_f
             ex.map(abs, [-1])
     finally:
         ex.close()  # nothing to close, no error
+
+
+def test_error_tiles_are_written_without_a_predictor_and_the_other_tiles_with_the_floating_point_one(reference):
+    """Eq. 7's error has no smooth rows: its tiles are written with predictor 1 (faster, no bigger); albedo,
+    DEM and weightsSum keep ZSTD with the floating-point predictor (read back through GDAL)."""
+    import rasterio
+
+    seen = {}
+    for sub in ("albedo", "error", "DEM", "weightsSum"):
+        files = sorted((reference / sub).glob("*.tif"))
+        assert files, sub
+        for f in files:
+            with rasterio.open(f) as ds:
+                tags = ds.tags(ns="IMAGE_STRUCTURE")
+                seen.setdefault(sub, set()).add((tags.get("COMPRESSION"), tags.get("PREDICTOR", "1")))
+    assert seen == {"albedo": {("ZSTD", "3")}, "error": {("ZSTD", "1")}, "DEM": {("ZSTD", "3")},
+                    "weightsSum": {("ZSTD", "3")}}, seen
