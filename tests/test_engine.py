@@ -375,6 +375,42 @@ def test_placed_homes_share_the_work_evenly_and_are_kept():
     assert ran[0][list(costs).index("tile_1")] == workers[0]  # the costliest item goes to the first address
 
 
+#: The item, the worker and the Dask task that ran it (defined by value, as above).
+ITEM_WORKER_TASK = """
+def item_worker_task(item):
+    from distributed import get_worker
+    from distributed.worker import thread_state
+    return item, get_worker().address, thread_state.key
+"""
+
+
+def test_a_map_with_homes_runs_in_a_few_batches_per_worker_and_returns_results_in_item_order():
+    """With homes, each worker's items go to it in at most ``BATCHES_PER_WORKER`` Dask tasks (not one per
+    item), and the results still come back one per item, in the order of the items given."""
+    from lunaralbedo.parallel.executor import BATCHES_PER_WORKER, make_executor
+
+    scope: dict = {}
+    exec(ITEM_WORKER_TASK, scope)
+    items = [f"tile_{i}" for i in range(30)]
+    ex = make_executor(2)
+    try:
+        ex.place("tiles", {t: float(i % 7 + 1) for i, t in enumerate(items)})
+        homes = dict(ex._homes["tiles"])
+        order = items[::-1]  # a map may list the items in any order
+        ran = ex.map(scope["item_worker_task"], order, home="tiles")
+    finally:
+        ex.close()
+    assert [r[0] for r in ran] == order
+    assert all(worker == homes[item] for item, worker, _ in ran)
+    tasks: dict = {}
+    for item, worker, key in ran:
+        tasks.setdefault((worker, key), []).append(item)
+    for worker in set(homes.values()):
+        n = sum(1 for w in homes.values() if w == worker)  # its items, split in near-equal batches
+        sizes = sorted(len(v) for (w, _), v in tasks.items() if w == worker)
+        assert len(sizes) == BATCHES_PER_WORKER and sum(sizes) == n and sizes[-1] - sizes[0] <= 1, (worker, sizes)
+
+
 #: The process and the modules already imported where a task runs (defined by value, as above).
 PID_AND_MODULES = """
 def pid_and_modules(item, names=()):

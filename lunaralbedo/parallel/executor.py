@@ -26,6 +26,10 @@ from .nodefile import nodefile_client, pbs_nodes
 from .workers import tune_malloc
 
 
+#: Tasks per worker of a map whose items have homes (see :meth:`DaskExecutor._submit`).
+BATCHES_PER_WORKER = 4
+
+
 class SerialExecutor:
     """Runs tasks one after another in this process (1 worker; no Dask overhead)."""
 
@@ -118,43 +122,60 @@ class DaskExecutor:
         if meanwhile and self._starting():
             return LocalPoolExecutor(self.workers, self.progress).map(fn, items, desc, **kwargs)
         args = {k: (self._scatter(v) if k in shared else v) for k, v in kwargs.items()}
-        futures = self._submit(fn, items, args, self._homes.get(home) if home else None)
+        homes = self._homes.get(home) if home else None
+        futures, spans = self._submit(fn, items, args, homes)
         try:
             if self.progress:
-                with tqdm(total=len(futures), desc=desc, leave=False) as bar:
+                size = {f.key: len(at) for f, at in zip(futures, spans)}
+                with tqdm(total=len(items), desc=desc, leave=False) as bar:
                     for fut in as_completed(futures):
                         if fut.status == "error":
                             raise _first_error(fut)
-                        bar.update(1)
-            results = self.client.gather(futures)
+                        bar.update(size[fut.key])
+            parts = self.client.gather(futures)
             if home and home not in self._homes:
                 self._homes[home] = self._placement(items, futures)
-            return results
         except BaseException as exc:
             self.client.cancel(futures)  # the first real error is raised; the remaining tasks stop
             typed = _typed(exc)
             if typed is exc:
                 raise
             raise typed from exc
+        if homes is None:
+            return parts
+        results: list = [None] * len(items)
+        for at, part in zip(spans, parts):
+            for i, r in zip(at, part):
+                results[i] = r
+        return results
 
-    def _submit(self, fn: Callable, items: list, args: dict, homes: dict | None) -> list:
-        """Futures of ``run_task(fn, item, **args)`` in item order, each item asked of its worker in ``homes``.
+    def _submit(self, fn: Callable, items: list, args: dict, homes: dict | None) -> tuple[list, list]:
+        """Futures and the item positions each one computes.
 
-        One graph update per worker (one for all items without homes), as ``gather`` then
-        raises the first task error as it comes: 1.7 ms of this process's CPU per task, against
-        4.5 ms for one ``submit`` per item followed by ``as_completed`` (docs/performance.md,
-        section 0b); that loop only feeds the bar.
+        Without ``homes``: one task ``run_task(fn, item, **args)`` per item, in item order, in one
+        graph update (as ``gather`` then raises the first task error as it comes: 1.7 ms of this
+        process's CPU per task, against 4.5 ms for one ``submit`` per item followed by
+        ``as_completed``, docs/performance.md section 0b; that loop only feeds the bar).  With
+        ``homes``: each worker's items in :data:`BATCHES_PER_WORKER` tasks of :func:`run_batch`
+        asked of it.  The solver's iterations are maps of ~10 ms tile tasks, whose Dask costs (this
+        process's scheduler, the workers' bookkeeping) took 5-6 s of a 2-worker run's CPU on
+        2 cores; the homes already share the work out evenly (:meth:`place`), and an idle worker
+        may still take a whole batch (docs/performance.md, section 0e).
         """
-        groups: dict = {}
+        if homes is None:
+            return self.client.map(run_task, [fn] * len(items), items, pure=False, **args), [[i] for i in range(len(items))]
+        by_worker: dict = {}
         for i, item in enumerate(items):
-            groups.setdefault(homes.get(item) if homes else None, []).append(i)
-        futures: list = [None] * len(items)
-        for worker, at in groups.items():
+            by_worker.setdefault(homes.get(item), []).append(i)
+        futures, spans = [], []
+        for worker, at in by_worker.items():
             where = {} if worker is None else {"workers": [worker], "allow_other_workers": True}
-            for i, f in zip(at, self.client.map(run_task, [fn] * len(at), [items[i] for i in at], pure=False,
-                                                **where, **args)):
-                futures[i] = f
-        return futures
+            n = min(BATCHES_PER_WORKER, len(at))
+            for b in range(n):
+                batch = at[b * len(at) // n:(b + 1) * len(at) // n]
+                futures.append(self.client.submit(run_batch, fn, [items[i] for i in batch], pure=False, **where, **args))
+                spans.append(batch)
+        return futures, spans
 
     def place(self, label: str, costs: dict) -> None:
         """Homes for the maps labelled ``label``, balanced by ``costs`` ({item: work, any unit}).
@@ -211,6 +232,11 @@ class DaskExecutor:
 
 def _identity(value):
     return value
+
+
+def run_batch(fn: Callable, items: list, **kwargs) -> list:
+    """``[run_task(fn, item, **kwargs) for item in items]`` on a worker (one Dask task)."""
+    return [run_task(fn, item, **kwargs) for item in items]
 
 
 def run_task(fn: Callable, item, **kwargs):
