@@ -269,6 +269,47 @@ def faults_of_reuse():
 """
 
 
+#: Minor page faults of holding four arrays of 20-56 MB at once and freeing them, ten times, as a tile task's
+#: blocks do: over the 64 MiB heaps glibc gives threads other than the main one, whatever the thresholds.
+FAULTS_OF_ARRAYS_HELD_TOGETHER = """
+import resource, numpy as np
+def faults_of_arrays_held_together(item=None):
+    f0 = resource.getrusage(resource.RUSAGE_THREAD).ru_minflt
+    for _ in range(10):
+        held = []
+        for n in (3_000_000, 5_000_000, 7_000_000, 2_500_000):
+            held.append(np.empty(n))
+            held[-1][:] = 1.0
+        del held
+    return resource.getrusage(resource.RUSAGE_THREAD).ru_minflt - f0
+"""
+
+#: The faults of FAULTS_OF_ARRAYS_HELD_TOGETHER in a new thread, after tune_malloc() or not, once the main thread
+#: ran it (as the solving process's main thread runs tasks before a thread pool's).
+IN_A_THREAD = FAULTS_OF_ARRAYS_HELD_TOGETHER + """
+import sys, threading
+from lunaralbedo.parallel.workers import tune_malloc
+if sys.argv[1] == "tuned":
+    assert tune_malloc()
+faults_of_arrays_held_together()
+seen = []
+t = threading.Thread(target=lambda: seen.extend([faults_of_arrays_held_together(), faults_of_arrays_held_together()]))
+t.start(); t.join()
+print(seen[1])
+"""
+
+
+def test_tasks_in_threads_reuse_arrays_held_together_after_tune_malloc():
+    """A thread (a Dask worker's task thread, a thread pool's) holding several arrays of tens of MB faults
+    them in anew every round in glibc's default per-thread arenas (thousands of faults), and reuses them
+    (none) once tune_malloc() has capped the arenas at one."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}
+    faults = {}
+    for how in ("default", "tuned"):
+        out = subprocess.run([sys.executable, "-c", IN_A_THREAD, how], env=env, capture_output=True, text=True, check=True)
+        faults[how] = int(out.stdout)
+    assert faults["default"] >= 2000 and faults["tuned"] <= 200, faults
+
 def test_tune_malloc_lets_freed_arrays_be_reused():
     """In the state Dask's nanny leaves glibc in (MALLOC_TRIM_THRESHOLD_=65536: trim threshold 64 KiB, mmap
     threshold frozen at 128 KiB) every freed array goes back to the kernel and the next one is page-faulted
@@ -313,6 +354,9 @@ def test_local_workers_run_without_dashboard_monitors():
         exec(FAULTS_OF_REUSE, scope)
         ex.client.run(scope["faults_of_reuse"])  # the first array may fault in
         faults = ex.client.run(scope["faults_of_reuse"])
+        exec(FAULTS_OF_ARRAYS_HELD_TOGETHER, scope)
+        ex.client.run(scope["faults_of_arrays_held_together"])  # the workers' main threads fill the heap once
+        held = ex.map(scope["faults_of_arrays_held_together"], [0, 1, 2, 3])  # their task threads reuse it
         tick_ms = ex.client.run_on_scheduler(lambda dask_scheduler: dask_scheduler.periodic_callbacks["tick"].callback_time)
         assert ex.map(abs, [-3, 2, -1]) == [3, 2, 1]  # results in the order of the items
     finally:
@@ -321,6 +365,7 @@ def test_local_workers_run_without_dashboard_monitors():
     for config, malloc in seen.values():
         assert config == DASK_CONFIG and malloc == {k: str(v) for k, v in MALLOC_ENV.items()}
     assert all(f <= 512 for f in faults.values()), faults
+    assert all(f <= 1000 for f in held), held  # one arena for every thread (5700-10300 faults with one per thread)
     assert tick_ms == 1000  # the scheduler's event-loop tick, 20 ms by Dask's default
 
 

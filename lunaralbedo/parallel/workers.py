@@ -32,8 +32,12 @@ def _env_name(key: str) -> str:
 #: docs/performance.md, 15 000 with these).  Arrays up to 64 MiB come from the heap, and up to
 #: 256 MiB of freed memory at its top is kept for the next block or tile: the peak resident
 #: memory changes little (what is kept was in use just before; measured +28 MB on the strip,
-#: docs/performance.md section 0c).
-MALLOC_ENV = {"MALLOC_MMAP_THRESHOLD_": 64 * 2**20, "MALLOC_TRIM_THRESHOLD_": 256 * 2**20}
+#: docs/performance.md section 0c).  One arena: a Dask worker runs its tasks in a thread, and
+#: glibc gives other threads than the main one arenas of at most 64 MiB heaps, so a task
+#: holding several arrays of tens of MB at once got new heaps mapped and unmapped under it
+#: whatever the thresholds (the 50-image scene's prepare stage: 1 085 000 faults and 8.5 s of
+#: kernel time in 2 workers, 88 000 and 5.8 s with one arena; docs/performance.md, section 0e).
+MALLOC_ENV = {"MALLOC_MMAP_THRESHOLD_": 64 * 2**20, "MALLOC_TRIM_THRESHOLD_": 256 * 2**20, "MALLOC_ARENA_MAX": 1}
 
 #: Environment of worker processes: :data:`MALLOC_ENV` (it overrides the nanny's own
 #: MALLOC_TRIM_THRESHOLD_), and the :data:`DASK_CONFIG` settings as Dask's environment
@@ -41,7 +45,7 @@ MALLOC_ENV = {"MALLOC_MMAP_THRESHOLD_": 64 * 2**20, "MALLOC_TRIM_THRESHOLD_": 25
 WORKER_ENV = {**MALLOC_ENV, **{_env_name(k): v for k, v in DASK_CONFIG.items()}}
 
 #: mallopt(3) parameter numbers of glibc's <malloc.h>.
-_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD, _M_ARENA_MAX = -1, -3, -8
 
 
 def tune_malloc() -> bool:
@@ -64,7 +68,8 @@ def tune_malloc() -> bool:
     mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
     trimmed = mallopt(_M_TRIM_THRESHOLD, MALLOC_ENV["MALLOC_TRIM_THRESHOLD_"])
     mapped = mallopt(_M_MMAP_THRESHOLD, MALLOC_ENV["MALLOC_MMAP_THRESHOLD_"]) or mallopt(_M_MMAP_THRESHOLD, 32 * 2**20)
-    return bool(trimmed and mapped)  # 32 MiB: the most older glibc versions accept
+    arenas = mallopt(_M_ARENA_MAX, MALLOC_ENV["MALLOC_ARENA_MAX"])  # threads started from now on share the main arena
+    return bool(trimmed and mapped and arenas)  # 32 MiB: the most older glibc versions accept
 
 
 def worker_config():
