@@ -235,10 +235,10 @@ def test_ingest_cubes_in_parallel_match_serial(tmp_path):
     [
         ("slurm", ["#SBATCH -p normal", "#SBATCH -A lunar", "#SBATCH -t 04:00:00", "--nworkers 4", "--nthreads 1",
                    "export MALLOC_MMAP_THRESHOLD_=67108864", "export MALLOC_TRIM_THRESHOLD_=268435456",
-                   "export DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False"]),
+                   "export MALLOC_ARENA_MAX=1", "export DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False"]),
         ("pbs", ["#PBS -q normal", "#PBS -l walltime=04:00:00", "ncpus=4", "--nworkers 4", "--nthreads 1",
                  "export MALLOC_MMAP_THRESHOLD_=67108864", "export MALLOC_TRIM_THRESHOLD_=268435456",
-                 "export DASK_DISTRIBUTED__ADMIN__TICK__INTERVAL=1s"]),
+                 "export MALLOC_ARENA_MAX=1", "export DASK_DISTRIBUTED__ADMIN__TICK__INTERVAL=1s"]),
     ],
 )
 def test_batch_cluster_job_scripts(kind, expect):
