@@ -27,9 +27,10 @@ def test_surface_block_gives_the_bytes_of_body_fixed_and_dem_normals():
     lon, lat = geometry.lonlat_axes(tr, dem.shape)
     lr, br = np.radians(lon), np.radians(lat)
     pts, nrm = geometry.surface_block(np.cos(lr), np.sin(lr), np.cos(br), np.sin(br), dem, MOON_RADIUS_KM)
+    assert pts.shape == (3, 41, 57) and nrm.shape == (3, 39, 55)  # x, y, z planes
     ref = geometry.body_fixed(*geometry.lonlat_grid(tr, dem.shape), np.nan_to_num(dem, nan=0.0))
-    assert np.array_equal(pts, ref)
-    assert np.array_equal(nrm, geometry.dem_normals(ref)[1:-1, 1:-1])
+    assert np.array_equal(np.moveaxis(pts, 0, -1), ref)
+    assert np.array_equal(np.moveaxis(nrm, 0, -1), geometry.dem_normals(ref)[1:-1, 1:-1])
 
 
 def _illumination_numpy(p, n, sun, sc):
@@ -70,7 +71,7 @@ def test_observe_window_selects_what_the_masks_select():
     sc = geometry.body_fixed(20.2, 4.8, 100e3)
     use = rng.random((10, 12)) > 0.2  # a window at block row 5, column 7
     rows, cols, ci, ce, al = geometry.observe_window(use, inner, pts, nrm, 5, 7, sun, sc, 0.087)
-    p, n = pts[6:16, 8:20], nrm[5:15, 7:19]
+    p, n = np.moveaxis(pts[:, 6:16, 8:20], 0, -1), np.moveaxis(nrm[:, 5:15, 7:19], 0, -1)
     wci, wce, wal = geometry.illumination(p, n, sun, sc)
     mask = use & np.isfinite(inner[5:15, 7:19]) & (wci >= 0.087) & (wce > 0)
     assert 0 < mask.sum() < use.sum()

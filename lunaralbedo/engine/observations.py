@@ -90,7 +90,8 @@ def row_blocks(height: int, rows: int) -> list[tuple[int, int]]:
 
 class BlockGeometry:
     """DEM of rows ``b0:b1`` of the unpadded tile, with body-fixed points (one-pixel halo) and normals of its
-    columns ``c0:c1`` (those the images cover: the DEM is read for every column, it is a tile output)."""
+    columns ``c0:c1`` (those the images cover: the DEM is read for every column, it is a tile output);
+    points and normals as x, y, z planes (:func:`geometry.surface_block`)."""
 
     def __init__(self, scene: Scene, tile, b0: int, b1: int, c0: int = 0, c1: int | None = None, shadows=None):
         s = scene.settings
@@ -119,7 +120,8 @@ class BlockGeometry:
 def tile_geometry(scene: Scene, tile):
     """DEM (m), body-fixed points (km), normals and the no-DEM mask of the whole unpadded tile."""
     geo = BlockGeometry(scene, tile, 0, tile.height)
-    return geo.dem, geo.points[1:-1, 1:-1], geo.normals, ~np.isfinite(geo.dem)
+    return (geo.dem, np.moveaxis(geo.points[:, 1:-1, 1:-1], 0, -1), np.moveaxis(geo.normals, 0, -1),
+            ~np.isfinite(geo.dem))
 
 
 def saturation_of(dtype: str) -> float | None:

@@ -9,13 +9,15 @@ the 1737.4 km sphere) is the point
 Normals come from the 3-D points of neighbouring DEM pixels (central differences),
 so they are correct at any latitude, and :math:`\cos i = \mathbf{n}\cdot\mathbf{l}`,
 :math:`\cos e = \mathbf{n}\cdot\mathbf{v}` (seed 001 eqs. 4-5) with unit vectors to
-the Sun and to the spacecraft; the phase angle is :math:`\alpha = \arccos(\mathbf{l}\cdot\mathbf{v})`.
+the Sun and to the spacecraft; the phase angle is :math:`\alpha = \arccos(\mathbf{l}\cdot\mathbf{v})`
+(:func:`.vacos.acos`, within 1 ulp of libm's, but one that loops can vectorise).
 
 The solver's prepare step uses the numba kernels at the end of this module
-(:func:`surface_block`, :func:`observe_window`): the same formulas, pixel by pixel,
-evaluated in the same order as the NumPy functions, so they give the same bytes
-(``tests/test_prepare_kernels.py``); :func:`illumination` itself runs the one
-per-pixel kernel :func:`_illumination_at`.
+(:func:`surface_block`, :func:`observe_window`): :func:`surface_block` gives the bytes of
+:func:`body_fixed` and :func:`dem_normals` (the same operations in the same order, planes
+x, y, z instead of a last axis of 3), and :func:`observe_window` those of
+:func:`illumination`; both run the one per-pixel kernel :func:`_cosines_at`
+(``tests/test_prepare_kernels.py``).
 """
 from __future__ import annotations
 
@@ -25,6 +27,7 @@ import numpy as np
 from numba import njit
 
 from ..constants import MOON_RADIUS_KM, MOON_RADIUS_M
+from . import vacos
 
 #: Radius values (metres) above this are taken as radius, not height.
 RADIUS_THRESHOLD_M = 1.0e6
@@ -127,21 +130,28 @@ def illumination(points_km, normals, sun_km, spacecraft_km):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def _cosines_at(px, py, pz, nx, ny, nz, sx, sy, sz, vx, vy, vz):
+    r"""Seed 001 eqs. 4-5 at one point ``p`` with normal ``n``, Sun ``s``, spacecraft ``v`` (body-fixed):
+    :math:`\cos i = \mathbf{n}\cdot\mathbf{l}`, :math:`\cos e = \mathbf{n}\cdot\mathbf{v}` and
+    :math:`\cos\alpha = \mathbf{l}\cdot\mathbf{v}` (clipped to [-1, 1]) with unit vectors
+    :math:`\mathbf{l}, \mathbf{v}` from the point (each scaled by the reciprocal of its length).
+    The one implementation: :func:`_illumination_at` and :func:`observe_window` run it."""
+    lx, ly, lz = sx - px, sy - py, sz - pz
+    il = 1.0 / math.sqrt(lx * lx + ly * ly + lz * lz)
+    lx, ly, lz = lx * il, ly * il, lz * il
+    vx, vy, vz = vx - px, vy - py, vz - pz
+    iv = 1.0 / math.sqrt(vx * vx + vy * vy + vz * vz)
+    vx, vy, vz = vx * iv, vy * iv, vz * iv
+    c = min(max(lx * vx + ly * vy + lz * vz, -1.0), 1.0)
+    return nx * lx + ny * ly + nz * lz, nx * vx + ny * vy + nz * vz, c
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _illumination_at(px, py, pz, nx, ny, nz, sun, sc):
-    r"""Seed 001 eqs. 4-5 at one point: :math:`\cos i = \mathbf{n}\cdot\mathbf{l}`, :math:`\cos e =
-    \mathbf{n}\cdot\mathbf{v}`, :math:`\alpha = \arccos(\mathbf{l}\cdot\mathbf{v})` (the one implementation)."""
-    lx, ly, lz = sun[0] - px, sun[1] - py, sun[2] - pz
-    ln = math.sqrt(lx * lx + ly * ly + lz * lz)
-    lx, ly, lz = lx / ln, ly / ln, lz / ln
-    vx, vy, vz = sc[0] - px, sc[1] - py, sc[2] - pz
-    vn = math.sqrt(vx * vx + vy * vy + vz * vz)
-    vx, vy, vz = vx / vn, vy / vn, vz / vn
-    c = lx * vx + ly * vy + lz * vz
-    if c > 1.0:
-        c = 1.0
-    elif c < -1.0:
-        c = -1.0
-    return nx * lx + ny * ly + nz * lz, nx * vx + ny * vy + nz * vz, math.acos(c)
+    r"""``(cos i, cos e, alpha)`` at one point: :func:`_cosines_at` and :math:`\alpha = \arccos(\mathbf{l}\cdot\mathbf{v})`
+    (:func:`.vacos.acos`)."""
+    a, b, c = _cosines_at(px, py, pz, nx, ny, nz, sun[0], sun[1], sun[2], sc[0], sc[1], sc[2])
+    return a, b, vacos.acos(c)
 
 
 @njit(cache=True, error_model="numpy")
@@ -219,41 +229,43 @@ def lonlat_axes(transform, shape):
 
 @njit(cache=True, error_model="numpy")
 def surface_block(coslon, sinlon, coslat, sinlat, height_m, radius_km):
-    """Points (km) of a DEM block with a one-pixel halo, and the normals of its inner pixels.
+    """Points (km) of a DEM block with a one-pixel halo, and the normals of its inner pixels, coordinate-major.
 
     ``height_m`` ``(H+2, W+2)`` (NaN counts as 0, as :func:`body_fixed` of ``nan_to_num``
     heights), trigonometric values of each column's longitude and each row's latitude.
-    Returns points ``(H+2, W+2, 3)`` and normals ``(H, W, 3)``: :func:`body_fixed` and
-    :func:`dem_normals` (central differences) evaluated in the same order.
+    Returns points ``(3, H+2, W+2)`` and normals ``(3, H, W)`` (x, y, z planes: the loops run
+    4 pixels per AVX2 instruction; ``np.moveaxis(a, 0, -1)`` gives the ``(..., 3)`` layout of
+    :func:`body_fixed` and :func:`dem_normals` (central differences), whose bytes they are:
+    the same operations in the same order).
     """
     hh, ww = height_m.shape
-    pts = np.empty((hh, ww, 3))
+    pts = np.empty((3, hh, ww))
     for i in range(hh):
+        cl, sl = coslat[i], sinlat[i]
         for j in range(ww):
             h = np.float64(height_m[i, j])
-            if h != h:
-                h = 0.0
+            h = 0.0 if h != h else h
             r = radius_km + h / 1000.0
-            rc = r * coslat[i]
-            pts[i, j, 0] = rc * coslon[j]
-            pts[i, j, 1] = rc * sinlon[j]
-            pts[i, j, 2] = r * sinlat[i]
-    nrm = np.empty((hh - 2, ww - 2, 3))
+            rc = r * cl
+            pts[0, i, j] = rc * coslon[j]
+            pts[1, i, j] = rc * sinlon[j]
+            pts[2, i, j] = r * sl
+    nrm = np.empty((3, hh - 2, ww - 2))
+    x, y, z = pts[0], pts[1], pts[2]
     for i in range(1, hh - 1):
         for j in range(1, ww - 1):
-            rx = (pts[i + 1, j, 0] - pts[i - 1, j, 0]) * 0.5
-            ry = (pts[i + 1, j, 1] - pts[i - 1, j, 1]) * 0.5
-            rz = (pts[i + 1, j, 2] - pts[i - 1, j, 2]) * 0.5
-            cx = (pts[i, j + 1, 0] - pts[i, j - 1, 0]) * 0.5
-            cy = (pts[i, j + 1, 1] - pts[i, j - 1, 1]) * 0.5
-            cz = (pts[i, j + 1, 2] - pts[i, j - 1, 2]) * 0.5
+            rx = (x[i + 1, j] - x[i - 1, j]) * 0.5
+            ry = (y[i + 1, j] - y[i - 1, j]) * 0.5
+            rz = (z[i + 1, j] - z[i - 1, j]) * 0.5
+            cx = (x[i, j + 1] - x[i, j - 1]) * 0.5
+            cy = (y[i, j + 1] - y[i, j - 1]) * 0.5
+            cz = (z[i, j + 1] - z[i, j - 1]) * 0.5
             nx, ny, nz = ry * cz - rz * cy, rz * cx - rx * cz, rx * cy - ry * cx
             norm = math.sqrt(nx * nx + ny * ny + nz * nz)
-            if nx * pts[i, j, 0] + ny * pts[i, j, 1] + nz * pts[i, j, 2] < 0:
-                norm = -norm
-            nrm[i - 1, j - 1, 0] = nx / norm
-            nrm[i - 1, j - 1, 1] = ny / norm
-            nrm[i - 1, j - 1, 2] = nz / norm
+            norm = -norm if nx * x[i, j] + ny * y[i, j] + nz * z[i, j] < 0 else norm
+            nrm[0, i - 1, j - 1] = nx / norm
+            nrm[1, i - 1, j - 1] = ny / norm
+            nrm[2, i - 1, j - 1] = nz / norm
     return pts, nrm
 
 
@@ -261,10 +273,13 @@ def surface_block(coslon, sinlon, coslat, sinlat, height_m, radius_km):
 def observe_window(use, height_m, pts, nrm, r_off, c_off, sun, sc, min_cos_i):
     """Candidate observations of one image window: pixels ``use`` with a DEM, cos i >= ``min_cos_i``, cos e > 0.
 
-    ``use`` ``(h, w)`` bool over the window; ``height_m``, ``nrm`` cover the block
-    (inner pixels), ``pts`` with its halo: window pixel ``(r, c)`` is block pixel
-    ``(r + r_off, c + c_off)``.  Returns window rows and columns (int64) and
-    ``cos i``, ``cos e``, ``alpha`` (float64) of the candidates, in row-major order.
+    ``use`` ``(h, w)`` bool over the window; ``height_m`` and ``nrm`` ``(3, H, W)`` cover the
+    block (inner pixels), ``pts`` ``(3, H+2, W+2)`` with its halo (:func:`surface_block`):
+    window pixel ``(r, c)`` is block pixel ``(r + r_off, c + c_off)``.  Returns window rows
+    and columns (int64) and ``cos i``, ``cos e``, ``alpha`` (float64) of the candidates, in
+    row-major order: the values of :func:`_illumination_at`.  Each row's cosines are computed
+    for all its pixels in one vectorised loop, the candidates then copied out, and their
+    phase angles taken in one vectorised loop at the end.
     """
     h, w = use.shape
     n = 0
@@ -274,17 +289,22 @@ def observe_window(use, height_m, pts, nrm, r_off, c_off, sun, sc, min_cos_i):
     rows = np.empty(n, np.int64)
     cols = np.empty(n, np.int64)
     ci, ce, al = np.empty(n), np.empty(n), np.empty(n)
+    row_ci, row_ce, row_ca = np.empty(w), np.empty(w), np.empty(w)
+    sx, sy, sz, vx, vy, vz = sun[0], sun[1], sun[2], sc[0], sc[1], sc[2]
     m = 0
     for r in range(h):
+        i = r + r_off
+        px, py, pz = pts[0, i + 1, c_off + 1:c_off + 1 + w], pts[1, i + 1, c_off + 1:c_off + 1 + w], \
+            pts[2, i + 1, c_off + 1:c_off + 1 + w]
+        nx, ny, nz = nrm[0, i, c_off:c_off + w], nrm[1, i, c_off:c_off + w], nrm[2, i, c_off:c_off + w]
         for c in range(w):
-            if not use[r, c]:
-                continue
-            i, j = r + r_off, c + c_off
-            if not np.isfinite(height_m[i, j]):
-                continue
-            a, b, g = _illumination_at(pts[i + 1, j + 1, 0], pts[i + 1, j + 1, 1], pts[i + 1, j + 1, 2],
-                                       nrm[i, j, 0], nrm[i, j, 1], nrm[i, j, 2], sun, sc)
-            if a >= min_cos_i and b > 0:
-                rows[m], cols[m], ci[m], ce[m], al[m] = r, c, a, b, g
+            row_ci[c], row_ce[c], row_ca[c] = _cosines_at(px[c], py[c], pz[c], nx[c], ny[c], nz[c],
+                                                          sx, sy, sz, vx, vy, vz)
+        hr = height_m[i, c_off:c_off + w]
+        for c in range(w):
+            if use[r, c] and np.isfinite(hr[c]) and row_ci[c] >= min_cos_i and row_ce[c] > 0:
+                rows[m], cols[m], ci[m], ce[m], al[m] = r, c, row_ci[c], row_ce[c], row_ca[c]
                 m += 1
+    for o in range(m):
+        al[o] = vacos.acos(al[o])
     return rows[:m], cols[:m], ci[:m], ce[:m], al[:m]
