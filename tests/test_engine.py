@@ -514,3 +514,35 @@ def test_error_tiles_are_written_without_a_predictor_and_the_other_tiles_with_th
                 seen.setdefault(sub, set()).add((tags.get("COMPRESSION"), tags.get("PREDICTOR", "1")))
     assert seen == {"albedo": {("ZSTD", "3")}, "error": {("ZSTD", "1")}, "DEM": {("ZSTD", "3")},
                     "weightsSum": {("ZSTD", "3")}}, seen
+
+
+def test_a_one_worker_solve_compresses_its_tiles_with_every_cpu_and_writes_the_same_files(scene, reference, tmp_path,
+                                                                                          monkeypatch):
+    """In-process runs leave the other CPUs idle, so GDAL compresses each output tile on all of them (NUM_THREADS);
+    a worker of a cluster or a thread pool uses one.  The files are the same bytes either way (also checked by
+    ``test_local_cluster_matches_single_worker_byte_for_byte``: 2 and 4 workers write with one thread)."""
+    import numpy as np
+    from rasterio.transform import Affine
+
+    from lunaralbedo.engine import tilework
+    from lunaralbedo.io.rasters import MOON_CRS
+    from lunaralbedo.parallel.executor import DaskExecutor, LocalPoolExecutor, SerialExecutor
+    from lunaralbedo.parallel.workers import available_cpus
+
+    assert SerialExecutor().cpus_per_task == available_cpus() == len(os.sched_getaffinity(0))
+    assert LocalPoolExecutor(2).cpus_per_task == 1 and DaskExecutor.cpus_per_task == 1
+    seen, real = [], tilework.write_geotiff
+
+    def spy(*args, threads=1, **kwargs):
+        seen.append(threads)
+        return real(*args, threads=threads, **kwargs)
+
+    monkeypatch.setattr(tilework, "write_geotiff", spy)
+    out = tmp_path / "out"
+    solve(scene / "settings.txt", out=out, workers=1, plots=False)
+    assert seen and set(seen) == {available_cpus()}
+    same_results(reference, out)
+    tile = np.random.default_rng(3).normal(size=(700, 900)).astype(np.float32).cumsum(1)  # 12 blocks of 256 px
+    for threads in (1, 3):
+        real(tmp_path / f"t{threads}.tif", tile, Affine(0.01, 0, 0, 0, -0.01, 0), MOON_CRS, threads=threads)
+    assert (tmp_path / "t1.tif").read_bytes() == (tmp_path / "t3.tif").read_bytes()

@@ -268,7 +268,8 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     if not skip_done:
         ck["finalising"] = True  # from here on the state is fixed; finished tiles can be kept
         outputs.write_json(out / STATE_FILE, ck)
-    tile_reports = on_tiles(finalize_tile, "write tiles", out_dir=out / TILES_DIR, state=state, skip_done=skip_done)
+    tile_reports = on_tiles(finalize_tile, "write tiles", out_dir=out / TILES_DIR, state=state, skip_done=skip_done,
+                            write_threads=executor.cpus_per_task)
     resume_info["tiles_written_before"] = sum(bool(r.pop("reused")) for r in tile_reports)
     timings["finalise"] = time.perf_counter() - t3
     return _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -286,8 +287,11 @@ def _tile_images(scene: Scene, t: int, used) -> dict:
     }
 
 
-def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, state: SolveState, skip_done: bool = False) -> dict:
+def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, state: SolveState, skip_done: bool = False,
+                  write_threads: int = 1) -> dict:
     """Write the albedo, error, DEM and weight-sum tiles of tile ``t``; return a small report.
+
+    ``write_threads``: threads GDAL may compress each tile with (the executor's ``cpus_per_task``).
 
     ``weightsSum`` is written last, so with ``skip_done`` (a resumed run whose final
     state was already fixed) a tile that has it is complete and is not redone.  The
@@ -331,18 +335,16 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
             den = per_pixel.get("wblend_sum", per_pixel["weights_sum"]).ravel()  # eq. 7's sum of blending weights
             with np.errstate(divide="ignore", invalid="ignore"):
                 err[b0:b1] = np.where(den > 0, num / den, np.nan).astype(np.float32).reshape(b1 - b0, w_)
-    write_geotiff(out_dir / "albedo" / name, alb, tile.transform, scene.crs, nodata=float("nan"))
+    write = partial(write_geotiff, transform=tile.transform, crs=scene.crs, threads=write_threads)
+    write(out_dir / "albedo" / name, alb, nodata=float("nan"))
     valid = int(np.count_nonzero(np.isfinite(alb)))
     del alb
     if want_err:
-        write_geotiff(out_dir / "error" / name, err, tile.transform, scene.crs, nodata=float("nan"),
-                      predictor=ERROR_PREDICTOR)
+        write(out_dir / "error" / name, err, nodata=float("nan"), predictor=ERROR_PREDICTOR)
         del err
     if has_dem:
-        write_geotiff(out_dir / "DEM" / name, _per_pixel_tile(folder, meta, "dem", (h, w_)), tile.transform, scene.crs,
-                      nodata=float("nan"))
-    write_geotiff(out_dir / "weightsSum" / name, _per_pixel_tile(folder, meta, "weights_sum", (h, w_)), tile.transform,
-                  scene.crs)
+        write(out_dir / "DEM" / name, _per_pixel_tile(folder, meta, "dem", (h, w_)), nodata=float("nan"))
+    write(out_dir / "weightsSum" / name, _per_pixel_tile(folder, meta, "weights_sum", (h, w_)))
     # the tile is complete: its observations are not needed again (deleted in the background)
     discard([folder / f"block_{i:04d}" for i in range(len(meta["blocks"]))], cache_root / TRASH)
     return {**_tile_images(scene, t, idx), "valid_pixels": valid, "reused": False}

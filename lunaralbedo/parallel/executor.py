@@ -23,7 +23,7 @@ from tqdm.auto import tqdm
 from ..errors import ClusterError, LunarAlbedoError, typed_error
 from . import clusters
 from .nodefile import nodefile_client, pbs_nodes
-from .workers import tune_malloc
+from .workers import available_cpus, tune_malloc
 
 
 #: Tasks per worker of a map whose items have homes (see :meth:`DaskExecutor._submit`).
@@ -31,10 +31,18 @@ BATCHES_PER_WORKER = 4
 
 
 class SerialExecutor:
-    """Runs tasks one after another in this process (1 worker; no Dask overhead)."""
+    """Runs tasks one after another in this process (1 worker; no Dask overhead).
+
+    ``cpus_per_task``: the CPUs a task may keep busy with threads of its own (GDAL's
+    compression of the tiles it writes): all of this process's, since nothing else runs.
+    """
 
     workers = 1
     description = "in-process (1 worker)"
+
+    @property
+    def cpus_per_task(self) -> int:
+        return available_cpus()
 
     def __init__(self, progress: bool = False):
         self.progress = progress
@@ -59,6 +67,8 @@ class SerialExecutor:
 
 class LocalPoolExecutor(SerialExecutor):
     """Runs tasks on ``workers`` threads of this process (GIL-releasing work: GDAL reads and writes)."""
+
+    cpus_per_task = 1  # the pool's threads keep the CPUs busy
 
     def __init__(self, workers: int, progress: bool = False):
         super().__init__(progress)
@@ -85,7 +95,10 @@ class DaskExecutor:
     still starting in a background thread (:func:`make_executor` with ``background=True``).
     Until it is up, maps with ``meanwhile=True`` run on ``workers`` threads of this process;
     anything else waits for it (and raises its :class:`ClusterError` if it failed to start).
+    ``cpus_per_task`` is 1: a worker's task thread is its share of the machine.
     """
+
+    cpus_per_task = 1
 
     def __init__(self, client, description: str, progress: bool = False, owned=(), own_client: bool = True,
                  workers: int | None = None):

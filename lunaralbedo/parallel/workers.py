@@ -80,6 +80,14 @@ def worker_config():
     return dask.config.set({**DASK_CONFIG, **{f"distributed.nanny.pre-spawn-environ.{k}": v for k, v in WORKER_ENV.items()}})
 
 
+def available_cpus() -> int:
+    """CPUs this process may run on (its affinity mask where the system has one, else the CPU count)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # no sched_getaffinity (macOS, Windows)
+        return max(1, os.cpu_count() or 1)
+
+
 def local_workers(requested: int | None, default: int | None = None) -> int:
     """Worker count on this machine: ``requested``, else ``default`` capped at the CPU count, else all CPUs."""
     if requested is not None:
