@@ -12,10 +12,12 @@ by image and then by pixel:
 * ``index`` (global image ids) and ``start`` (offsets: image ``k`` owns
   ``start[k]:start[k+1]``).
 
-Per block pixel: ``dem`` (float32) and ``weights_sum`` (float64, the sum of the blending
-weights: the ``weightsSum`` output and, without NORMALIZED_COST_FUN, the denominator of
-eq. 7), and with it ``wblend_sum`` (float64, eq. 7's denominator of the normalised
-weights).  Memory is ~20-28 bytes per observation plus ~12 bytes per pixel of the block.
+Per block pixel: ``dem`` (float32) and ``weights_sum`` (the sum of the blending weights,
+added in float64 and kept in float32, the type of the ``weightsSum`` output; without
+NORMALIZED_COST_FUN also the denominator of eq. 7, whose error tiles are float32), and with
+it ``wblend_sum`` (eq. 7's denominator of the normalised weights, likewise).  Memory is
+~20-28 bytes per observation plus ~8 bytes per pixel of the block; per-pixel arrays were
+half the cache of the strip of docs/performance.md with float64 sums (section 0f).
 
 **Blocks of rows** bound the memory of a worker whatever TILE_SIZE and the number of
 images: a tile is processed in blocks of :func:`block_rows` rows, each with the one-row
@@ -243,9 +245,9 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut):
         obs["pix"][part], obs["image"][part], obs["weight"][part] = pix, val, weight
         for n in names:
             obs[n][part] = layers[n]
-    per_pixel = {"weights_sum": weights_sum}
+    per_pixel = {"weights_sum": weights_sum.astype(np.float32)}  # float64 sums, float32 outputs
     if wblend_sum is not None:
-        per_pixel["wblend_sum"] = wblend_sum
+        per_pixel["wblend_sum"] = wblend_sum.astype(np.float32)
     if geo is not None:
         per_pixel["dem"] = geo.dem
     return obs, per_pixel
