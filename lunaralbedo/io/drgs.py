@@ -8,7 +8,6 @@ other grids go through GDAL's warper (bilinear).
 from __future__ import annotations
 
 import numpy as np
-import rasterio
 from rasterio.crs import CRS
 from rasterio.enums import Resampling
 from rasterio.transform import Affine
@@ -16,6 +15,7 @@ from rasterio.warp import reproject
 from rasterio.windows import Window
 
 from .guard import raster_errors
+from .opened import open_raster
 from .rasters import RasterInfo, _grid_shifts, _overlaps, _source_window, aligned_offset
 
 
@@ -86,7 +86,7 @@ def _drg_bands(ds, info, profile, win, lit_threshold, saturation, lut):
 
 def _read_drg_once(info, profile, dst_transform, dst_shape, dst_crs, lit_threshold, saturation, lut, resampling):
     h, w = dst_shape
-    with raster_errors(info.path), rasterio.open(info.path) as ds:
+    with raster_errors(info.path), open_raster(info.path) as ds:
         src_crs = ds.crs or dst_crs
         same_crs = dst_crs is None or ds.crs is None or ds.crs == dst_crs
         off = aligned_offset(ds.transform, dst_transform, dst_shape) if same_crs else None

@@ -27,6 +27,7 @@ from ..errors import DuplicateKeyError, InputError
 from ..model.longitude import overlap_shifts
 from .atomic import atomic_path
 from .guard import raster_errors
+from .opened import open_raster
 
 #: GDAL's block cache is per process and by default grows to 5 % of RAM; a solve reads
 #: every image once per tile, so a small cache keeps memory bounded by the tile.
@@ -253,7 +254,7 @@ def read_onto_grid(
 def _read_onto_grid_once(info, band, dst_transform, dst_shape, dst_crs, resampling, nodata) -> np.ndarray:
     src_nodata = info.nodata if info.nodata is not None else nodata
     out = np.full(dst_shape, np.nan, dtype=np.float32)
-    with raster_errors(info.path), rasterio.open(info.path) as ds:
+    with raster_errors(info.path), open_raster(info.path) as ds:
         same_crs = dst_crs is None or ds.crs is None or ds.crs == dst_crs
         off = aligned_offset(ds.transform, dst_transform, dst_shape) if same_crs else None
         if off is not None:  # the target's pixels are source pixels: copy them

@@ -1,0 +1,69 @@
+"""Raster files kept open across window reads (``io/opened.py``): one open per file, all closed at the end."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from rasterio.transform import Affine
+
+from lunaralbedo.io import opened, rasters
+
+
+@pytest.fixture()
+def files(tmp_path):
+    paths = []
+    for k in range(4):
+        p = tmp_path / f"f{k}.tif"
+        rasters.write_geotiff(p, np.full((40, 30), k, np.float32), Affine(0.01, 0, k, 0, -0.01, 0), rasters.MOON_CRS)
+        paths.append(p)
+    return paths
+
+
+def test_inside_kept_open_each_file_is_opened_once_and_closed_at_the_end(files):
+    with opened.kept_open():
+        with opened.open_raster(files[0]) as a:
+            first = a.read(1)
+        with opened.kept_open():  # nested: the outer block keeps the files
+            with opened.open_raster(files[0]) as b:
+                assert b is a and not b.closed
+        with opened.open_raster(files[0]) as c:
+            assert c is a and np.array_equal(c.read(1), first)
+        assert not a.closed
+    assert a.closed
+    with opened.open_raster(files[1]) as d:  # outside: opened for the read and closed after it
+        pass
+    with opened.open_raster(files[1]) as e:
+        assert e is not d
+    assert d.closed and e.closed
+
+
+def test_beyond_max_kept_the_least_recently_used_file_not_in_use_is_closed(files, monkeypatch):
+    monkeypatch.setattr(opened, "MAX_KEPT", 2)
+    with opened.kept_open():
+        with opened.open_raster(files[0]) as f0:
+            with opened.open_raster(files[1]) as f1:
+                pass
+            with opened.open_raster(files[2]) as f2:  # f0 is in use: f1 is closed instead
+                assert f1.closed and not f0.closed and not f2.closed
+        with opened.open_raster(files[3]) as f3:  # now f0 is the least recently used
+            assert f0.closed and not f2.closed and not f3.closed
+    assert f2.closed and f3.closed
+
+
+def test_a_prepared_tile_reads_each_input_file_once(tmp_path, monkeypatch):
+    """The solver's prepare step opens the DEM and every DRG of a tile once, however many blocks of rows it takes."""
+    import rasterio
+
+    from lunaralbedo.engine import tilework
+    from lunaralbedo.engine.scene import build_scene
+    from lunaralbedo.settings import load_settings
+    from lunaralbedo.simulate import SceneSpec, render_scene
+
+    render_scene(tmp_path / "s", SceneSpec(n_images=4, image_px=120, tile_size=0.25, max_num_iter=1, seed=3))
+    scene = build_scene(load_settings(tmp_path / "s" / "settings.txt"), False)
+    t = max(range(len(scene.tiles)), key=lambda i: len(scene.tile_images[i]))
+    opens, real = [], rasterio.open
+    monkeypatch.setattr(opened.rasterio, "open", lambda p, *a, **k: (opens.append(str(p)), real(p, *a, **k))[1])
+    monkeypatch.setenv("LUNARALBEDO_BLOCK_ROWS", "7")  # many blocks of rows
+    meta = tilework.prepare_tile(t, scene=scene, cache_root=tmp_path / "cache")
+    assert len(meta["blocks"]) > 3 and len(scene.tile_images[t]) >= 2
+    assert len(opens) == len(set(opens)) == len(scene.tile_images[t]) + len(scene.dems)
