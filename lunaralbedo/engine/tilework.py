@@ -151,9 +151,10 @@ def _init_sums(scene: Scene, obs, width: int) -> dict:
     s = scene.settings
     r = s.model.reflectance_from(obs, s.initial_params)
     rs, n = exposure_init.mean_reflectance_sums(r, obs["start"])  # observations already have positive weight,
-    use = r > 0  # value and geometry; R > 0 remains
+    use = r > 0  # value and geometry; R > 0 remains (nearly always: no copies then)
     ustart = np.concatenate([[0], np.cumsum(n)]).astype(np.int64)
-    pairs = exposure_init.pair_sums(obs["pix"][use], ustart, obs["image"][use], r[use], obs["index"], width)
+    pick = (lambda a: a) if use.all() else (lambda a: a[use])
+    pairs = exposure_init.pair_sums(pick(obs["pix"]), ustart, pick(obs["image"]), pick(r), obs["index"], width)
     return {"index": obs["index"].tolist(), "r_sum": rs.tolist(), "r_count": n.tolist(), "pairs": pairs}
 
 

@@ -91,7 +91,9 @@ def pair_sums(pix, start, image, r, index, width=None):
     """
     with np.errstate(divide="ignore", invalid="ignore"):
         logq = (np.log(image) - np.log(r)).astype(np.float32)
-    pix = np.ascontiguousarray(pix, dtype=np.int64)
+    pix = np.ascontiguousarray(pix)
+    if pix.dtype not in (np.int32, np.int64):
+        pix = pix.astype(np.int64)
     a, b, n, d = _pair_sums(pix, np.asarray(start, dtype=np.int64), logq, int(width or 0))
     out = {}
     for aa, bb, nn, dd in zip(a.tolist(), b.tolist(), n.tolist(), d.tolist()):
