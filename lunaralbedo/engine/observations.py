@@ -206,11 +206,12 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut):
         layers = {}
         if geo is not None:
             rows, cols, ci, ce, al = geo.observe(use, r0 - b0, c0, scene.sun[k], scene.spacecraft[k])
-            lit = ~cast.shadowed(k, rows + r0, cols + c0) if (cast is not None and len(rows)) else np.ones(0, bool)
+            lit = ~cast.shadowed(k, rows, cols, r0, c0) if (cast is not None and len(rows)) else np.ones(0, bool)
             rows, cols, pix, value, weight, ci, ce, al = _compact(rows, cols, lit, val, wb, ci, ce, al, r0 - b0, c0, w)
             if not len(rows):
                 continue
-            layers = model.layers(ci, ce, al, lon=geo.lon[c0 + cols], lat=geo.lat[r0 - b0 + rows])
+            where = dict(lon=geo.lon[c0 + cols], lat=geo.lat[r0 - b0 + rows]) if model.needs_location else {}
+            layers = model.layers(ci, ce, al, **where)
             if with_cos_i:
                 layers["cos_i"] = ci
         else:

@@ -94,8 +94,8 @@ class TileShadows:
         m = self.margin
         return self.dem[r0 + m:r1 + m, c0 + m:c1 + m]
 
-    def shadowed(self, k: int, rows, cols) -> np.ndarray:
-        """True where unpadded tile pixel ``(rows[o], cols[o])`` is in image ``k``'s cast shadow."""
+    def shadowed(self, k: int, rows, cols, row0: int = 0, col0: int = 0) -> np.ndarray:
+        """True where unpadded tile pixel ``(row0 + rows[o], col0 + cols[o])`` is in image ``k``'s cast shadow."""
         if self.dem is None:
             return np.zeros(np.shape(rows), bool)
-        return self.grid.march(self.scene.sun[k], rows, cols, offset=self.margin)
+        return self.grid.march(self.scene.sun[k], rows, cols, offset=(self.margin + row0, self.margin + col0))

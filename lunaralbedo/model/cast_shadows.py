@@ -284,8 +284,11 @@ class MarchGrid:
                              np.array(cells, np.int64), np.array(skips, np.int64))
         return self._pyramid
 
-    def march(self, sun_km, rows, cols, *, offset: int = 0, skip: bool = True, exact: bool = False) -> np.ndarray:
-        """Is DEM pixel ``(offset + rows[o], offset + cols[o])`` in the cast shadow of the Sun at ``sun_km``? (1-D bool)
+    def march(self, sun_km, rows, cols, *, offset: int | tuple[int, int] = 0, skip: bool = True,
+              exact: bool = False) -> np.ndarray:
+        """Is DEM pixel ``(row_offset + rows[o], col_offset + cols[o])`` in the cast shadow of the Sun at ``sun_km``? (1-D bool)
+
+        ``offset``: ``(row_offset, col_offset)``, or one offset for both.
 
         ``skip=False``: every step of every ray, ``exact=True``: the sample coordinates from
         ``atan2``/``asin`` (the reference the shortcuts are tested against).
@@ -296,7 +299,7 @@ class MarchGrid:
             return out.astype(bool)
         tr = self.transform
         prm = np.array([tr.c, tr.a, tr.f, tr.e, self.step_km, self.hmax, self.tolerance_m, MOON_RADIUS_KM,
-                        self.slope if skip else 0.0, offset])
+                        self.slope if skip else 0.0, *(offset if isinstance(offset, tuple) else (offset, offset))])
         sun = np.asarray(sun_km, dtype=np.float64)
         none = (np.zeros(0), np.zeros(0), *(np.zeros(0, np.int64),) * 4)
         if skip and self.slope > 0.0:  # first the rays the global slope bound answers; the pyramid if some ray needs it
@@ -317,17 +320,17 @@ class MarchGrid:
 def _march_pixels(dem, prm, max_steps, exact, decide, cos_lon, sin_lon, cos_lat, sin_lat, sun, rows, cols,
                   lev_top, lev_slope, lev_off, lev_width, lev_shift, lev_skip, out):
     """The march of every pixel ``(rows[o], cols[o])`` into ``out[o]``: 1 shadowed, 0 lit, 2 (``decide``) not
-    answered by the global slope bound (``prm[8]``; 0: none); ``prm[9]``: offset of rows and columns."""
+    answered by the global slope bound (``prm[8]``; 0: none); ``prm[9]``, ``prm[10]``: offsets of rows, columns."""
     lon0, dlon, lat0, dlat, step_km, hmax_m, tol_m, radius, slope = prm[0], prm[1], prm[2], prm[3], prm[4], \
         prm[5], prm[6], prm[7], prm[8]
-    off = int(prm[9])
+    roff, coff = int(prm[9]), int(prm[10])
     h_, w_ = dem.shape
     lon_mid = lon0 + dlon * w_ / 2.0
     d2r = math.pi / 180.0
     kx, ky = 1.0 / (d2r * dlon), 1.0 / (d2r * dlat)
     n_lev = lev_shift.shape[0]
     for o in range(rows.shape[0]):
-        i, j = off + np.int64(rows[o]), off + np.int64(cols[o])
+        i, j = roff + np.int64(rows[o]), coff + np.int64(cols[o])
         h = dem[i, j]
         if not np.isfinite(h):
             continue  # no ground point: lit

@@ -56,6 +56,8 @@ class PhotometricModel:
     #: ``validate(values, where)`` raises SettingsError for invalid model settings.
     validate: Callable[[Mapping[str, Any], str], None] | None = None
     needs_geometry: bool = True  #: needs a DEM and Sun/spacecraft positions
+    #: ``layers`` uses the ground points' ``lon``/``lat`` (a parameter map); the engine passes them only then
+    needs_location: bool = False
     #: ``curve(alpha, params)``: the parameter-dependent part of R against phase angle (radians),
     #: which caps the damped step; default: R at the symmetric geometry i = e = alpha/2.
     curve: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None

@@ -205,7 +205,8 @@ def configure(values, contents, where: str) -> PhotometricModel:
     def reflectance(cos_i, cos_e, alpha, params=(), lon=None, lat=None):
         return layers(cos_i, cos_e, alpha, lon, lat)["geometric"]
 
-    return dataclasses.replace(MODEL, layers=layers, reflectance=reflectance, configure=None)
+    return dataclasses.replace(MODEL, layers=layers, reflectance=reflectance, configure=None,
+                               needs_location=points is not None)
 
 
 MODEL = PhotometricModel(
