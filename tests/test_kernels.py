@@ -84,8 +84,15 @@ def test_fused_kernel_equals_the_numpy_formulas():
     got = _run(pm, 0, (pm["r"], pm["d0"], pm["d1"]), (), t, 2)
     # per-pixel sums run over the images in the same order as NumPy's axis-0 sum: identical bytes
     np.testing.assert_array_equal(got["alb"].reshape(h, w), alb)
-    t_obs = np.repeat(t, np.diff(obs["start"]))
-    np.testing.assert_array_equal(got["alb"], kernels.albedo(obs["pix"], obs["image"], t_obs * obs["r"], obs["weight"], h * w))
+    t_pm = t[pm["image_of"]]
+    np.testing.assert_array_equal(got["alb"], kernels.albedo(pm["offsets"], pm["pixels"], pm["image"], t_pm * pm["r"],
+                                                             pm["weight"], h * w))
+    # finalise's eq. 7 numerator, pixel by pixel in tile order: the NumPy sums over the image axis, bit for bit
+    num = kernels.error_numerator(pm["offsets"], pm["pixels"], pm["image"], t_pm * pm["r"], pm["weight"],
+                                  got["alb"], h * w)
+    want = updates._f64sum(updates.error_terms(image, alb[None], tr.astype(np.float32), wt), axis=0)
+    assert np.count_nonzero(want) > 0.5 * h * w
+    np.testing.assert_array_equal(num.reshape(h, w), want)
     assert got["n_obs"] == np.count_nonzero(wt)
     # whole-tile sums: other summation order, float64 -> equal to ~1e-12
     np.testing.assert_allclose(got["q"], q, rtol=1e-12)
@@ -306,6 +313,26 @@ def test_cached_arrays_are_read_only_file_mappings_equal_to_numpys(tmp_path):
     (folder / "f32.npy").write_bytes(raw[:-8])
     with pytest.raises(ValueError):
         load_stack(folder)
+
+
+def test_read_into_fills_a_slice_with_a_cached_array_and_refuses_a_mismatch(tmp_path):
+    """Finalise assembles a tile's per-pixel outputs from its blocks' files, read straight into place; a float64
+    array of an older cache is cast; a file of another size or cut short is an error naming it."""
+    from lunaralbedo.io.cache import read_into
+
+    rng = np.random.default_rng(9)
+    a32, a64 = rng.random((3, 5), dtype=np.float32), rng.random((2, 5))
+    np.save(tmp_path / "a32.npy", a32)
+    np.save(tmp_path / "a64.npy", a64)
+    out = np.full((6, 5), -1.0, np.float32)
+    read_into(tmp_path / "a32.npy", out[1:4])
+    read_into(tmp_path / "a64.npy", out[4:6])
+    assert np.array_equal(out[1:4], a32) and np.array_equal(out[4:6], a64.astype(np.float32)) and np.all(out[0] == -1)
+    with pytest.raises(ValueError, match="a32.npy"):
+        read_into(tmp_path / "a32.npy", out[0:2])
+    (tmp_path / "a32.npy").write_bytes((tmp_path / "a32.npy").read_bytes()[:-4])
+    with pytest.raises(ValueError, match="shorter"):
+        read_into(tmp_path / "a32.npy", out[1:4])
 
 
 def test_memory_cache_keeps_within_budget_and_never_serves_a_replaced_entry(tmp_path):

@@ -5,7 +5,7 @@ The prepare step gathers observations as 1-D float32 arrays ordered by image, th
 them in pixel-major order (:func:`pixel_major`, once per block at prepare, see
 :mod:`.tilework`): :func:`iterate_pixels` computes each pixel's albedo and all the sums in
 one pass, with the photometric model's ``point`` (R and dR/dp) inline; finalise's
-:func:`albedo` and :func:`error_numerator` take any order with a pixel per observation.
+:func:`albedo` and :func:`error_numerator` sum each pixel's observations as it does.
 Every product is formed in float32 as the former NumPy code did and summed into float64
 accumulators in one fixed order (fixed lanes for the global sums), so results do not depend on
 workers or threads.  ``cache=True``, no fastmath (IEEE semantics, no reassociation).
@@ -342,26 +342,32 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
 
 
 @njit(cache=True)
-def albedo(pix, image, tr, w, npix):
-    r"""Eq. 3: :math:`A = \sum I\,TR\,w / \sum (TR)^2 w` per pixel (float32, NaN where no weight)."""
-    num = np.zeros(npix)
-    den = np.zeros(npix)
-    for o in range(pix.shape[0]):
-        trw = tr[o] * w[o]
-        num[pix[o]] += image[o] * trw
-        den[pix[o]] += tr[o] * trw
-    out = np.empty(npix, np.float32)
-    for p in range(npix):
-        out[p] = num[p] / den[p] if den[p] > 0 else np.nan
+def albedo(offsets, pixels, image, tr, w, npix):
+    r"""Eq. 3 of pixel-major observations: :math:`A = \sum I\,TR\,w / \sum (TR)^2 w` per pixel of the block
+    (float32, NaN where no weight); each pixel's float64 sums over its images in tile order, as
+    :func:`iterate_pixels` sums them (the same bits)."""
+    out = np.full(npix, np.nan, np.float32)
+    for j in range(pixels.shape[0]):
+        num, den = 0.0, 0.0
+        for o in range(offsets[j], offsets[j + 1]):
+            trw = tr[o] * w[o]
+            num += image[o] * trw
+            den += tr[o] * trw
+        if den > 0:
+            out[pixels[j]] = num / den
     return out
 
 
-@njit(cache=True)
-def error_numerator(pix, image, tr, w, alb, npix):
-    r"""Numerator of eq. 7 per pixel: :math:`\sum (I/(TR) - A)^2 S w` (float64)."""
+@njit(cache=True, error_model="numpy")  # IEEE division, as the NumPy formula (model/updates.error_terms)
+def error_numerator(offsets, pixels, image, tr, w, alb, npix):
+    r"""Numerator of eq. 7 per pixel of pixel-major observations: :math:`\sum (I/(TR) - A)^2 S w` (float64)."""
     num = np.zeros(npix)
-    for o in range(pix.shape[0]):
-        if w[o] > 0:
-            dev = image[o] / tr[o] - alb[pix[o]]
-            num[pix[o]] += dev * dev * w[o]
+    for j in range(pixels.shape[0]):
+        p = pixels[j]
+        acc = 0.0
+        for o in range(offsets[j], offsets[j + 1]):
+            if w[o] > 0:
+                dev = image[o] / tr[o] - alb[p]
+                acc += dev * dev * w[o]
+        num[p] = acc
     return num

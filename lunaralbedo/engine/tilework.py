@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.cache import MemoryCache, building, discard, load_stack, save_meta, save_stack
+from ..io.cache import MemoryCache, building, discard, load_stack, read_into, save_meta, save_stack
 from ..io.opened import kept_open
 from ..io.rasters import write_geotiff
 from ..model import exposure_init, shadows, updates
@@ -162,8 +162,8 @@ def _init_sums(scene: Scene, obs, width: int) -> dict:
 def tile_model(scene: Scene, obs, state: SolveState, npix: int):
     """Albedo of a block's pixel-major observations for the given exposures and model parameters (eq. 3).
 
-    Returns ``(albedo (npix,), R, w, T, pixel per observation)``; ``w`` includes the dynamic
-    shadow mask.  Each pixel sums its images in tile order, as the iterations do.
+    Returns ``(albedo (npix,), R, w, T)``; ``w`` includes the dynamic shadow mask.  Each pixel
+    sums its images in tile order, as the iterations do.
     """
     s = scene.settings
     t_obs = state.exposure[obs["index"]].astype(np.float32)[obs["image_of"]]
@@ -172,9 +172,8 @@ def tile_model(scene: Scene, obs, state: SolveState, npix: int):
     if s.shadow_type in (shadows.LAMBERT_RATIO, shadows.LUNAR_LAMBERT_RATIO) and s.model.needs_geometry:
         rr = obs["cos_i"] if (s.shadow_type == shadows.LAMBERT_RATIO and "cos_i" in obs) else r
         w = np.where(shadows.dynamic_lit(obs["image"], rr, t_obs, s.shadow_thresh), w, 0.0).astype(np.float32)
-    pix = np.repeat(obs["pixels"], np.diff(obs["offsets"]))
-    alb = kernels.albedo(pix, obs["image"], t_obs * r, w, npix)
-    return alb, r, w, t_obs, pix
+    alb = kernels.albedo(obs["offsets"], obs["pixels"], obs["image"], t_obs * r, w, npix)
+    return alb, r, w, t_obs
 
 
 #: Pixel-major observations of the blocks this process iterates stay in memory within this
@@ -330,10 +329,10 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
         if not len(obs["index"]):
             continue
         npix = (b1 - b0) * w_
-        a, r, w, t_obs, pix = tile_model(scene, obs, state, npix)
+        a, r, w, t_obs = tile_model(scene, obs, state, npix)
         alb[b0:b1] = a.reshape(b1 - b0, w_)
         if want_err:
-            num = kernels.error_numerator(pix, obs["image"], t_obs * r, w, a, npix)
+            num = kernels.error_numerator(obs["offsets"], obs["pixels"], obs["image"], t_obs * r, w, a, npix)
             den = per_pixel.get("wblend_sum", per_pixel["weights_sum"]).ravel()  # eq. 7's sum of blending weights
             with np.errstate(divide="ignore", invalid="ignore"):
                 err[b0:b1] = np.where(den > 0, num / den, np.nan).astype(np.float32).reshape(b1 - b0, w_)
@@ -353,8 +352,8 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
 
 
 def _per_pixel_tile(folder: Path, meta: dict, name: str, shape) -> np.ndarray:
-    """One cached per-pixel array of a tile, assembled from its blocks (float32)."""
+    """One cached per-pixel array of a tile, assembled from its blocks (float32; each block's file read into place)."""
     out = np.empty(shape, np.float32)
     for i, (b0, b1) in enumerate(meta["blocks"]):
-        out[b0:b1] = load_stack(folder / f"block_{i:04d}")[0][f"tile_{name}"]
+        read_into(folder / f"block_{i:04d}" / f"tile_{name}.npy", out[b0:b1])
     return out
