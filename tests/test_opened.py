@@ -49,12 +49,14 @@ def test_beyond_max_kept_the_least_recently_used_file_not_in_use_is_closed(files
     assert f2.closed and f3.closed
 
 
-def test_a_prepared_tile_reads_each_input_file_once(tmp_path, monkeypatch):
-    """The solver's prepare step opens the DEM and every DRG of a tile once, however many blocks of rows it takes."""
+def test_the_cast_shadow_dem_of_a_tile_opens_each_dem_file_once(tmp_path, monkeypatch):
+    """The solver reads a tile's DEM (with its margin) in chunks of rows: each DEM file is opened once for all of
+    them, so GDAL decodes each compressed block once; the heights are those of one read of the whole grid."""
     import rasterio
 
-    from lunaralbedo.engine import tilework
+    from lunaralbedo.engine import terrain
     from lunaralbedo.engine.scene import build_scene
+    from lunaralbedo.io.rasters import read_dem_onto_grid
     from lunaralbedo.settings import load_settings
     from lunaralbedo.simulate import SceneSpec, render_scene
 
@@ -63,7 +65,10 @@ def test_a_prepared_tile_reads_each_input_file_once(tmp_path, monkeypatch):
     t = max(range(len(scene.tiles)), key=lambda i: len(scene.tile_images[i]))
     opens, real = [], rasterio.open
     monkeypatch.setattr(opened.rasterio, "open", lambda p, *a, **k: (opens.append(str(p)), real(p, *a, **k))[1])
-    monkeypatch.setenv("LUNARALBEDO_BLOCK_ROWS", "7")  # many blocks of rows
-    meta = tilework.prepare_tile(t, scene=scene, cache_root=tmp_path / "cache")
-    assert len(meta["blocks"]) > 3 and len(scene.tile_images[t]) >= 2
-    assert len(opens) == len(set(opens)) == len(scene.tile_images[t]) + len(scene.dems)
+    monkeypatch.setattr(terrain, "READ_ROWS", 7)  # many chunks
+    shadows = terrain.TileShadows(scene, scene.tiles[t], scene.tile_images[t])
+    assert shadows.dem is not None and shadows.dem.shape[0] > 5 * 7
+    assert sorted(opens) == sorted(str(d.path) for d in scene.dems)  # once each
+    whole = read_dem_onto_grid(scene.dems, shadows.transform, shadows.dem.shape, scene.crs,
+                               scene.settings.no_dem_data_val)
+    assert np.array_equal(shadows.dem, whole, equal_nan=True)

@@ -14,6 +14,7 @@ import numpy as np
 from rasterio.transform import Affine
 
 from ..constants import MOON_RADIUS_KM
+from ..io.opened import kept_open
 from ..io.rasters import read_dem_onto_grid
 from ..model import geometry
 from ..model.cast_shadows import MAX_REACH_KM, MarchGrid, shadow_reach_km, sun_elevation
@@ -75,16 +76,17 @@ class TileShadows:
         max_margin = int(math.ceil(MAX_REACH_KM / px_km)) + 2
         margin = FIRST_MARGIN_PX
         dem = None
-        while True:
-            dem, transform = _read(scene, tile, margin, dem)
-            inner = dem[margin:margin + tile.height, margin:margin + tile.width]
-            if not np.isfinite(inner).any():
-                return
-            relief = float(np.nanmax(dem) - np.nanmin(inner))
-            need = int(math.ceil(shadow_reach_km(relief, elev) / px_km)) + 2
-            if need <= margin or margin >= max_margin:
-                break
-            margin = min(max(need, 2 * margin), max_margin)
+        with kept_open():  # the DEM files stay open over the chunks: each compressed block decoded once
+            while True:
+                dem, transform = _read(scene, tile, margin, dem)
+                inner = dem[margin:margin + tile.height, margin:margin + tile.width]
+                if not np.isfinite(inner).any():
+                    return
+                relief = float(np.nanmax(dem) - np.nanmin(inner))
+                need = int(math.ceil(shadow_reach_km(relief, elev) / px_km)) + 2
+                if need <= margin or margin >= max_margin:
+                    break
+                margin = min(max(need, 2 * margin), max_margin)
         self.dem = dem  # float32: the march gives the answers of float64 heights
         self.grid = MarchGrid(dem, transform)  # tables shared by all images (the pyramid built on first need)
         self.transform, self.margin = transform, margin

@@ -27,7 +27,6 @@ from pathlib import Path
 import numpy as np
 
 from ..io.cache import MemoryCache, building, discard, load_stack, read_into, save_meta, save_stack
-from ..io.opened import kept_open
 from ..io.rasters import write_geotiff
 from ..model import exposure_init, shadows, updates
 from . import kernels, observations
@@ -98,8 +97,8 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | No
     cached = load_stack(folder)
     if cached is not None and cached[1].get("layout") == CACHE_LAYOUT:
         return {**cached[1], "reused": True}
-    with building(folder) as tmp, kept_open():  # the folder appears when all blocks are written; each input
-        meta = _prepare_blocks(scene, t, lut, tmp)  # file is opened once (GDAL keeps its decoded blocks meanwhile)
+    with building(folder) as tmp:  # the tile's folder appears when all its blocks are written
+        meta = _prepare_blocks(scene, t, lut, tmp)
     return {**meta, "reused": False}
 
 

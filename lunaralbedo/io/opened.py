@@ -1,14 +1,17 @@
 """Raster files kept open across many window reads (one thread's block of work).
 
-The prepare step reads the DEM of a tile in chunks of rows (bounded temporaries) and each
-image over every block of rows of a tile.  Opening the file for each read threw away GDAL's
-cache of the blocks it had decoded, so a compressed block under two chunks was decoded twice
-(the strip scene of docs/performance.md: its DEM reads took 0.41 s, one decode of the whole
-DEM 0.16 s).  Inside :func:`kept_open`, :func:`open_raster` gives the file opened before in
-this thread's block, up to :data:`MAX_KEPT` files (the least recently used one not in use is
-closed beyond), and closes them all at its end; outside, it opens and closes as
-``rasterio.open`` does.  GDAL's block cache is bounded (GDAL_CACHEMAX), and a closed file's
-blocks leave it.
+The prepare step reads the DEM of a tile (with the cast-shadow margin) in chunks of rows, to
+bound its temporaries.  Opening the file for each chunk threw away GDAL's cache of the blocks
+it had decoded, so a compressed block under two chunks was decoded twice (the strip scene of
+docs/performance.md: its DEM reads took 0.41 s, one decode of the whole DEM 0.16 s).  Inside
+:func:`kept_open`, :func:`open_raster` gives the file opened before in this thread's block, up
+to :data:`MAX_KEPT` files (the least recently used one not in use is closed beyond), and closes
+them all at its end; outside, it opens and closes as ``rasterio.open`` does.
+
+Keep such blocks short: an open file's decoded blocks stay in GDAL's cache (up to
+GDAL_CACHEMAX, 5 % of the RAM by default) until it is closed.  Keeping the DRGs open over a
+whole tile as well raised the peak memory of a 4000 x 4000 px tile under 16 images from 832 to
+931 MB (docs/performance.md, section 0f), so only the DEM reads use it.
 """
 from __future__ import annotations
 
