@@ -272,6 +272,13 @@ def test_the_fused_kernel_is_vectorised():
     asm = fresh.inspect_asm(fresh.signatures[0])
     count = lambda ins: len(re.findall(r"\bv?" + ins + r"\b", asm))
     assert count("mulps") >= 10 and count("cvtps2pd") >= 10 and count("addpd") >= 10
+    # the lanes of Q and the normal equations: 10 packed float64 additions in the loop's vector body
+    # (written out inside the big function, LLVM had kept this loop scalar)
+    lanes = njit(kernels._normal_lanes.py_func)
+    rows = [np.linspace(0.5, 1.5, 300, dtype=np.float32)] * 7
+    lanes(*rows, np.zeros(kernels.N_SUMS * kernels.LANES), 300, 2)
+    packed = re.findall(r"\bvaddpd\s[^\n]*%[yz]mm", lanes.inspect_asm(lanes.signatures[0]))  # 4 or 8 lanes a time
+    assert len(packed) >= kernels.N_SUMS
 
 
 def test_a_pixel_seen_by_more_images_than_the_kernel_takes_is_an_error():

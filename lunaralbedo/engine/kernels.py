@@ -99,8 +99,10 @@ def _point(kind, l0, l1, l2, params):
     return l0, l1, l2
 
 
-#: Observations per chunk of :func:`iterate_pixels` (whole pixels; a pixel with more is a chunk alone).
-CHUNK = 4096
+#: Observations per chunk of :func:`iterate_pixels` (whole pixels; a pixel with more is a chunk alone):
+#: 1024 keeps its ~50 KB of work rows near the core (the strip's biggest tile, the kernel as one function:
+#: 7.5-7.8 ns per observation with 4096, 6.6-7.1 ns with 1024, 6.8-7.4 ns with 256; docs/performance.md 0g).
+CHUNK = 1024
 #: Most observations of one pixel :func:`iterate_pixels` takes (a tile with fewer than 65536
 #: images always fits); with :data:`CHUNK` and a pad, the row length of its float32 work
 #: buffer, whose rows then start in different L1 sets.
@@ -145,6 +147,137 @@ def _carry_back(ends, src, dst, first, n, t):
     dst[n - 1] = ends[n - 1]
 
 
+# The loops of one chunk of :func:`iterate_pixels`, each its own function: LLVM vectorises a
+# small loop over a few arrays where, inlined into the one big function, it kept several of them
+# scalar (the normal equations' lanes: 2.5 ns per observation in the big function, 1.3 ns alone).
+@njit(cache=True)
+def _model_rows(kind, g0, g1, g2, params, R, D0, D1, n):
+    """R and dR/dp of each observation (:func:`_point`)."""
+    if kind == 1:
+        for i in range(n):
+            R[i], D0[i], D1[i] = _point(1, g0[i], g1[i], g2[i], params)
+    else:
+        for i in range(n):
+            R[i], D0[i], D1[i] = g0[i], g1[i], g2[i]
+
+
+@njit(cache=True)
+def _exposures(ims, texp, T, n):
+    """Each observation's exposure (a gather: scalar)."""
+    for i in range(n):
+        T[i] = texp[ims[i]]
+
+
+@njit(cache=True, error_model="numpy")
+def _lit_weights(img, wgt, rat, T, thresh, W, n):
+    r"""The weights after eq. 1's dynamic shadow test :math:`I/(r T) \ge t` (NaN ratios are shadow, as in ``dynamic_lit``)."""
+    zero = np.float32(0.0)
+    for i in range(n):
+        lit = img[i] / (rat[i] * T[i]) >= thresh
+        W[i] = wgt[i] if lit else zero
+
+
+@njit(cache=True)
+def _alpha_keys(ab, W, n, kmin, kmax):
+    """The range of the used phase angles' keys: an integer min / max of their float32 bits (order-free, vectorised)."""
+    for i in range(n):
+        b = ab[i]
+        key = np.int32(b ^ ((b >> 31) & _MAG))  # float32 bits -> int32 in the floats' order
+        used = (W[i] > 0) & (key <= _INF_KEY) & (key >= _NINF_KEY)  # not NaN
+        kmin = min(kmin, key if used else _MAX32)
+        kmax = max(kmax, key if used else _MIN32)
+    return kmin, kmax
+
+
+@njit(cache=True)
+def _eq3_terms(img, T, R, W, PN, PD, SN, SD, n):
+    r"""Eq. 3's terms :math:`I\,TR\,w` and :math:`(TR)^2 w`, each observation's first partial sums, and the count of used observations."""
+    used = 0
+    for i in range(n):
+        wo = W[i]
+        used += wo > 0
+        tr = T[i] * R[i]
+        trw = tr * wo
+        pn = img[i] * trw
+        pd = tr * trw
+        PN[i] = pn
+        PD[i] = pd
+        SN[i] = 0.0 + pn
+        SD[i] = 0.0 + pd
+    return used
+
+
+@njit(cache=True, error_model="numpy")
+def _ratios(sn, sd, out, n):
+    """Eq. 3's quotient at every observation (float32; NaN where no weight)."""
+    for i in range(n):
+        out[i] = np.float32(sn[i] / sd[i]) if sd[i] > 0 else np.float32(np.nan)
+
+
+@njit(cache=True)
+def _finite(ap, A, n):
+    """The albedo of each observation's pixel, 0 where it has none (NaN)."""
+    zero = np.float32(0.0)
+    for i in range(n):
+        a = ap[i]
+        A[i] = a if a == a else zero
+
+
+@njit(cache=True)
+def _cost_lanes(A, T, R, W, img, acc, n):
+    """Eq. 1's terms into the lanes of Q (no parameter fitted)."""
+    for g in range(0, n, LANES):
+        a_, t_, r_, w_, im_ = A[g:g + LANES], T[g:g + LANES], R[g:g + LANES], W[g:g + LANES], img[g:g + LANES]
+        for lane in range(min(LANES, n - g)):
+            res = im_[lane] - a_[lane] * (t_[lane] * r_[lane])
+            acc[lane] += res * res * w_[lane]
+
+
+@njit(cache=True)
+def _normal_lanes(A, T, R, W, D0, D1, img, acc, n, n_par):
+    """Eq. 1's and eq. 5's terms (columns dR/dp_0, dR/dp_1 when present, then R) into the lanes,
+    :data:`LANES` observations at a time, elementwise over the lanes (vectorised, no reassociation)."""
+    zero = np.float32(0.0)
+    for g in range(0, n, LANES):
+        a_, t_, r_, w_, d0_, d1_ = A[g:g + LANES], T[g:g + LANES], R[g:g + LANES], W[g:g + LANES], D0[g:g + LANES], D1[g:g + LANES]
+        im_ = img[g:g + LANES]
+        for lane in range(min(LANES, n - g)):
+            a = a_[lane]
+            t = t_[lane]
+            ro = r_[lane]
+            wo = w_[lane]
+            res = im_[lane] - a * (t * ro)
+            at = a * t
+            c0 = at * d0_[lane] if n_par > 0 else at * ro
+            c1 = (at * d1_[lane] if n_par > 1 else at * ro) if n_par > 0 else zero
+            c2 = at * ro if n_par > 1 else zero
+            j0_, j1_, j2_ = c0 * wo, c1 * wo, c2 * wo
+            acc[lane] += res * res * wo
+            acc[LANES + lane] += j0_ * res
+            acc[2 * LANES + lane] += j1_ * res
+            acc[3 * LANES + lane] += j2_ * res
+            acc[4 * LANES + lane] += j0_ * c0
+            acc[5 * LANES + lane] += j0_ * c1
+            acc[6 * LANES + lane] += j0_ * c2
+            acc[7 * LANES + lane] += j1_ * c1
+            acc[8 * LANES + lane] += j1_ * c2
+            acc[9 * LANES + lane] += j2_ * c2
+
+
+@njit(cache=True)
+def _exposure_lanes(A, R, W, img, ims, PN, PD, expl, n):
+    """Eq. 4's terms, then each image's exposure sums in :data:`EXP_LANES` lanes by position (a scatter: scalar)."""
+    for i in range(n):
+        ar = A[i] * R[i]
+        arw = ar * W[i]
+        PN[i] = img[i] * arw
+        PD[i] = ar * arw
+    for i in range(n):
+        e = (ims[i] * EXP_LANES + i % EXP_LANES) * 2
+        expl[e] += PN[i]
+        expl[e + 1] += PD[i]
+
+
 @njit(cache=True, error_model="numpy")  # IEEE division: I / 0 is inf (lit), 0 / 0 NaN (shadow)
 def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, n_par, n_cols,
                    shadow, ratio, thresh, alpha, exp_num, exp_den, jtj, jtr, alb):
@@ -179,8 +312,11 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
     range is an integer min / max of the angles' bits (order-free, vectorised).  The float32 work
     rows are slices of one array at constant distances: LLVM then sees that they do not overlap
     (numba arrays carry no ``noalias``; too many possibly overlapping arrays and it gives up).
+    Each loop is a small function of its own (``_model_rows`` ... ``_exposure_lanes``): LLVM
+    vectorises each before it is inlined, where the loops written out in this one function left
+    the lanes of the normal equations scalar (docs/performance.md, section 0g).  Chunks of
+    :data:`CHUNK` observations keep the work rows in the L1/L2 caches.
     """
-    zero = np.float32(0.0)
     nimg = texp.shape[0]
     buf = np.empty(_ROWS * STRIDE, np.float32)
     R, D0, D1 = buf[_R * STRIDE:(_R + 1) * STRIDE], buf[_D0 * STRIDE:(_D0 + 1) * STRIDE], buf[_D1 * STRIDE:(_D1 + 1) * STRIDE]
@@ -212,44 +348,15 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
         for jj in range(npc):
             most = max(most, off[jj + 1] - off[jj])
         img, wgt, ims = image[s0:s1], w[s0:s1], image_of[s0:s1]
-        g0, g1, g2 = l0[s0:s1], l1[s0:s1], l2[s0:s1]
-        # R and dR/dp
-        if kind == 1:
-            for i in range(n):
-                R[i], D0[i], D1[i] = _point(1, g0[i], g1[i], g2[i], params)
-        else:
-            for i in range(n):
-                R[i], D0[i], D1[i] = g0[i], g1[i], g2[i]
-        # per observation: exposure (a gather: scalar), weight after the shadow test, eq. 3's terms
-        for i in range(n):
-            T[i] = texp[ims[i]]
+        _model_rows(kind, l0[s0:s1], l1[s0:s1], l2[s0:s1], params, R, D0, D1, n)
+        _exposures(ims, texp, T, n)
         if shadow_on:
-            rat = ratio[s0:s1] if shadow == SHADOW_ON_LAYER else R
-            for i in range(n):
-                lit = img[i] / (rat[i] * T[i]) >= thresh  # NaN ratios are shadow, as in dynamic_lit
-                W[i] = wgt[i] if lit else zero
+            _lit_weights(img, wgt, ratio[s0:s1] if shadow == SHADOW_ON_LAYER else R, T, thresh, W, n)
         else:
             W[:n] = wgt
-        if want_alpha:  # the range of the used phase angles: an integer min / max (order-free, vectorised)
-            ab = abits[s0:s1]
-            for i in range(n):
-                b = ab[i]
-                key = np.int32(b ^ ((b >> 31) & _MAG))  # float32 bits -> int32 in the floats' order
-                used = (W[i] > 0) & (key <= _INF_KEY) & (key >= _NINF_KEY)  # not NaN
-                kmin = min(kmin, key if used else _MAX32)
-                kmax = max(kmax, key if used else _MIN32)
-        # eq. 3's terms, each observation's first partial sums (see below) and the count, in one pass
-        for i in range(n):
-            wo = W[i]
-            n_obs += wo > 0
-            tr = T[i] * R[i]
-            trw = tr * wo
-            pn = img[i] * trw
-            pd = tr * trw
-            PN[i] = pn
-            PD[i] = pd
-            SN[i] = 0.0 + pn
-            SD[i] = 0.0 + pd
+        if want_alpha:
+            kmin, kmax = _alpha_keys(abits[s0:s1], W, n, kmin, kmax)
+        n_obs += _eq3_terms(img, T, R, W, PN, PD, SN, SD, n)
         # eq. 3 per pixel, over the observations: each one's partial sums of its pixel's terms in
         # tile order (round t extends them by one more observation back: ((0 + p0) + p1) + ...,
         # the order of albedo()), the albedo where they end, then carried back over the pixel
@@ -262,59 +369,19 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
             _carry_sums(SD, PD, first, n, t % 2)
         sn = SN[STRIDE:] if most % 2 == 0 else SN[:STRIDE]
         sd = SD[STRIDE:] if most % 2 == 0 else SD[:STRIDE]
-        for i in range(n):
-            PN[i] = np.float32(sn[i] / sd[i]) if sd[i] > 0 else np.float32(np.nan)
+        _ratios(sn, sd, PN, n)
         for t in range(1, most):
             _carry_back(PN, A if t % 2 == 1 else PD, PD if t % 2 == 1 else A, first, n, t)
         ap = PN if most == 1 else (PD if most % 2 == 0 else A)  # the albedo of each observation's pixel
         if want_alb:
             for jj in range(npc):
                 alb[j0 + jj] = ap[off[jj] - s0]
-        for i in range(n):
-            a = ap[i]
-            A[i] = a if a == a else zero
-        # per observation, the terms of eq. 1 and eq. 5 (columns: dR/dp_0, dR/dp_1 when present,
-        # then R) into the lanes, LANES observations at a time; eq. 1 alone when no parameter is fitted
-        if not n_cols:
-            for g in range(0, n, LANES):
-                a_, t_, r_, w_, im_ = A[g:g + LANES], T[g:g + LANES], R[g:g + LANES], W[g:g + LANES], img[g:g + LANES]
-                for lane in range(min(LANES, n - g)):
-                    res = im_[lane] - a_[lane] * (t_[lane] * r_[lane])
-                    acc[lane] += res * res * w_[lane]
-        for g in range(0, n if n_cols else 0, LANES):
-            a_, t_, r_, w_, d0_, d1_ = A[g:g + LANES], T[g:g + LANES], R[g:g + LANES], W[g:g + LANES], D0[g:g + LANES], D1[g:g + LANES]
-            im_ = img[g:g + LANES]
-            for lane in range(min(LANES, n - g)):  # elementwise over the lanes: vectorised, no reassociation
-                a = a_[lane]
-                t = t_[lane]
-                ro = r_[lane]
-                wo = w_[lane]
-                res = im_[lane] - a * (t * ro)
-                at = a * t
-                c0 = at * d0_[lane] if n_par > 0 else at * ro
-                c1 = (at * d1_[lane] if n_par > 1 else at * ro) if n_par > 0 else zero
-                c2 = at * ro if n_par > 1 else zero
-                j0_, j1_, j2_ = c0 * wo, c1 * wo, c2 * wo
-                acc[lane] += res * res * wo
-                acc[LANES + lane] += j0_ * res
-                acc[2 * LANES + lane] += j1_ * res
-                acc[3 * LANES + lane] += j2_ * res
-                acc[4 * LANES + lane] += j0_ * c0
-                acc[5 * LANES + lane] += j0_ * c1
-                acc[6 * LANES + lane] += j0_ * c2
-                acc[7 * LANES + lane] += j1_ * c1
-                acc[8 * LANES + lane] += j1_ * c2
-                acc[9 * LANES + lane] += j2_ * c2
-        # eq. 4: the terms, then each image's exposure sums in lanes by position (a scatter: scalar)
-        for i in range(n):
-            ar = A[i] * R[i]
-            arw = ar * W[i]
-            PN[i] = img[i] * arw
-            PD[i] = ar * arw
-        for i in range(n):
-            e = (ims[i] * EXP_LANES + i % EXP_LANES) * 2
-            expl[e] += PN[i]
-            expl[e + 1] += PD[i]
+        _finite(ap, A, n)
+        if n_cols:
+            _normal_lanes(A, T, R, W, D0, D1, img, acc, n, n_par)
+        else:
+            _cost_lanes(A, T, R, W, img, acc, n)
+        _exposure_lanes(A, R, W, img, ims, PN, PD, expl, n)
         j0 = j1
     sums = np.zeros(N_SUMS)
     for m in range(N_SUMS):
