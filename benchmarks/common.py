@@ -27,11 +27,12 @@ def scene(root: Path, name: str, spec: SceneSpec) -> Path:
     return d
 
 
-def plain_read_seconds(d: Path) -> float:
+def plain_read_seconds(d: Path, dem: bool = False) -> float:
+    """One plain rasterio read of the scene's DRGs (and, with ``dem``, of its DEM too: every raster the solve reads)."""
     import rasterio
 
     t0 = time.perf_counter()
-    for f in sorted((d / "DRG").glob("*.tif")):
+    for f in sorted((d / "DRG").glob("*.tif")) + (sorted((d / "DEM").glob("*.tif")) if dem else []):
         with rasterio.open(f) as ds:
             ds.read()
     return time.perf_counter() - t0
@@ -41,7 +42,7 @@ SOLVE_CHILD = """
 import json, os, sys, time
 from lunaralbedo.engine.solve import solve
 t0 = time.perf_counter()
-r = solve(sys.argv[1], out=sys.argv[2], workers=int(sys.argv[3]), plots=False, method=sys.argv[4], max_iter=int(sys.argv[5]), tolerance=0.0)
+r = solve(sys.argv[1], out=sys.argv[2], workers=int(sys.argv[3]), plots=False, method=sys.argv[4], max_iter=int(sys.argv[5]), tolerance=float(sys.argv[6]))
 dt = time.perf_counter() - t0
 hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM')][0]
 cpu = os.times()
@@ -50,14 +51,16 @@ print(json.dumps({"seconds": dt, "cpu_s": cpu.user + cpu.system, "user_s": cpu.u
 """
 
 
-def solve_child(d: Path, out: Path, workers: int = 1, method: str = "overlap", max_iter: int = 10, src: Path | None = None) -> dict:
+def solve_child(d: Path, out: Path, workers: int = 1, method: str = "overlap", max_iter: int = 10, src: Path | None = None,
+                tolerance: float = 0.0) -> dict:
     """Solve in a fresh process (clean memory figures); returns seconds, CPU seconds, peak MB, timings.
 
     ``src``: run another checkout's ``lunaralbedo`` (e.g. the previous implementation) instead of this one.
+    ``tolerance``: the early stop (0: every one of ``max_iter`` passes, the default of the benchmarks).
     """
     shutil.rmtree(out, ignore_errors=True)
     res = subprocess.run(
-        [sys.executable, "-c", SOLVE_CHILD, str(d / "settings.txt"), str(out), str(workers), method, str(max_iter)],
+        [sys.executable, "-c", SOLVE_CHILD, str(d / "settings.txt"), str(out), str(workers), method, str(max_iter), repr(tolerance)],
         capture_output=True, text=True, cwd=src or REPO,
     )
     if res.returncode:
