@@ -149,7 +149,9 @@ def _carry_back(ends, src, dst, first, n, t):
 
 # The loops of one chunk of :func:`iterate_pixels`, each its own function: LLVM vectorises a
 # small loop over a few arrays where, inlined into the one big function, it kept several of them
-# scalar (the normal equations' lanes: 2.5 ns per observation in the big function, 1.3 ns alone).
+# scalar (the normal equations' lanes: 2.5 ns per observation in the big function, 1.7 ns as their own).
+# They stay in this file: numba's cache checks a function's own file only, so loops inlined from
+# another module could run stale after an edit (docs/architecture.md).
 @njit(cache=True)
 def _model_rows(kind, g0, g1, g2, params, R, D0, D1, n):
     """R and dR/dp of each observation (:func:`_point`)."""
