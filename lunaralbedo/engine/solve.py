@@ -34,7 +34,7 @@ from ..settings import Settings, load_settings
 from ..parallel import local_workers, make_executor
 from .response import check_resume, known_exposures, lut_digest, move_outputs, report_parts, resolve_response
 from .scene import Scene, build_scene
-from .tilework import SolveState, finalize_tile, iterate_tile, prepare_tile
+from .tilework import WRITER, SolveState, finalize_tile, iterate_tile, prepare_tile
 
 METHODS = ("overlap", "seed")
 #: Modules local workers import as they start (the tile tasks' own, with NumPy, numba, rasterio).
@@ -229,7 +229,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     def on_tiles(fn, desc, home="tiles", **kwargs):  # the scene sent to each worker once; a tile stays on its worker
         return executor.map(fn, tiles, desc, shared=("scene",), home=home, scene=scene, cache_root=cache, **kwargs)
 
-    metas = on_tiles(prepare_tile, "prepare", home=None, lut=lut)  # first come, first served
+    metas = _prepare(on_tiles, executor, lut)
     executor.place("tiles", {t: TASK_OBSERVATIONS + sum(m["r_count"]) for t, m in zip(tiles, metas)})
     t_init = _reduce_init(scene, metas, method) if t_known is None else t_known
     timings["prepare"] = time.perf_counter() - t1
@@ -273,6 +273,21 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     resume_info["tiles_written_before"] = sum(bool(r.pop("reused")) for r in tile_reports)
     timings["finalise"] = time.perf_counter() - t3
     return _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info)
+
+
+def _prepare(on_tiles, executor, lut) -> list:
+    """The prepare step over every tile (first come, first served).  In one process the cache is written
+    behind the computation of the next tiles and waited for at the end (:mod:`lunaralbedo.io.cachewriter`);
+    Dask workers finish writing each tile in its task, so any worker can read it next."""
+    if not executor.in_process:
+        return on_tiles(prepare_tile, "prepare", home=None, lut=lut)
+    try:
+        metas = on_tiles(prepare_tile, "prepare", home=None, lut=lut, wait=False)
+        WRITER.flush()
+    except BaseException:
+        WRITER.drain()  # nothing in flight while the run's folder is cleaned up
+        raise
+    return metas
 
 
 def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info):

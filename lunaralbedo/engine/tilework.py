@@ -26,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.cache import MemoryCache, building, discard, load_stack, read_into, save_meta, save_stack
+from ..io.cache import MemoryCache, discard, load_stack, read_into
+from ..io.cachewriter import CacheWriter
 from ..io.rasters import write_geotiff
 from ..model import exposure_init, shadows, updates
 from . import kernels, observations
@@ -81,28 +82,42 @@ def _cache_dir(cache_root: Path, scene: Scene, t: int) -> Path:
 
 
 # --------------------------------------------------------------------------- prepare
-def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | None = None) -> dict:
+def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | None = None, wait: bool = True) -> dict:
     """Read every image over tile ``t`` (its footprint window only), compute geometry, cache the observations.
 
     ``lut``: camera response g over 0..255 (seed 002), applied to each DRG's DN before
     it is resampled onto the tile grid; None keeps the DN (linear response).
 
     The tile is done block of rows by block (:func:`observations.gather_blocks`), each
-    block cached as it is done (into a temporary folder renamed once the tile is complete).  Returns the tile's initialisation sums (also stored in
-    the cache's meta, so a resumed run does not recompute them): per-image reflectance
-    sums for the seed exposure, and pairwise log-ratio sums for the overlap exposure,
-    added block by block in block order.
+    block handed to this process's cache writer (:data:`WRITER`), which writes it while the
+    next one is computed, into a temporary folder renamed once the tile is complete.  With
+    ``wait`` the task returns once its tile is on disk (Dask workers: a finished task's tile
+    can be read by any worker); without, the caller calls ``WRITER.flush()`` before the cache
+    is read (a run in one process: the writing then overlaps the next tiles too).  Returns
+    the tile's initialisation sums (also stored in the cache's meta, so a resumed run does not
+    recompute them): per-image reflectance sums for the seed exposure, and pairwise log-ratio
+    sums for the overlap exposure, added block by block in block order.
     """
     folder = _cache_dir(cache_root, scene, t)
     cached = load_stack(folder)
     if cached is not None and cached[1].get("layout") == CACHE_LAYOUT:
         return {**cached[1], "reused": True}
-    with building(folder) as tmp:  # the tile's folder appears when all its blocks are written
-        meta = _prepare_blocks(scene, t, lut, tmp)
+    entry = WRITER.entry(folder)  # the tile's folder appears when all its blocks are written
+    try:
+        meta = _prepare_blocks(scene, t, lut, entry)
+    except BaseException:
+        entry.abandon()
+        raise
+    if wait:
+        WRITER.flush()
     return {**meta, "reused": False}
 
 
-def _prepare_blocks(scene: Scene, t: int, lut, folder: Path) -> dict:
+#: This process's cache writer (:mod:`lunaralbedo.io.cachewriter`).
+WRITER = CacheWriter()
+
+
+def _prepare_blocks(scene: Scene, t: int, lut, entry) -> dict:
     r_sums: dict[int, list] = {}
     pairs: dict = {}
     blocks = []
@@ -117,8 +132,8 @@ def _prepare_blocks(scene: Scene, t: int, lut, folder: Path) -> dict:
         names = [n for n in obs if n not in ("pix", "start", "index")]
         pm = kernels.pixel_major(obs, npix, names)
         del obs
-        save_stack(folder / f"block_{len(blocks):04d}", {**pm, **{f"tile_{k}": v for k, v in per_pixel.items()}},
-                   {"rows": [b0, b1]})
+        entry.save(f"block_{len(blocks):04d}", {**pm, **{f"tile_{k}": v for k, v in per_pixel.items()}}, {"rows": [b0, b1]})
+        del pm, per_pixel
         blocks.append([b0, b1])
     index = [int(k) for k in scene.tile_images[t] if int(k) in r_sums]  # tile order
     meta = {
@@ -130,7 +145,7 @@ def _prepare_blocks(scene: Scene, t: int, lut, folder: Path) -> dict:
         "blocks": blocks,
         "layout": CACHE_LAYOUT,
     }
-    save_meta(folder, meta)
+    entry.complete(meta)
     return meta
 
 

@@ -2,7 +2,8 @@
 
 A tile's stack is a folder of ``.npy`` arrays written to a temporary folder and
 renamed into place, so a cache entry is either complete or absent.  Arrays are
-loaded memory-mapped, and a resumed run skips tiles already prepared.
+loaded memory-mapped, and a resumed run skips tiles already prepared.  The solver's tiles are
+written behind its computation (:mod:`.cachewriter`), in the same way.
 :class:`MemoryCache` keeps arrays derived from entries in memory within a byte budget
 (the solver's iterations), so that they are not re-read every pass.
 """
@@ -15,7 +16,7 @@ import shutil
 import tempfile
 import threading
 from collections import OrderedDict
-from contextlib import contextmanager, suppress
+from contextlib import suppress
 from pathlib import Path
 from typing import Callable
 
@@ -124,28 +125,6 @@ def save_meta(folder: str | Path, meta: dict) -> None:
         os.replace(tmp, folder / "meta.json")
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-@contextmanager
-def building(folder: str | Path):
-    """A temporary folder next to ``folder`` to fill (blocks, ``meta.json``), renamed to ``folder`` on success.
-
-    The entry appears complete or not at all, as with :func:`save_stack`; on error the
-    temporary folder is removed.
-    """
-    folder = Path(folder)
-    _ensure_parent(folder)
-    tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=folder.parent))
-    try:
-        yield tmp
-        if folder.exists():
-            shutil.rmtree(folder)
-        os.replace(tmp, folder)
-    except BaseException as exc:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if isinstance(exc, OSError) and str(tmp) in str(exc.filename or ""):  # name the entry, not the temporary
-            raise OSError(exc.errno, exc.strerror or str(exc), str(folder)) from exc
         raise
 
 

@@ -39,6 +39,8 @@ class SerialExecutor:
 
     workers = 1
     description = "in-process (1 worker)"
+    #: Tasks run in this process: what they leave in its memory (e.g. the cache writer's queue) is the caller's.
+    in_process = True
 
     @property
     def cpus_per_task(self) -> int:
@@ -99,6 +101,7 @@ class DaskExecutor:
     """
 
     cpus_per_task = 1
+    in_process = False  # tasks run in the workers' processes
 
     def __init__(self, client, description: str, progress: bool = False, owned=(), own_client: bool = True,
                  workers: int | None = None):

@@ -1,0 +1,123 @@
+"""Cache entries written behind the computation, on one background thread of this process.
+
+The prepare step makes a tile's blocks one after the other and hands each to the writer
+(:class:`Entry`), which writes it while the next block (or tile) is computed.  Writing the
+cache costs little CPU but can wait long: once the page cache holds ~10 % of the RAM in dirty
+pages, Linux holds a writer back to the pace of the disk (on this project's machine 0.2 s for
+the strip's 530 MB of cache with few dirty pages, 1.2 s with 1-2 GB of them; docs/performance.md,
+section 0g).  An entry appears exactly as with :func:`.cache.building`: written into a temporary
+folder beside its place, ``meta.json`` last, then renamed, so it is complete or absent.
+
+Bounded: at most :data:`PENDING` jobs wait; the caller blocks beyond that, so at most that many
+blocks (plus the one being written) are held in memory.  A failed write is raised, naming the
+entry, by the next :meth:`Entry.save`, :meth:`Entry.complete` or :meth:`CacheWriter.flush`;
+from then on queued jobs are skipped and every entry not yet complete is removed.
+"""
+from __future__ import annotations
+
+import os
+import queue
+import shutil
+import tempfile
+import threading
+from pathlib import Path
+
+from .cache import _ensure_parent, save_meta, save_stack
+
+#: Jobs that may wait for the writer before :meth:`Entry.save` blocks (memory bound: blocks held).
+PENDING = 2
+
+
+class CacheWriter:
+    """One background writing thread of this process (started on first use)."""
+
+    def __init__(self, pending: int = PENDING):
+        self._jobs: queue.Queue = queue.Queue(maxsize=pending)
+        self._thread: threading.Thread | None = None
+        self._start_lock = threading.Lock()
+        self._error: BaseException | None = None
+
+    def entry(self, folder: str | Path) -> "Entry":
+        """Start writing the cache entry ``folder``: its parts go to a temporary folder beside it."""
+        self._raise()
+        return Entry(self, Path(folder))
+
+    def flush(self) -> None:
+        """Wait until every job handed over is done; raise the first failure (then it is forgotten)."""
+        self._jobs.join()
+        self._raise()
+
+    def drain(self) -> None:
+        """Wait until every job handed over is done or skipped, and forget any failure (a run that failed anyway)."""
+        self._jobs.join()
+        self._error = None
+
+    def _put(self, entry: "Entry", job) -> None:
+        self._raise()
+        with self._start_lock:
+            if self._thread is None or not self._thread.is_alive():
+                self._thread = threading.Thread(target=self._run, name="lunaralbedo-cache-writer", daemon=True)
+                self._thread.start()
+        self._jobs.put((entry, job))
+
+    def _run(self) -> None:
+        while True:
+            entry, job = self._jobs.get()
+            try:
+                if self._error is None and not entry.abandoned:
+                    job()
+                else:
+                    entry.remove()
+            except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread by _raise
+                entry.remove()
+                self._error = entry.named(exc)
+            finally:
+                self._jobs.task_done()
+
+    def _raise(self) -> None:
+        err = self._error
+        if err is not None:
+            self.drain()
+            raise err
+
+
+class Entry:
+    """One cache entry being written by a :class:`CacheWriter` (see the module docstring)."""
+
+    def __init__(self, writer: CacheWriter, folder: Path):
+        self.writer, self.folder = writer, folder
+        _ensure_parent(folder)
+        self.tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=folder.parent))
+        self.abandoned = False
+
+    def save(self, name: str, arrays: dict, meta: dict) -> None:
+        """Queue one part (a :func:`.cache.save_stack` entry ``name`` inside this one); ``arrays`` must not change after."""
+        self.writer._put(self, lambda: save_stack(self.tmp / name, arrays, meta))
+
+    def complete(self, meta: dict) -> None:
+        """Queue ``meta.json`` and the rename that makes the entry appear, complete, at its place."""
+        def finish():
+            save_meta(self.tmp, meta)
+            if self.folder.exists():
+                shutil.rmtree(self.folder)
+            os.replace(self.tmp, self.folder)
+        self.writer._put(self, finish)
+
+    def abandon(self) -> None:
+        """Drop the entry (its computation failed): queued parts are skipped and the temporary folder removed."""
+        self.abandoned = True
+        try:
+            self.writer._put(self, lambda: None)  # runs after the parts: removes the folder
+        except BaseException:  # noqa: BLE001 - the writer failed already: the caller's own error comes first
+            self.remove()
+
+    def remove(self) -> None:
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def named(self, exc: BaseException) -> BaseException:
+        """``exc`` naming the entry rather than its temporary folder (as :func:`.cache.building` does)."""
+        if isinstance(exc, OSError) and str(self.tmp) in str(exc.filename or ""):
+            named = OSError(exc.errno, exc.strerror or str(exc), str(self.folder))
+            named.__cause__ = exc
+            return named
+        return exc
