@@ -42,6 +42,29 @@ def test_kml_reads_back_through_gdal_with_bounds_size_and_values(six):
     assert facts["overviews"] == [2, 4]
 
 
+def test_pyramid_pngs_are_compressed_at_the_fast_zlib_level(six):
+    """Every PNG of the pyramid is zlib level PNG_ZLEVEL (3: the "fast" class of the zlib header's FLEVEL
+    bits; GDAL's default 6 is the "default" class), and decodes to the exact RGBA the KML test reads."""
+    import struct
+    import zlib
+
+    from lunaralbedo.export.tiling import PNG_ZLEVEL
+
+    root, _ = six
+    pngs = sorted((root / "kml").rglob("*.png"))
+    assert pngs and PNG_ZLEVEL == 3
+    for png in pngs:
+        data = png.read_bytes()
+        pos, idat = 8, b""
+        while pos < len(data):  # the PNG chunks: length, type, data, CRC
+            n, kind = struct.unpack(">I4s", data[pos:pos + 8])
+            if kind == b"IDAT":
+                idat += data[pos + 8:pos + 8 + n]
+            pos += 12 + n
+        assert (idat[1] >> 6) == 1, png  # FLEVEL 1: levels 2-5 (6 gives 2, 1 gives 0)
+        zlib.decompress(idat)  # one complete stream
+
+
 def test_coarser_levels_are_block_means_of_the_albedo(six):
     root, _ = six
     st = stretch_of(root)
