@@ -122,13 +122,37 @@ def test_queued_entries_after_a_failure_are_dropped_and_the_next_call_raises(tmp
     assert not (tmp_path / "tile_a").exists() and not (tmp_path / "tile_b").exists() and _leftovers(tmp_path) == []
 
 
-def test_an_abandoned_entry_leaves_nothing(tmp_path):
+def test_an_abandoned_entry_leaves_nothing_and_its_late_failure_is_no_error(tmp_path, monkeypatch):
+    """A computation that fails abandons its entry: nothing is left, and a write of it that was already
+    running when its folder went away (the failed run's clean-up) is not raised into later work."""
+    gate, started = threading.Event(), threading.Event()
+    real = cachewriter.save_stack
+
+    def slow(folder, arrays, meta):
+        started.set()
+        gate.wait(10)
+        real(folder, arrays, meta)
+
+    monkeypatch.setattr(cachewriter, "save_stack", slow)
     w = CacheWriter()
-    e = w.entry(tmp_path / "tile_c")
+    root = tmp_path / "cache"
+    root.mkdir()
+    e = w.entry(root / "tile_c")
     e.save("block_0000", {"x": np.zeros(3, np.float32)}, {})
-    e.abandon()  # its computation failed after the first block
+    e.save("block_0001", {"x": np.zeros(3, np.float32)}, {})
+    started.wait(10)
+    e.abandon()  # its computation failed after two blocks, the first being written
+    import shutil
+
+    shutil.rmtree(root)  # the failed run's clean-up removes the cache under the running write
+    gate.set()
+    w.flush()  # no error: the entry was dropped
+    assert not root.exists() and _leftovers(tmp_path) == []
+    monkeypatch.setattr(cachewriter, "save_stack", real)
+    ok = w.entry(tmp_path / "tile_d")
+    ok.complete({"ok": 1})
     w.flush()
-    assert not (tmp_path / "tile_c").exists() and _leftovers(tmp_path) == []
+    assert load_stack(tmp_path / "tile_d")[1] == {"ok": 1}
 
 
 def test_prepare_in_one_process_returns_before_its_tile_is_written(tmp_path, monkeypatch):

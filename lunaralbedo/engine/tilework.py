@@ -107,6 +107,8 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | No
         meta = _prepare_blocks(scene, t, lut, entry)
     except BaseException:
         entry.abandon()
+        if wait:
+            WRITER.drain()  # nothing of the task left in flight when it reports its failure
         raise
     if wait:
         WRITER.flush()

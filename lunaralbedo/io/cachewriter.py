@@ -70,7 +70,8 @@ class CacheWriter:
                     entry.remove()
             except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread by _raise
                 entry.remove()
-                self._error = entry.named(exc)
+                if not entry.abandoned:  # a dropped entry's failure (its folder removed under it) is no news
+                    self._error = entry.named(exc)
             finally:
                 self._jobs.task_done()
 
