@@ -18,6 +18,21 @@ def _leftovers(root):
     return sorted(p.name for p in root.rglob(".tmp-*"))
 
 
+def _held_writes(monkeypatch):
+    """Make the writer's block writes wait for ``gate``; ``started`` is set when one begins.  Returns the
+    events and the real ``save_stack``."""
+    gate, started = threading.Event(), threading.Event()
+    real = cachewriter.save_stack
+
+    def held(folder, arrays, meta):
+        started.set()
+        gate.wait(10)
+        real(folder, arrays, meta)
+
+    monkeypatch.setattr(cachewriter, "save_stack", held)
+    return gate, started, real
+
+
 def test_an_entry_appears_complete_once_written_and_the_caller_goes_on_meanwhile(tmp_path, monkeypatch):
     gate = threading.Event()
     real = cachewriter.save_stack
@@ -42,15 +57,7 @@ def test_an_entry_appears_complete_once_written_and_the_caller_goes_on_meanwhile
 
 def test_the_caller_waits_when_the_queue_is_full(tmp_path, monkeypatch):
     """At most ``pending`` jobs wait (plus the one being written): the blocks held in memory are bounded."""
-    gate, started = threading.Event(), threading.Event()
-    real = cachewriter.save_stack
-
-    def slow(folder, arrays, meta):
-        started.set()
-        gate.wait(10)
-        real(folder, arrays, meta)
-
-    monkeypatch.setattr(cachewriter, "save_stack", slow)
+    gate, started, real = _held_writes(monkeypatch)
     w = CacheWriter(pending=1)
     e = w.entry(tmp_path / "tile_b")
     done = []
@@ -125,15 +132,7 @@ def test_queued_entries_after_a_failure_are_dropped_and_the_next_call_raises(tmp
 def test_an_abandoned_entry_leaves_nothing_and_its_late_failure_is_no_error(tmp_path, monkeypatch):
     """A computation that fails abandons its entry: nothing is left, and a write of it that was already
     running when its folder went away (the failed run's clean-up) is not raised into later work."""
-    gate, started = threading.Event(), threading.Event()
-    real = cachewriter.save_stack
-
-    def slow(folder, arrays, meta):
-        started.set()
-        gate.wait(10)
-        real(folder, arrays, meta)
-
-    monkeypatch.setattr(cachewriter, "save_stack", slow)
+    gate, started, real = _held_writes(monkeypatch)
     w = CacheWriter()
     root = tmp_path / "cache"
     root.mkdir()
