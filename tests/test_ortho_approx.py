@@ -64,3 +64,15 @@ def test_orthoproject_same_values_as_the_exact_projection():
     assert np.sum(np.isfinite(fast) != np.isfinite(exact)) <= 0.001 * both.sum()  # only at the image's edge
     # values of random pixels: a 0.1 px shift would change them by ~0.1; here they agree to 1e-2
     assert np.max(np.abs(fast[both] - exact[both])) < 1e-2
+
+
+def test_sample_visible_refuses_heights_with_more_rows_than_latitudes():
+    """The numba pass reads latitudes unchecked: a DEM one row longer than the grid's latitudes used to
+    read past their end (the last row's normal from whatever lay there: test above, 1 run in 3)."""
+    from lunaralbedo.ingest.sampling import sample_visible
+
+    heights = np.zeros((3, 4))
+    out = np.empty((2, 4))
+    s = l = np.ones((2, 4))
+    with pytest.raises(ValueError, match="latitudes"):
+        sample_visible(np.ones((2, 2)), s, l, np.arange(4.0), np.arange(2.0), heights, 0, (1800.0, 0, 0), out)

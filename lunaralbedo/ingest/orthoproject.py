@@ -39,8 +39,9 @@ def orthoproject(camera, image: np.ndarray, grid: Grid, heights_m: np.ndarray, b
     out = np.full(grid.shape, np.nan)
     center_pos = camera.positions[len(camera.positions) // 2]
     lon1 = grid.transform.c + grid.transform.a * (np.arange(grid.shape[1]) + 0.5)
-    lat1 = grid.transform.f + grid.transform.e * (np.arange(h) + 0.5)
     heights_m = np.asarray(heights_m, dtype=np.float64)
+    # every row of heights_m has its latitude: a DEM one row longer than the grid gives its last row's normal
+    lat1 = grid.transform.f + grid.transform.e * (np.arange(max(h, heights_m.shape[0])) + 0.5)
     for r0 in range(0, h, block_rows):
         r1 = min(h, r0 + block_rows)
         if exact:

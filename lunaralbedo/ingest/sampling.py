@@ -64,6 +64,8 @@ def sample_visible(image, s, l, lon, lat, heights, row0: int, spacecraft_km, out
     ``s, l``: 1-based cube coordinates of those rows; ``lon`` (W,), ``lat`` (H,) degrees of
     the whole grid; ``heights`` (H, W) metres; ``spacecraft_km`` body-fixed position.
     """
+    lon, lat = np.asarray(lon, np.float64), np.asarray(lat, np.float64)
+    if lat.shape[0] < heights.shape[0] or lon.shape[0] < heights.shape[1]:  # the kernel reads them unchecked
+        raise ValueError(f"{heights.shape} heights need as many latitudes and longitudes, got {lat.shape[0]} and {lon.shape[0]}")
     cx, cy, cz = (float(v) for v in spacecraft_km)
-    _visible_samples(np.asarray(image), s, l, np.asarray(lon, np.float64), np.asarray(lat, np.float64),
-                     heights, int(row0), cx, cy, cz, out)
+    _visible_samples(np.asarray(image), s, l, lon, lat, heights, int(row0), cx, cy, cz, out)
