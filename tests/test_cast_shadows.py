@@ -154,7 +154,8 @@ def test_shortcuts_do_not_change_the_mask(lat, res, incidence, azimuth, relief):
 def test_sample_grid_coordinates_without_trig_equal_atan2_asin():
     """The march's lon/lat of each sample (series, no libm call) is the atan2/asin conversion within 1e-9 px,
     along rays of every azimuth, 0-60 degrees high, to MAX_REACH_KM, at 0-60 degrees of latitude."""
-    from lunaralbedo.model.cast_shadows import MAX_REACH_KM, _sample_xy, _sample_xy_exact, _trig_tables
+    from lunaralbedo.model.cast_shadows import MAX_REACH_KM
+    from lunaralbedo.model.march import _sample_xy, _sample_xy_exact, _trig_tables
 
     rng = np.random.default_rng(3)
     worst = 0.0
