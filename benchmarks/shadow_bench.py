@@ -10,6 +10,11 @@ in a child process, so before and after run back to back on the same lists::
 
     PYTHONPATH=$PWD python benchmarks/shadow_bench.py --record          # once (bench_out/strip_2000)
     PYTHONPATH=$PWD python benchmarks/shadow_bench.py --src OTHER_CHECKOUT  # before, then after
+    PYTHONPATH=$PWD python benchmarks/shadow_bench.py --low-sun   # fresh craters, Sun 35-80 deg from the zenith
+
+``--low-sun`` marches every pixel of a 600 x 600 px window of an 800 x 800 px cratered DEM
+(the figures of docs/photometry.md) with and without the per-block test of
+:func:`lunaralbedo.model.march.lit_cells`, checks that the masks are equal, and prints ns per pixel.
 
 Per observation = per image pixel of the scene (24 x 320 x 2000), as item 6 counts.
 """
@@ -21,6 +26,7 @@ import os
 import pickle
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -107,13 +113,49 @@ def timing(repeat: int) -> dict:
             "total_ns_per_obs": 1e9 * (b + m) / N_OBS}
 
 
+def low_sun(repeat: int) -> None:
+    import numpy as np
+    from rasterio.transform import Affine
+
+    from lunaralbedo.model import geometry
+    from lunaralbedo.model.cast_shadows import MarchGrid
+    from lunaralbedo.simulate import truth_dem
+
+    n, res = 800, 0.0025
+    tr = Affine(res, 0, 20.0 - n * res / 2, 0, -res, n * res / 2)
+    lon, lat = geometry.lonlat_grid(tr, (n, n))
+    dem = truth_dem(lon, lat, (lon.min(), lon.max(), lat.min(), lat.max()), 600.0, fresh_per_square_degree=2.0 / res)
+    rows, cols = (a.ravel() for a in np.mgrid[100:700, 100:700])
+    up = geometry.body_fixed(20.0, 0.0, 0.0) / 1737.4
+    for inc in (80.0, 60.0, 35.0):
+        i, az = np.radians(inc), np.radians(240.0)
+        east, north = np.array([-np.sin(np.radians(20.0)), np.cos(np.radians(20.0)), 0.0]), np.array([0.0, 0.0, 1.0])
+        sun = (np.cos(i) * up + np.sin(i) * (np.sin(az) * east + np.cos(az) * north)) * 1.496e8
+        times, masks = {}, {}
+        for cells in (True, False):
+            best = np.inf
+            for _ in range(repeat):
+                grid = MarchGrid(dem, tr)  # each run builds its pyramid, as a tile does
+                c0 = time.process_time()
+                masks[cells] = grid.march(sun, rows, cols, cells=cells)
+                best = min(best, time.process_time() - c0)
+            times[cells] = 1e9 * best / rows.size
+        assert np.array_equal(masks[False], masks[True])
+        print(f"low Sun, incidence {inc:.0f} deg ({masks[True].mean():.0%} shadowed): march of every pixel "
+              f"{times[False]:.0f} ns/pixel, with the per-block test {times[True]:.0f} ns/pixel (same mask)", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--record", action="store_true", help="record the pixel lists (runs the prepare gathering once)")
     ap.add_argument("--src", default=None, help="also time this checkout's lunaralbedo first (the 'before')")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs; the least CPU time is reported")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--low-sun", action="store_true", help="the per-block test on and off at low Suns over fresh craters")
     args = ap.parse_args()
+    if args.low_sun:
+        low_sun(args.repeat)
+        return
     if args.record:
         record()
         return

@@ -198,3 +198,72 @@ def test_a_hole_voids_the_slope_bound():
     ref = cast_shadow_mask(dem, transform, sun, skip=False, exact=True)
     assert np.array_equal(m, ref)
     assert m[:, 25:30].all() and not m[:, :15].any()  # a 3 km wall under a 40-degree Sun: ~3.6 km (12 px) of shadow
+
+
+@pytest.mark.parametrize("lat, incidence, azimuth, distance_km, hole, most_left", [
+    (0.0, 35.0, 90.0, 1.496e8, True, 0.7),     # the strip of make bench item 6: high Sun, a hole voids the global bound
+    (75.0, 30.0, 180.0, 1.496e8, False, 1.0),  # high latitude: the blocks' verticals spread the most in longitude
+    (-30.0, 87.0, 270.0, 1.496e8, True, 1.0),  # Sun 3 degrees high: long shadows, marched
+    (10.0, 45.0, 0.0, 3000.0, True, 0.7),      # a light 3000 km away: its direction turns across a block
+    (10.0, 30.0, 0.0, 3000.0, False, 0.1),     # ... answered by the global slope bound
+])
+def test_blocks_known_lit_give_the_answers_of_the_march(lat, incidence, azimuth, distance_km, hole, most_left):
+    """The per-block test (blocks of 8 px whose every pixel the march would find lit before its first sample)
+    changes no answer: the mask equals the march of every pixel, and that of every step of every ray; at a high
+    Sun it answers a share of the pixels (the march runs for the rest only)."""
+    from lunaralbedo.model.cast_shadows import MarchGrid
+
+    rng = np.random.default_rng(11)
+    n, res = 192, 0.002
+    transform = Affine(res, 0, 20.0 - n * res / 2, 0, -res, lat + n * res / 2)
+    lon, lat_g = geometry.lonlat_grid(transform, (n, n))
+    dem = truth_dem(lon, lat_g, (lon.min(), lon.max(), lat_g.min(), lat_g.max()), 600.0, fresh_per_square_degree=0)
+    dem += rng.normal(0, 2.0, (n, n))
+    if hole:
+        dem[90:97, 60:140] = np.nan
+    sun = _sun(20.0, lat, incidence, azimuth)
+    if distance_km < 1e8:  # that far from the ground, in that direction
+        sun = sun / np.linalg.norm(sun) * distance_km + geometry.body_fixed(20.0, lat, 0.0)
+    grid = MarchGrid(dem, transform)
+    rows, cols = (a.ravel() for a in np.mgrid[20:n - 20, 20:n - 20])
+    fast = grid.march(sun, rows, cols)
+    each = grid.march(sun, rows, cols, cells=False)
+    assert np.array_equal(fast, each), f"{np.count_nonzero(fast != each)} pixels differ"
+    full = cast_shadow_mask(dem, transform, sun, (20, n - 20, 20, n - 20), skip=False, exact=True).ravel()
+    assert np.array_equal(fast, full)
+    left = grid._undecided(np.asarray(sun, float), rows, cols, 0).size / rows.size
+    assert left <= most_left, left
+    if incidence > 80:
+        assert full.mean() > 0.2  # the low Sun casts shadows, and their pixels are marched
+
+
+@pytest.mark.parametrize("lat, light_km", [(0.0, 1.496e8), (70.0, 1.496e8), (70.0, 40.0), (-45.0, 15.0)])
+def test_sine_floor_bounds_the_sun_elevation_of_every_pixel_of_a_block(lat, light_km):
+    """The lower bound of sin(elevation) that decides a block of 8 x 8 px (:func:`lunaralbedo.model.march.sine_floor`)
+    is below every pixel's own value, as the march computes it, and close to the lowest of them; also for a light
+    15-40 km above the ground, whose direction turns by degrees across a block, and at high latitude."""
+    from lunaralbedo.model.march import _corner_angle, sine_floor
+
+    rng = np.random.default_rng(int(light_km) % 97)
+    res, cell = 0.01, 8
+    lons, lats = 20.0 + res * (np.arange(cell) + 0.5), lat + res * (np.arange(cell) + 0.5)
+    heights = rng.uniform(-2000.0, 2000.0, (cell, cell))
+    lo, top = heights.min(), heights.max()
+    lon_c, lat_c = np.radians(20.0 + res * cell / 2), np.radians(lat + res * cell / 2)
+    theta = 1.01 * _corner_angle(lat_c, np.radians(res * (cell - 1) / 2), np.radians(res * (cell - 1) / 2)) + 1e-12
+    u = np.array([np.cos(lat_c) * np.cos(lon_c), np.cos(lat_c) * np.sin(lon_c), np.sin(lat_c)])
+    for _ in range(50):
+        sun = _sun(20.0, lat, rng.uniform(0.0, 80.0), rng.uniform(0.0, 360.0))
+        if light_km < 1e8:
+            sun = sun / np.linalg.norm(sun) * light_km + geometry.body_fixed(20.0 + res * 4, lat + res * 4, 0.0)
+        r = MOON_RADIUS_KM + heights / 1000.0
+        lo_g, la_g = np.meshgrid(np.radians(lons), np.radians(lats))
+        p = r[..., None] * np.stack([np.cos(la_g) * np.cos(lo_g), np.cos(la_g) * np.sin(lo_g), np.sin(la_g)], -1)
+        l = sun - p
+        l /= np.linalg.norm(l, axis=-1, keepdims=True)
+        sin_e = np.einsum("...i,...i", p, l) / r
+        d = (top - lo) / 1000.0 + (MOON_RADIUS_KM + top / 1000.0) * theta
+        floor = sine_floor(*u, MOON_RADIUS_KM + lo / 1000.0, sun, theta, d)
+        assert floor <= sin_e.min()
+        # a bound, not a blanket no: within twice its own margins of the lowest pixel
+        assert sin_e.min() - floor <= 2 * (theta + 2 * d / (np.linalg.norm(sun - p, axis=-1).min() - d)) + 1e-3

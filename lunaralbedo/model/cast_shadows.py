@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 
 from ..constants import MOON_RADIUS_KM
-from .march import _march_pixels, _trig_tables
+from .march import _march_pixels, _trig_tables, extent, lit_cells, undecided
 
 #: March step, in pixels of the DEM grid (half a pixel: no ridge of the bilinear DEM is stepped over
 #: by more than half a pixel).
@@ -73,22 +73,25 @@ LOW_RADIUS_KM = MOON_RADIUS_KM - 20.0
 @njit(cache=True)
 def _blocks(dem, cell):
     """Per ``cell`` x ``cell`` block, with its next row and column (the bilinear neighbours of its samples):
-    the highest height (-inf: none) and the largest |dh| between x-, y-neighbours (inf if a height is NaN)."""
+    the highest height (-inf: none) and the largest |dh| between x-, y-neighbours (inf if a height is NaN);
+    and the lowest finite height of the block's own pixels (inf: none)."""
     h_, w_ = dem.shape
     ni, nj = (h_ + cell - 1) // cell, (w_ + cell - 1) // cell
-    top = np.full((ni, nj), -np.inf)
+    top, low = np.full((ni, nj), -np.inf), np.full((ni, nj), np.inf)
     gx, gy = np.zeros((ni, nj)), np.zeros((ni, nj))
     for bi in range(ni):
         i0, i1 = bi * cell, min(bi * cell + cell, h_ - 1)  # rows i0..i1 (inclusive)
         for bj in range(nj):
             j0, j1 = bj * cell, min(bj * cell + cell, w_ - 1)
-            t, ax, ay, nan = -np.inf, 0.0, 0.0, False
+            t, lo, ax, ay, nan = -np.inf, np.inf, 0.0, 0.0, False
             for i in range(i0, i1 + 1):
                 for j in range(j0, j1 + 1):
                     v = np.float64(dem[i, j])
                     nan |= v != v
                     if v > t:
                         t = v
+                    if v < lo and i < i0 + cell and j < j0 + cell:
+                        lo = v
                     if j < j1:  # the x-pairs (i, j)-(i, j + 1) that start in the block's columns
                         d = abs(np.float64(dem[i, j + 1]) - v)
                         if d > ax:
@@ -97,9 +100,9 @@ def _blocks(dem, cell):
                         d = abs(np.float64(dem[i + 1, j]) - v)
                         if d > ay:
                             ay = d
-            top[bi, bj] = t
+            top[bi, bj], low[bi, bj] = t, lo
             gx[bi, bj], gy[bi, bj] = (np.inf, np.inf) if nan else (ax, ay)
-    return top, gx, gy
+    return top, gx, gy, low
 
 
 @njit(cache=True)
@@ -210,7 +213,7 @@ class MarchGrid:
             tops, slopes, offs, widths, cells, skips = [], [], [0], [], [], []
             cell = CELL_PX
             if px is not None and not self.empty:
-                top, gx, gy = self.blocks
+                top, gx, gy = self.blocks[:3]
                 while cell < max(dem.shape):
                     tops.append(_dilate3(top).ravel())
                     slopes.append((SLOPE_SAFETY * (_dilate3(gx) / px[0] + _dilate3(gy) / px[1])).ravel())
@@ -225,19 +228,50 @@ class MarchGrid:
                              np.array(cells, np.int64), np.array(skips, np.int64))
         return self._pyramid
 
+    def _undecided(self, sun, rows, cols, offset):
+        """Positions of the pixels not in a block :func:`.march.lit_cells` finds lit; None when it cannot tell any
+        (no ground-distance bounds near a pole).  With a global slope bound, that alone first; the pyramid (built
+        then, as the march would) for the blocks it leaves."""
+        px = _ground_px_km(self.transform, self.dem.shape)
+        if px is None:
+            return None
+        roff, coff = offset if isinstance(offset, tuple) else (offset, offset)
+        shift = int(round(math.log2(CELL_PX)))
+        r0, r1, c0, c1 = extent(rows, cols)
+        bi0, bi1, bj0, bj1 = (roff + r0) >> shift, ((roff + r1) >> shift) + 1, (coff + c0) >> shift, ((coff + c1) >> shift) + 1
+        tr = self.transform
+        prm = np.array([tr.c, tr.a, tr.f, tr.e, self.step_km, self.hmax, self.tolerance_m, MOON_RADIUS_KM, self.slope])
+        if self._pyramid is None and self.slope > 0.0:  # the global bound alone first: the pyramid if it is not enough
+            flags = lit_cells(self.blocks[3], self.blocks[0], prm, sun, bi0, bi1, bj0, bj1, CELL_PX,
+                              np.zeros(0), np.zeros(0), *(np.zeros(0, np.int64),) * 4)
+            if flags.all():
+                return np.zeros(0, np.int64)
+        flags = lit_cells(self.blocks[3], self.blocks[0], prm, sun, bi0, bi1, bj0, bj1, CELL_PX, *self.pyramid())
+        return undecided(rows, cols, roff, coff, flags, bi0, bj0, shift)
+
     def march(self, sun_km, rows, cols, *, offset: int | tuple[int, int] = 0, skip: bool = True,
-              exact: bool = False) -> np.ndarray:
+              exact: bool = False, cells: bool = True) -> np.ndarray:
         """Is DEM pixel ``(row_offset + rows[o], col_offset + cols[o])`` in the cast shadow of the Sun at ``sun_km``? (1-D bool)
 
         ``offset``: ``(row_offset, col_offset)``, or one offset for both.
 
         ``skip=False``: every step of every ray, ``exact=True``: the sample coordinates from
-        ``atan2``/``asin`` (the reference the shortcuts are tested against).
+        ``atan2``/``asin`` (the reference the shortcuts are tested against).  ``cells``: first
+        the blocks of :data:`CELL_PX` pixels whose every pixel is certainly lit
+        (:func:`.march.lit_cells`), then the march of the other pixels only: the same answers
+        (``cells=False`` marches every pixel; ``tests/test_cast_shadows.py`` compares them).
         """
         rows, cols = np.ascontiguousarray(rows), np.ascontiguousarray(cols)
         out = np.zeros(rows.shape, np.int8)
         if self.empty or rows.size == 0:
             return out.astype(bool)
+        if cells and skip and not exact:
+            todo = self._undecided(np.asarray(sun_km, dtype=np.float64), rows, cols, offset)
+            if todo is not None and todo.size < rows.size:
+                res = np.zeros(rows.shape, bool)
+                if todo.size:
+                    res[todo] = self.march(sun_km, rows[todo], cols[todo], offset=offset, cells=False)
+                return res
         tr = self.transform
         prm = np.array([tr.c, tr.a, tr.f, tr.e, self.step_km, self.hmax, self.tolerance_m, MOON_RADIUS_KM,
                         self.slope if skip else 0.0, *(offset if isinstance(offset, tuple) else (offset, offset))])

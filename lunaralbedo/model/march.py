@@ -142,3 +142,118 @@ def _march_pixels(dem, prm, max_steps, exact, decide, cos_lon, sin_lon, cos_lat,
             if np.isfinite(z) and hray < z - tol_m:
                 out[o] = 1
                 break
+
+
+@njit(cache=True, inline="always")
+def _levels_passed(lev_top, lev_slope, lev_off, lev_width, lev_shift, iy, ix, hray, rise, tol_m):
+    """How many pyramid levels, from the finest, have a ray at ``hray`` (m) rising at least ``rise`` (m/km) above the
+    highest height or steeper than the slope bound of the 3 x 3 cells around DEM pixel ``(iy, ix)``."""
+    lev = 0
+    while lev < lev_shift.shape[0]:
+        k = lev_off[lev] + (iy >> lev_shift[lev]) * lev_width[lev] + (ix >> lev_shift[lev])
+        if hray >= lev_top[k] - tol_m or rise >= lev_slope[k]:
+            lev += 1
+        else:
+            break
+    return lev
+
+
+@njit(cache=True)
+def _corner_angle(lat, dlat_half, dlon_half):
+    """Largest angle (rad) between the unit vector at latitude ``lat`` and those at ``lat +- dlat_half``,
+    longitude ``+- dlon_half`` (radians): the corners of a lon/lat box, where its farthest points from its centre are."""
+    ux, uz = math.cos(lat), math.sin(lat)
+    worst = 0.0
+    for a in (lat - dlat_half, lat + dlat_half):
+        vx, vy, vz = math.cos(a) * math.cos(dlon_half), math.cos(a) * math.sin(dlon_half), math.sin(a)
+        cx, cy, cz = -uz * vy, uz * vx - ux * vz, ux * vy  # u x v with u = (ux, 0, uz)
+        worst = max(worst, math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), ux * vx + uz * vz))
+    return worst
+
+
+@njit(cache=True, inline="always")
+def sine_floor(ux, uy, uz, rc, sun, theta, d):
+    r"""A lower bound of the sine of the Sun's elevation above the horizon of every ground point within ``d`` km
+    of :math:`\mathbf{p}_c = r_c\hat{\mathbf{u}}` whose vertical is within ``theta`` (rad) of :math:`\hat{\mathbf{u}}`:
+    :math:`\sin\epsilon = \hat{\mathbf{u}}'\cdot\hat{\mathbf{l}}' \ge \hat{\mathbf{u}}\cdot\hat{\mathbf{l}}
+    - |\hat{\mathbf{u}}' - \hat{\mathbf{u}}| - |\hat{\mathbf{l}}' - \hat{\mathbf{l}}|` with
+    :math:`|\hat{\mathbf{u}}' - \hat{\mathbf{u}}| \le \theta` (a chord is shorter than its angle) and
+    :math:`|\hat{\mathbf{l}}' - \hat{\mathbf{l}}| \le 2d/|\mathbf{s} - \mathbf{p}_c|`
+    (:math:`|\mathbf{x}/|\mathbf{x}| - \mathbf{y}/|\mathbf{y}|| \le 2|\mathbf{x} - \mathbf{y}|/|\mathbf{y}|`), less 1e-12 for rounding."""
+    lx, ly, lz = sun[0] - rc * ux, sun[1] - rc * uy, sun[2] - rc * uz
+    n = math.sqrt(lx * lx + ly * ly + lz * lz)
+    return (ux * lx + uy * ly + uz * lz) / n - theta - 2.0 * d / n - 1e-12
+
+
+@njit(cache=True)
+def lit_cells(low, top, prm, sun, bi0, bi1, bj0, bj1, cell, lev_top, lev_slope, lev_off, lev_width, lev_shift, lev_skip):
+    r"""1 for every ``cell`` x ``cell`` block of the DEM grid (rows ``bi0:bi1``, columns ``bj0:bj1`` of blocks)
+    all of whose pixels the march would find lit before its first sample; 0: not known.
+
+    ``low``, ``top``: each block's lowest finite height (inf: none) and an upper bound of its
+    heights (m); ``prm`` as :func:`_march_pixels`.  The march's first tests are monotone in
+    the pixel's height :math:`h` and the Sun's elevation :math:`\epsilon` above its horizon
+    (a ray at least as high and at least as steep passes them too), so they are run once per
+    block with the block's lowest height and :func:`sine_floor` at the block's centre on the
+    sphere at that height, ``theta`` (x 1.01) the largest angle between the vertical there
+    and at a corner of the box of the pixel centres, ``d`` bounding the distance to any
+    pixel's ground point.  A 1 is then the answer of every pixel of the
+    block: the global slope bound, or every level letting the rising ray skip to where its next
+    sample is above the highest height (:func:`_march_pixels`).
+    """
+    lon0, dlon, lat0, dlat, step_km, hmax_m, tol_m, radius, slope = prm[0], prm[1], prm[2], prm[3], prm[4], \
+        prm[5], prm[6], prm[7], prm[8]
+    d2r = math.pi / 180.0
+    half = (cell - 1) / 2.0  # pixel centres from the block's centre, in pixels
+    out = np.zeros((bi1 - bi0, bj1 - bj0), np.int8)
+    cos_lon, sin_lon = np.empty(bj1 - bj0), np.empty(bj1 - bj0)
+    for bj in range(bj0, bj1):
+        lon = (lon0 + dlon * (bj * cell + cell / 2.0)) * d2r
+        cos_lon[bj - bj0], sin_lon[bj - bj0] = math.cos(lon), math.sin(lon)
+    for bi in range(bi0, bi1):
+        lat = (lat0 + dlat * (bi * cell + cell / 2.0)) * d2r
+        theta = 1.01 * _corner_angle(lat, abs(dlat) * half * d2r, abs(dlon) * half * d2r) + 1e-12
+        cl, sl = math.cos(lat), math.sin(lat)
+        for bj in range(bj0, bj1):
+            lo = low[bi, bj]
+            if not lo < np.inf:
+                out[bi - bi0, bj - bj0] = 1  # no ground point in the block: every pixel lit
+                continue
+            sin_m = sine_floor(cl * cos_lon[bj - bj0], cl * sin_lon[bj - bj0], sl, radius + lo / 1000.0, sun, theta,
+                               (top[bi, bj] - lo) / 1000.0 + (radius + top[bi, bj] / 1000.0) * theta)
+            if not sin_m > 0.0:
+                continue
+            cos_m = math.sqrt(1.0 - sin_m * sin_m)  # >= cos(e) of every pixel
+            if slope > 0.0 and sin_m >= 0.001 * slope * cos_m:
+                out[bi - bi0, bj - bj0] = 1
+                continue
+            if lev_shift.shape[0] == 0:
+                continue
+            lev = _levels_passed(lev_top, lev_slope, lev_off, lev_width, lev_shift, bi * cell, bj * cell, lo - 1e-6,
+                                 1000.0 * sin_m / cos_m, tol_m)
+            if lev > 0 and lo + 1000.0 * (lev_skip[lev - 1] + 1) * step_km * sin_m > hmax_m + 1e-3:
+                out[bi - bi0, bj - bj0] = 1
+    return out
+
+
+@njit(cache=True)
+def undecided(rows, cols, roff, coff, flags, bi0, bj0, shift):
+    """Positions ``o`` whose pixel ``(roff + rows[o], coff + cols[o])`` lies in a block with flag 0 (:func:`lit_cells`)."""
+    idx = np.empty(rows.shape[0], np.int64)
+    n = 0
+    for o in range(rows.shape[0]):
+        if flags[((roff + np.int64(rows[o])) >> shift) - bi0, ((coff + np.int64(cols[o])) >> shift) - bj0] == 0:
+            idx[n] = o
+            n += 1
+    return idx[:n]
+
+
+@njit(cache=True)
+def extent(rows, cols):
+    """``(min(rows), max(rows), min(cols), max(cols))`` of non-empty index lists, in one pass."""
+    r0 = r1 = np.int64(rows[0])
+    c0 = c1 = np.int64(cols[0])
+    for o in range(1, rows.shape[0]):
+        r, c = np.int64(rows[o]), np.int64(cols[o])
+        r0, r1, c0, c1 = min(r0, r), max(r1, r), min(c0, c), max(c1, c)
+    return r0, r1, c0, c1
