@@ -60,17 +60,21 @@ def test_illumination_kernel_equals_the_numpy_formula():
 
 
 def test_observe_window_selects_what_the_masks_select():
+    """From the heights alone, the candidates and the bytes of cos i, cos e and alpha at surface_block's points and
+    normals (with a NaN height inside the window, which its neighbours' normals count as 0)."""
     rng = np.random.default_rng(3)
     tr = Affine(0.01, 0, 20.0, 0, -0.01, 5.0)
     dem = _dem(rng, 32, 40) * 8  # steep: some pixels face away from the Sun
+    dem[9, 12] = np.nan  # inside the window: no observation there, height 0 for its neighbours' normals
     lon, lat = geometry.lonlat_axes(tr, dem.shape)
     lr, br = np.radians(lon), np.radians(lat)
-    pts, nrm = geometry.surface_block(np.cos(lr), np.sin(lr), np.cos(br), np.sin(br), dem, MOON_RADIUS_KM)
+    trig = (np.cos(lr), np.sin(lr), np.cos(br), np.sin(br))
+    pts, nrm = geometry.surface_block(*trig, dem, MOON_RADIUS_KM)
     inner = dem[1:-1, 1:-1]
     sun = geometry.body_fixed(20.2 + 60, 4.8, 0.0) * 1e5  # low Sun from the east
     sc = geometry.body_fixed(20.2, 4.8, 100e3)
     use = rng.random((10, 12)) > 0.2  # a window at block row 5, column 7
-    rows, cols, ci, ce, al = geometry.observe_window(use, inner, pts, nrm, 5, 7, sun, sc, 0.087)
+    rows, cols, ci, ce, al = geometry.observe_window(use, dem, *trig, MOON_RADIUS_KM, 5, 7, sun, sc, 0.087)
     p, n = np.moveaxis(pts[:, 6:16, 8:20], 0, -1), np.moveaxis(nrm[:, 5:15, 7:19], 0, -1)
     wci, wce, wal = geometry.illumination(p, n, sun, sc)
     mask = use & np.isfinite(inner[5:15, 7:19]) & (wci >= 0.087) & (wce > 0)

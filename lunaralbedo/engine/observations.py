@@ -17,7 +17,7 @@ added in float64 and kept in float32, the type of the ``weightsSum`` output; wit
 NORMALIZED_COST_FUN also the denominator of eq. 7, whose error tiles are float32), and with
 it ``wblend_sum`` (eq. 7's denominator of the normalised weights, likewise).  Memory is
 ~20-28 bytes per observation plus ~8 bytes per pixel of the block; per-pixel arrays were
-half the cache of the strip of docs/performance.md with float64 sums (section 0f).
+half the cache of the strip of docs/performance-history.md with float64 sums (section 0f).
 
 **Blocks of rows** bound the memory of a worker whatever TILE_SIZE and the number of
 images: a tile is processed in blocks of :func:`block_rows` rows, each with the one-row
@@ -91,9 +91,10 @@ def row_blocks(height: int, rows: int) -> list[tuple[int, int]]:
 
 
 class BlockGeometry:
-    """DEM of rows ``b0:b1`` of the unpadded tile, with body-fixed points (one-pixel halo) and normals of its
-    columns ``c0:c1`` (those the images cover: the DEM is read for every column, it is a tile output);
-    points and normals as x, y, z planes (:func:`geometry.surface_block`)."""
+    """DEM of rows ``b0:b1`` of the unpadded tile with its one-pixel halo, and the cosines and sines of the
+    longitudes of its columns ``c0:c1`` (those the images cover, plus the halo) and of the latitudes of its rows:
+    what :func:`geometry.observe_window` computes points and normals from (the DEM is read for every column: it
+    is a tile output)."""
 
     def __init__(self, scene: Scene, tile, b0: int, b1: int, c0: int = 0, c1: int | None = None, shadows=None):
         s = scene.settings
@@ -105,16 +106,21 @@ class BlockGeometry:
         else:
             halo_dem = read_dem_onto_grid(scene.dems, transform, shape, scene.crs, s.no_dem_data_val)
         self.dem = halo_dem[1:-1, 1:-1]
+        self.halo = np.ascontiguousarray(halo_dem[:, c0:c1 + 2])
         lon, lat = geometry.lonlat_axes(transform, shape)
         lon_r, lat_r = np.radians(lon[c0:c1 + 2]), np.radians(lat)
-        self.points, self.normals = geometry.surface_block(np.cos(lon_r), np.sin(lon_r), np.cos(lat_r), np.sin(lat_r),
-                                                           np.ascontiguousarray(halo_dem[:, c0:c1 + 2]), MOON_RADIUS_KM)
+        self.trig = (np.cos(lon_r), np.sin(lon_r), np.cos(lat_r), np.sin(lat_r))
         self.lon, self.lat = lon[1:-1], lat[1:-1]  # of the block's columns and rows
         self.c0 = c0
 
+    def surface(self):
+        """Body-fixed points (km, with the halo) and normals of the block's columns ``c0:c1``, as x, y, z planes
+        (:func:`geometry.surface_block`)."""
+        return geometry.surface_block(*self.trig, self.halo, MOON_RADIUS_KM)
+
     def observe(self, use, r0: int, c0: int, sun, spacecraft):
         """Candidate observations of a window at block row ``r0``, column ``c0`` (:func:`geometry.observe_window`)."""
-        return geometry.observe_window(use, self.dem[:, self.c0:], self.points, self.normals, r0, c0 - self.c0,
+        return geometry.observe_window(use, self.halo, *self.trig, MOON_RADIUS_KM, r0, c0 - self.c0,
                                        np.asarray(sun, np.float64), np.asarray(spacecraft, np.float64),
                                        MIN_COS_INCIDENCE_MODEL)
 
@@ -122,8 +128,8 @@ class BlockGeometry:
 def tile_geometry(scene: Scene, tile):
     """DEM (m), body-fixed points (km), normals and the no-DEM mask of the whole unpadded tile."""
     geo = BlockGeometry(scene, tile, 0, tile.height)
-    return (geo.dem, np.moveaxis(geo.points[:, 1:-1, 1:-1], 0, -1), np.moveaxis(geo.normals, 0, -1),
-            ~np.isfinite(geo.dem))
+    points, normals = geo.surface()
+    return (geo.dem, np.moveaxis(points[:, 1:-1, 1:-1], 0, -1), np.moveaxis(normals, 0, -1), ~np.isfinite(geo.dem))
 
 
 def saturation_of(dtype: str) -> float | None:

@@ -227,59 +227,70 @@ def lonlat_axes(transform, shape):
     return transform.c + transform.a * (np.arange(w) + 0.5), transform.f + transform.e * (np.arange(h) + 0.5)
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _point_at(h, radius_km, cl, sl, cj, sj):
+    """Body-fixed point (km) of height ``h`` (m; NaN counts as 0, as :func:`body_fixed` of ``nan_to_num``
+    heights) at the latitude and longitude of cosines/sines ``cl, sl`` and ``cj, sj``."""
+    h = np.float64(h)
+    h = 0.0 if h != h else h
+    r = radius_km + h / 1000.0
+    rc = r * cl
+    return rc * cj, rc * sj, r * sl
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _normal_at(x, y, z, xs, ys, zs, xn, yn, zn, xe, ye, ze, xw, yw, zw):
+    """Outward unit normal at point ``(x, y, z)`` from its south, north, east and west neighbours (central
+    differences: (towards south) x (towards east), as :func:`dem_normals`)."""
+    rx, ry, rz = (xs - xn) * 0.5, (ys - yn) * 0.5, (zs - zn) * 0.5
+    cx, cy, cz = (xe - xw) * 0.5, (ye - yw) * 0.5, (ze - zw) * 0.5
+    nx, ny, nz = ry * cz - rz * cy, rz * cx - rx * cz, rx * cy - ry * cx
+    norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+    norm = -norm if nx * x + ny * y + nz * z < 0 else norm
+    return nx / norm, ny / norm, nz / norm
+
+
 @njit(cache=True, error_model="numpy")
 def surface_block(coslon, sinlon, coslat, sinlat, height_m, radius_km):
     """Points (km) of a DEM block with a one-pixel halo, and the normals of its inner pixels, coordinate-major.
 
     ``height_m`` ``(H+2, W+2)`` (NaN counts as 0, as :func:`body_fixed` of ``nan_to_num``
     heights), trigonometric values of each column's longitude and each row's latitude.
-    Returns points ``(3, H+2, W+2)`` and normals ``(3, H, W)`` (x, y, z planes: the loops run
-    4 pixels per AVX2 instruction; ``np.moveaxis(a, 0, -1)`` gives the ``(..., 3)`` layout of
-    :func:`body_fixed` and :func:`dem_normals` (central differences), whose bytes they are:
-    the same operations in the same order).
+    Returns points ``(3, H+2, W+2)`` and normals ``(3, H, W)`` (x, y, z planes;
+    ``np.moveaxis(a, 0, -1)`` gives the ``(..., 3)`` layout of :func:`body_fixed` and
+    :func:`dem_normals` (central differences), whose bytes they are: the same operations in
+    the same order, :func:`_point_at` and :func:`_normal_at`, which :func:`observe_window` runs too).
     """
     hh, ww = height_m.shape
     pts = np.empty((3, hh, ww))
     for i in range(hh):
-        cl, sl = coslat[i], sinlat[i]
         for j in range(ww):
-            h = np.float64(height_m[i, j])
-            h = 0.0 if h != h else h
-            r = radius_km + h / 1000.0
-            rc = r * cl
-            pts[0, i, j] = rc * coslon[j]
-            pts[1, i, j] = rc * sinlon[j]
-            pts[2, i, j] = r * sl
+            pts[0, i, j], pts[1, i, j], pts[2, i, j] = _point_at(height_m[i, j], radius_km, coslat[i], sinlat[i],
+                                                                 coslon[j], sinlon[j])
     nrm = np.empty((3, hh - 2, ww - 2))
     x, y, z = pts[0], pts[1], pts[2]
     for i in range(1, hh - 1):
         for j in range(1, ww - 1):
-            rx = (x[i + 1, j] - x[i - 1, j]) * 0.5
-            ry = (y[i + 1, j] - y[i - 1, j]) * 0.5
-            rz = (z[i + 1, j] - z[i - 1, j]) * 0.5
-            cx = (x[i, j + 1] - x[i, j - 1]) * 0.5
-            cy = (y[i, j + 1] - y[i, j - 1]) * 0.5
-            cz = (z[i, j + 1] - z[i, j - 1]) * 0.5
-            nx, ny, nz = ry * cz - rz * cy, rz * cx - rx * cz, rx * cy - ry * cx
-            norm = math.sqrt(nx * nx + ny * ny + nz * nz)
-            norm = -norm if nx * x[i, j] + ny * y[i, j] + nz * z[i, j] < 0 else norm
-            nrm[0, i - 1, j - 1] = nx / norm
-            nrm[1, i - 1, j - 1] = ny / norm
-            nrm[2, i - 1, j - 1] = nz / norm
+            nrm[0, i - 1, j - 1], nrm[1, i - 1, j - 1], nrm[2, i - 1, j - 1] = _normal_at(
+                x[i, j], y[i, j], z[i, j], x[i + 1, j], y[i + 1, j], z[i + 1, j], x[i - 1, j], y[i - 1, j], z[i - 1, j],
+                x[i, j + 1], y[i, j + 1], z[i, j + 1], x[i, j - 1], y[i, j - 1], z[i, j - 1])
     return pts, nrm
 
 
 @njit(cache=True, error_model="numpy")
-def observe_window(use, height_m, pts, nrm, r_off, c_off, sun, sc, min_cos_i):
+def observe_window(use, halo_m, coslon, sinlon, coslat, sinlat, radius_km, r_off, c_off, sun, sc, min_cos_i):
     """Candidate observations of one image window: pixels ``use`` with a DEM, cos i >= ``min_cos_i``, cos e > 0.
 
-    ``use`` ``(h, w)`` bool over the window; ``height_m`` and ``nrm`` ``(3, H, W)`` cover the
-    block (inner pixels), ``pts`` ``(3, H+2, W+2)`` with its halo (:func:`surface_block`):
-    window pixel ``(r, c)`` is block pixel ``(r + r_off, c + c_off)``.  Returns window rows
-    and columns (int64) and ``cos i``, ``cos e``, ``alpha`` (float64) of the candidates, in
-    row-major order: the values of :func:`_illumination_at`.  Each row's cosines are computed
-    for all its pixels in one vectorised loop, the candidates then copied out, and their
-    phase angles taken in one vectorised loop at the end.
+    ``use`` ``(h, w)`` bool over the window; ``halo_m`` ``(H+2, W+2)`` the heights (m) of the
+    block with a one-pixel halo, and the cosines and sines of its columns' longitudes and rows'
+    latitudes (as :func:`surface_block`): window pixel ``(r, c)`` is inner block pixel ``(r +
+    r_off, c + c_off)``.  Returns window rows and columns (int64) and ``cos i``, ``cos e``,
+    ``alpha`` (float64) of the candidates, in row-major order: the values of
+    :func:`_illumination_at` at the points and normals of :func:`surface_block`.  The points
+    and normals are computed here row by row from the heights (a ring of three rows of
+    points) instead of read from the block's arrays: 4 bytes per pixel to read instead of 52.
+    Each row's cosines are computed in one vectorised loop, the candidates then copied out,
+    and their phase angles taken in one vectorised loop at the end.
     """
     h, w = use.shape
     n = 0
@@ -290,19 +301,27 @@ def observe_window(use, height_m, pts, nrm, r_off, c_off, sun, sc, min_cos_i):
     cols = np.empty(n, np.int64)
     ci, ce, al = np.empty(n), np.empty(n), np.empty(n)
     row_ci, row_ce, row_ca = np.empty(w), np.empty(w), np.empty(w)
+    pts = np.empty((3, 3, w + 2))  # a ring of three rows of points (x, y, z; the window's columns and halo)
+    nx, ny, nz = np.empty(w), np.empty(w), np.empty(w)
     sx, sy, sz, vx, vy, vz = sun[0], sun[1], sun[2], sc[0], sc[1], sc[2]
     m = 0
     for r in range(h):
-        i = r + r_off
-        px, py, pz = pts[0, i + 1, c_off + 1:c_off + 1 + w], pts[1, i + 1, c_off + 1:c_off + 1 + w], \
-            pts[2, i + 1, c_off + 1:c_off + 1 + w]
-        nx, ny, nz = nrm[0, i, c_off:c_off + w], nrm[1, i, c_off:c_off + w], nrm[2, i, c_off:c_off + w]
+        i = r + r_off  # inner block row; halo rows i, i + 1, i + 2 are north, at, south
+        for k in range(0 if r == 0 else 2, 3):  # the rows not yet in the ring
+            q, cl, sl = (r + k) % 3, coslat[i + k], sinlat[i + k]
+            for j in range(w + 2):
+                pts[q, 0, j], pts[q, 1, j], pts[q, 2, j] = _point_at(halo_m[i + k, c_off + j], radius_km, cl, sl,
+                                                                     coslon[c_off + j], sinlon[c_off + j])
+        pn, pa, ps = pts[r % 3], pts[(r + 1) % 3], pts[(r + 2) % 3]
         for c in range(w):
-            row_ci[c], row_ce[c], row_ca[c] = _cosines_at(px[c], py[c], pz[c], nx[c], ny[c], nz[c],
-                                                          sx, sy, sz, vx, vy, vz)
-        hr = height_m[i, c_off:c_off + w]
+            nx[c], ny[c], nz[c] = _normal_at(pa[0, c + 1], pa[1, c + 1], pa[2, c + 1], ps[0, c + 1], ps[1, c + 1],
+                                             ps[2, c + 1], pn[0, c + 1], pn[1, c + 1], pn[2, c + 1],
+                                             pa[0, c + 2], pa[1, c + 2], pa[2, c + 2], pa[0, c], pa[1, c], pa[2, c])
         for c in range(w):
-            if use[r, c] and np.isfinite(hr[c]) and row_ci[c] >= min_cos_i and row_ce[c] > 0:
+            row_ci[c], row_ce[c], row_ca[c] = _cosines_at(pa[0, c + 1], pa[1, c + 1], pa[2, c + 1],
+                                                          nx[c], ny[c], nz[c], sx, sy, sz, vx, vy, vz)
+        for c in range(w):
+            if use[r, c] and np.isfinite(halo_m[i + 1, c_off + c + 1]) and row_ci[c] >= min_cos_i and row_ce[c] > 0:
                 rows[m], cols[m], ci[m], ce[m], al[m] = r, c, row_ci[c], row_ce[c], row_ca[c]
                 m += 1
     for o in range(m):
