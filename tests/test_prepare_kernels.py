@@ -173,3 +173,52 @@ def test_cast_shadow_pixels_and_skipping_march_equal_the_full_march(sun_deg, lat
     assert list(grid.pyramid()[4]) == [3, 6]  # cells of 8 and 64 px
     skips = grid.pyramid()[5]  # the march does skip: 7 and 63 px of the narrower (longitude) pixels
     assert skips[0] == _skip_steps(tr, dem.shape, grid.step_km, 8) >= 5 and skips[1] >= 60
+
+
+@pytest.mark.parametrize("dtype, alpha, nodata, lut, thresh, saturation", [
+    (np.uint8, True, None, False, 10.0, 255.0),     # a DRG of ingest: DN, alpha, shadow type 1, saturation
+    (np.float32, False, -3.0, False, 0.7, None),    # float DN with nodata and NaN/inf; 0.7 is not a float32
+    (np.uint8, True, None, True, 12.0, 255.0),      # the camera response applied to the DN (seed 002)
+    (np.int16, False, 0.0, True, None, None),       # neither test: no usable mask
+])
+def test_window_pixels_equal_the_numpy_steps(dtype, alpha, nodata, lut, thresh, saturation):
+    """One pass over a DRG window gives the value, valid and usable arrays of the former NumPy steps, bit for bit."""
+    from lunaralbedo.model import shadows
+
+    rng = np.random.default_rng(9)
+    h, w = 37, 53
+    dn = rng.integers(0, 256, (h, w)).astype(dtype) if dtype != np.float32 else \
+        rng.uniform(-5, 300, (h, w)).astype(np.float32)
+    if dtype == np.float32:
+        dn[rng.random((h, w)) < 0.05] = np.nan
+        dn[0, :3] = [np.inf, -np.inf, np.float32(0.7)]
+        dn[1, :2] = -3.0
+    a = (rng.random((h, w)) > 0.1).astype(dtype) * 255 if alpha else None
+    table = np.linspace(0.0, 3.0, 256).astype(np.float32) if lut else None
+    if lut:
+        table[:5] = np.nan  # undefined below DN 5
+    value, valid, usable = shadows.window_pixels(dn, a, nodata, table, thresh, saturation)
+    # the former steps (io/drgs.py before the fused kernel)
+    v = dn.astype(np.float32)
+    ok = np.isfinite(v)
+    if nodata is not None:
+        ok &= v != np.float32(nodata)
+    if alpha:
+        ok &= a > 0
+    x = v
+    if lut:
+        x = table[np.clip(np.nan_to_num(v), 0, len(table) - 1).astype(np.intp)]
+        ok &= np.isfinite(x)
+    good = ok.copy()
+    with np.errstate(invalid="ignore"):
+        if thresh is not None:
+            good &= shadows.static_lit(v, shadows.THRESHOLD, thresh)
+        if saturation is not None:
+            good &= v < saturation
+    x = np.where(ok, x, np.float32(0.0))
+    assert np.array_equal(valid, ok) and 0 < valid.sum() < valid.size
+    assert np.array_equal(value.view(np.uint32), x.astype(np.float32).view(np.uint32))
+    if thresh is None and saturation is None:
+        assert usable is None
+    else:
+        assert np.array_equal(usable, good) and 0 < good.sum() < ok.sum()

@@ -36,7 +36,7 @@ def read_drg_onto_grid(
     bilinear neighbours are valid (alpha band > 0 and not nodata); ``weight`` the
     blending weight of :func:`lunaralbedo.model.weights.source_weights` (computed from
     ``profile`` on the source grid, then resampled); ``lit`` is True where all four
-    neighbours are usable by :func:`lunaralbedo.model.shadows.usable_pixels`: lit with the
+    neighbours are usable by :func:`lunaralbedo.model.shadows.window_pixels`: lit with the
     threshold ``lit_threshold`` (shadow type 1; always lit when it is None) and, when
     ``saturation`` is given, below it (saturated pixels are left out).  Only the
     covering window (plus a 2-pixel margin) of the source is read.  A DRG on the target's
@@ -66,21 +66,9 @@ def _drg_bands(ds, info, profile, win, lit_threshold, saturation, lut):
     from ..model.weights import source_weights
 
     bands = ds.read((1, 2) if info.has_alpha else (1,), window=win)  # one decode of pixel-interleaved blocks
-    value = bands[0].astype(np.float32)
-    valid = np.isfinite(value)
-    if info.nodata is not None:
-        valid &= value != np.float32(info.nodata)
-    if info.has_alpha:
-        valid &= bands[1] > 0
-    dn = value
-    if lut is not None:
-        value = np.asarray(lut, np.float32)[np.clip(np.nan_to_num(value), 0, len(lut) - 1).astype(np.intp)]
-        valid &= np.isfinite(value)
+    value, valid, usable = shadows.window_pixels(bands[0], bands[1] if info.has_alpha else None, info.nodata, lut,
+                                                 lit_threshold, saturation)
     r0, c0 = int(win.row_off), int(win.col_off)
-    usable = None
-    if lit_threshold is not None or saturation is not None:  # lit and saturated are decided on the DN
-        usable = shadows.usable_pixels(dn, valid, lit_threshold, saturation)
-    np.copyto(value, np.float32(0.0), where=~valid)  # value is this call's own array (a copy of the DN)
     return value, valid, source_weights(profile, r0, c0, valid), usable
 
 
