@@ -7,7 +7,8 @@ Prints, in one run on this machine:
    forward-model scene of 50 images of 2000x2000 px, 10 iterations, and the time of one
    plain rasterio read of the same images (ratio solve / read);
 2. peak resident memory (VmHWM) of a solve for 25, 50 and 100 images;
-3. speed-up 1 -> 2 workers;
+3. speed-up 1 -> 2 workers, and from one worker confined to one CPU (its cache writer and GDAL
+   threads then share that CPU, as the one-worker runs did before they had threads) to 2 workers;
 4. iterations needed to get within 1 % of the converged albedo, default method vs --method seed;
 5. camera response fit (seed 002, ``--response``): seconds per million observations
    (one 8-image stack of ~1 M observations; ``benchmarks/response_bench.py`` has the
@@ -120,25 +121,33 @@ def throughput(root: Path, q: bool, figures: dict, big_px: int, res_deg: float) 
     d = scene(root, f"throughput_{big_px}", spec)
     read_s = min(plain_read_seconds(d) for _ in range(2))
     runs = {w: solve_child(d, root / f"out_w{w}", workers=w) for w in (1, 2)}
+    one_core = solve_child(d, root / "out_w1_one_cpu", workers=1, one_cpu=True)  # the 1-worker run on one CPU
     obs = observations(spec) * 10
     figures["throughput"] = {
         "images": spec.n_images, "image_px": big_px, "iterations": 10, "pixel_observations": obs,
         "plain_read_s": read_s,
         **{f"solve_s_{w}w": r["seconds"] for w, r in runs.items()},
         **{f"cpu_s_{w}w": r["cpu_s"] for w, r in runs.items()},  # the solving process only (not Dask workers)
+        **{f"peak_mb_{w}w": r["peak_mb"] for w, r in runs.items()},  # the solving process only
         **{f"timings_{w}w": r["timings"] for w, r in runs.items()},
         "obs_per_s_1w": obs / runs[1]["seconds"], "obs_per_s_2w": obs / runs[2]["seconds"],
         "ratio_solve_over_read_1w": runs[1]["seconds"] / read_s, "ratio_solve_over_read_2w": runs[2]["seconds"] / read_s,
         "speedup_1_to_2": runs[1]["seconds"] / runs[2]["seconds"],
+        "solve_s_1w_one_cpu": one_core["seconds"], "timings_1w_one_cpu": one_core["timings"],
+        "speedup_one_cpu_to_2": one_core["seconds"] / runs[2]["seconds"],
     }
     t = figures["throughput"]
     print(f"1. throughput: {obs:,} pixel-observations; plain read {read_s:.2f} s", flush=True)
     for w in (1, 2):
-        print(f"   {w} worker(s): solve {runs[w]['seconds']:.1f} s wall ({runs[w]['cpu_s']:.1f} s CPU of the solving process) "
+        print(f"   {w} worker(s): solve {runs[w]['seconds']:.1f} s wall ({runs[w]['cpu_s']:.1f} s CPU, peak "
+              f"{runs[w]['peak_mb']:.0f} MB of the solving process) "
               f"= {obs / runs[w]['seconds'] / 1e6:.1f} M obs/s, "
               f"solve/read = {runs[w]['seconds'] / read_s:.1f}  (stages: {runs[w]['timings']})", flush=True)
 
-    print(f"3. speed-up 1 -> 2 workers: {t['speedup_1_to_2']:.2f}x", flush=True)
+    print(f"   1 worker on one CPU (its threads share it): solve {one_core['seconds']:.1f} s wall "
+          f"(stages: {one_core['timings']})", flush=True)
+    print(f"3. speed-up 1 -> 2 workers: {t['speedup_1_to_2']:.2f}x; one CPU -> two CPUs (1 worker on one CPU -> "
+          f"2 workers): {t['speedup_one_cpu_to_2']:.2f}x", flush=True)
 
 
 def memory(root: Path, figures: dict, mem_px: int, res_deg: float) -> None:
