@@ -21,7 +21,7 @@ half the cache of the strip of docs/performance-history.md with float64 sums (se
 
 **Blocks of rows** bound the memory of a worker whatever TILE_SIZE and the number of
 images: a tile is processed in blocks of :func:`block_rows` rows, each with the one-row
-halo its normals need (points and normals of a block: 48 bytes per pixel), and each
+halo its normals need, and each
 block's observations are cached on their own (``tilework.prepare_tile``).  The block
 height follows from a budget, :data:`BLOCK_BYTES` (environment variable
 ``LUNARALBEDO_BLOCK_MB``, default 384 MiB per worker; ``LUNARALBEDO_BLOCK_ROWS`` forces
@@ -49,8 +49,10 @@ from .terrain import TileShadows
 
 #: Working memory of one block of a tile in the prepare and iterate steps (bytes); ``LUNARALBEDO_BLOCK_MB`` overrides it.
 BLOCK_BYTES = 384 * 2**20
-#: Bytes per pixel of a block's full width: DEM (and its reader's temporaries), points and normals,
-#: per-pixel sums ...
+#: Bytes per pixel of a block's full width: DEM (and its reader's temporaries), per-pixel sums ...
+#: (measured when the block also held its points and normals, 48 bytes per pixel, which are now computed
+#: row by row in :func:`geometry.observe_window`; 48 here made 4000 px tiles' blocks taller and raised
+#: make bench item 10's peak from 852 to 887 MB for no time gained, so the margin stays)
 ROW_PIXEL_BYTES = 96
 #: ... per pixel of every image window in the block: the kept observations (~20 bytes), the window's
 #: blending weights, the initialisation sums' and the iteration's temporaries ...
