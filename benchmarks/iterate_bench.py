@@ -1,4 +1,4 @@
-"""The iterate step alone on the strip scene of item 6, in CPU time (docs/performance.md, section 1b).
+"""The iterate step alone on the strip scene of item 6, in CPU time (docs/performance-history.md, section 1b).
 
     .venv/bin/python benchmarks/iterate_bench.py [--out bench_out] [--before OTHER_CHECKOUT] [--budget-mb N]
 

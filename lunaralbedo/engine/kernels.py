@@ -101,7 +101,7 @@ def _point(kind, l0, l1, l2, params):
 
 #: Observations per chunk of :func:`iterate_pixels` (whole pixels; a pixel with more is a chunk alone):
 #: 1024 keeps its ~50 KB of work rows near the core (the strip's biggest tile, the kernel as one function:
-#: 7.5-7.8 ns per observation with 4096, 6.6-7.1 ns with 1024, 6.8-7.4 ns with 256; docs/performance.md 0g).
+#: 7.5-7.8 ns per observation with 4096, 6.6-7.1 ns with 1024, 6.8-7.4 ns with 256; docs/performance-history.md 0g).
 CHUNK = 1024
 #: Most observations of one pixel :func:`iterate_pixels` takes (a tile with fewer than 65536
 #: images always fits); with :data:`CHUNK` and a pad, the row length of its float32 work
@@ -316,7 +316,7 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
     (numba arrays carry no ``noalias``; too many possibly overlapping arrays and it gives up).
     Each loop is a small function of its own (``_model_rows`` ... ``_exposure_lanes``): LLVM
     vectorises each before it is inlined, where the loops written out in this one function left
-    the lanes of the normal equations scalar (docs/performance.md, section 0g).  Chunks of
+    the lanes of the normal equations scalar (docs/performance-history.md, section 0g).  Chunks of
     :data:`CHUNK` observations keep the work rows in the L1/L2 caches.
     """
     nimg = texp.shape[0]

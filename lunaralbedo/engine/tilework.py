@@ -73,7 +73,7 @@ CACHE_LAYOUT = 2
 TRASH = ".discarded"
 #: GeoTIFF predictor of the error tiles: none (1).  Eq. 7's error has no smooth rows for the
 #: floating-point predictor to use: without it the tiles are ~1 % smaller and 32 % faster to
-#: write (15.8 against 23.3 ms per 1000 x 1000 tile, docs/performance.md section 0e).
+#: write (15.8 against 23.3 ms per 1000 x 1000 tile, docs/performance-history.md section 0e).
 ERROR_PREDICTOR = 1
 
 

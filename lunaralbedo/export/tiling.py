@@ -29,7 +29,7 @@ TileWriter = Callable[[Path, Node, Sequence[Node], np.ndarray], None]
 
 #: zlib level of the pyramid's PNG tiles.  GDAL's default, 6, made the PNG writes ~45 % of an
 #: export (50-image scene: 2152 tiles of 256 x 256 px, 13.4 ms each); 3 takes 5.0 ms for files
-#: 4 % larger, 1 takes 3.5 ms for files 12 % larger (docs/performance.md, section 0g).
+#: 4 % larger, 1 takes 3.5 ms for files 12 % larger (docs/performance-history.md, section 0g).
 PNG_ZLEVEL = 3
 
 

@@ -67,7 +67,7 @@ def _map_npy(path: Path) -> np.ndarray:
     What ``np.load(path, mmap_mode="r")`` gives, without its path resolution and
     ``np.memmap`` set-up: 0.15 instead of 0.28 ms per file, which the iterations pay for
     every array of every block over the memory budget in every pass (~1.5 ns less per
-    observation and iteration on the 50-image benchmark scene; docs/performance.md, 0c).
+    observation and iteration on the 50-image benchmark scene; docs/performance-history.md, 0c).
     """
     with open(path, "rb") as f:
         version = np.lib.format.read_magic(f)
@@ -149,7 +149,7 @@ def discard(folders, trash: str | Path) -> None:
 
     Deleting a file whose pages the kernel is still writing to disk waits for that write: on
     the 50-image benchmark scene the workers' finalise tasks spent 5.7 s each blocked so
-    (docs/performance.md, section 0b).  In the background the wait overlaps the next task.
+    (docs/performance-history.md, section 0b).  In the background the wait overlaps the next task.
     An entry that cannot be renamed (no parent for ``trash``, another file system) is deleted
     here and now.  Whatever is left goes with the run's checkpoint folder.
     """

@@ -5,7 +5,7 @@ The prepare step makes a tile's blocks one after the other and hands each to the
 cache costs CPU (~0.7 ns per byte into the page cache on this project's machine) and can wait
 long: once the page cache holds ~10 % of the RAM in dirty pages, Linux holds a writer back to
 the pace of the disk (0.2 s for the strip's 530 MB of cache with few dirty pages, 1.2 s with
-1-2 GB of them; docs/performance.md, section 0g).  An entry is written into a temporary folder
+1-2 GB of them; docs/performance-history.md, section 0g).  An entry is written into a temporary folder
 beside its place, ``meta.json`` last, then renamed, so it is complete or absent, as
 :func:`.cache.save_stack` writes one.
 

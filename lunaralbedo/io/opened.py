@@ -3,7 +3,7 @@
 The prepare step reads the DEM of a tile (with the cast-shadow margin) in chunks of rows, to
 bound its temporaries.  Opening the file for each chunk threw away GDAL's cache of the blocks
 it had decoded, so a compressed block under two chunks was decoded twice (the strip scene of
-docs/performance.md: its DEM reads took 0.41 s, one decode of the whole DEM 0.16 s).  Inside
+docs/performance-history.md: its DEM reads took 0.41 s, one decode of the whole DEM 0.16 s).  Inside
 :func:`kept_open`, :func:`open_raster` gives the file opened before in this thread's block, up
 to :data:`MAX_KEPT` files (the least recently used one not in use is closed beyond), and closes
 them all at its end; outside, it opens and closes as ``rasterio.open`` does.
@@ -11,7 +11,7 @@ them all at its end; outside, it opens and closes as ``rasterio.open`` does.
 Keep such blocks short: an open file's decoded blocks stay in GDAL's cache (up to
 GDAL_CACHEMAX, 5 % of the RAM by default) until it is closed.  Keeping the DRGs open over a
 whole tile as well raised the peak memory of a 4000 x 4000 px tile under 16 images from 832 to
-931 MB (docs/performance.md, section 0f), so only the DEM reads use it.
+931 MB (docs/performance-history.md, section 0f), so only the DEM reads use it.
 """
 from __future__ import annotations
 

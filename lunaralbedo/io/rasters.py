@@ -325,10 +325,10 @@ def write_geotiff(
     predictor: about 4x faster to write than DEFLATE at the same size; GDAL >= 2.3,
     QGIS and rasterio read it.  ``predictor`` (1: none, 2: horizontal, 3: floating point)
     overrides that choice: data without smooth rows (the solver's error tiles) compress as
-    well without one, and ~30 % faster (docs/performance.md, section 0e).  ``threads`` > 1:
+    well without one, and ~30 % faster (docs/performance-history.md, section 0e).  ``threads`` > 1:
     GDAL compresses that many blocks at once (creation option NUM_THREADS; the same file
     contents): for a caller with idle CPUs, such as a one-worker solve (2000 x 2000 px
-    float32 tile on 2 CPUs: 60 -> 36 ms, docs/performance.md section 0f).
+    float32 tile on 2 CPUs: 60 -> 36 ms, docs/performance-history.md section 0f).
     """
     arr = np.asarray(bands)
     if arr.ndim == 2:

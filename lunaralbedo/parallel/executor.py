@@ -171,12 +171,12 @@ class DaskExecutor:
         Without ``homes``: one task ``run_task(fn, item, **args)`` per item, in item order, in one
         graph update (as ``gather`` then raises the first task error as it comes: 1.7 ms of this
         process's CPU per task, against 4.5 ms for one ``submit`` per item followed by
-        ``as_completed``, docs/performance.md section 0b; that loop only feeds the bar).  With
+        ``as_completed``, docs/performance-history.md section 0b; that loop only feeds the bar).  With
         ``homes``: each worker's items in :data:`BATCHES_PER_WORKER` tasks of :func:`run_batch`
         asked of it.  The solver's iterations are maps of ~10 ms tile tasks, whose Dask costs (this
         process's scheduler, the workers' bookkeeping) took 5-6 s of a 2-worker run's CPU on
         2 cores; the homes already share the work out evenly (:meth:`place`), and an idle worker
-        may still take a whole batch (docs/performance.md, section 0e).
+        may still take a whole batch (docs/performance-history.md, section 0e).
         """
         if homes is None:
             return self.client.map(run_task, [fn] * len(items), items, pure=False, **args), [[i] for i in range(len(items))]

@@ -8,7 +8,7 @@ import os
 #: every 10 ms, an event-loop tick every 20 ms and a system monitor every 0.5 s in every server,
 #: and each worker's memory checked every 0.1 s.  Measured on a local cluster of 2 workers idle
 #: for 20 s: 1.0 s of CPU in the solving process and 1.7 s in the workers with the defaults,
-#: 0.2 s and 0.2 s with these (docs/performance.md, section 0b).  The memory limit is still
+#: 0.2 s and 0.2 s with these (docs/performance-history.md, section 0b).  The memory limit is still
 #: enforced, checked once a second (a tile task's memory is bounded by blocks of rows).
 DASK_CONFIG = {
     "distributed.worker.profile.enabled": False,
@@ -29,14 +29,14 @@ def _env_name(key: str) -> str:
 #: mmap threshold at 128 KiB and hands freed heap memory back at once: each array is then
 #: page-faulted in anew, at ~2.5 µs per 4 KiB page on this project's machine (measured:
 #: 150 000 faults and 0.3-0.4 s of kernel time in preparing the strip scene of
-#: docs/performance.md, 15 000 with these).  Arrays up to 64 MiB come from the heap, and up to
+#: docs/performance-history.md, 15 000 with these).  Arrays up to 64 MiB come from the heap, and up to
 #: 256 MiB of freed memory at its top is kept for the next block or tile: the peak resident
 #: memory changes little (what is kept was in use just before; measured +28 MB on the strip,
-#: docs/performance.md section 0c).  One arena: a Dask worker runs its tasks in a thread, and
+#: docs/performance-history.md section 0c).  One arena: a Dask worker runs its tasks in a thread, and
 #: glibc gives other threads than the main one arenas of at most 64 MiB heaps, so a task
 #: holding several arrays of tens of MB at once got new heaps mapped and unmapped under it
 #: whatever the thresholds (the 50-image scene's prepare stage: 1 085 000 faults and 8.5 s of
-#: kernel time in 2 workers, 88 000 and 5.8 s with one arena; docs/performance.md, section 0e).
+#: kernel time in 2 workers, 88 000 and 5.8 s with one arena; docs/performance-history.md, section 0e).
 MALLOC_ENV = {"MALLOC_MMAP_THRESHOLD_": 64 * 2**20, "MALLOC_TRIM_THRESHOLD_": 256 * 2**20, "MALLOC_ARENA_MAX": 1}
 
 #: Environment of worker processes: :data:`MALLOC_ENV` (it overrides the nanny's own
