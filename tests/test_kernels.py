@@ -69,6 +69,20 @@ def test_pixel_major_order_is_stable_and_complete():
     np.testing.assert_array_equal(pm["image"], image[pm["image_of"], pix // wt.shape[2], pix % wt.shape[2]])
 
 
+def test_pixel_major_moves_rows_of_one_array_without_copying_them():
+    """Arrays held as the rows of one array (as the prepare step holds them) are permuted in one pass, with the
+    result of separate arrays; rows of another order, or separate arrays, are stacked first."""
+    image, r, dr, wt, t = _stacks()
+    obs = _compact(wt, image=image, weight=wt, r=r)
+    names = ["image", "weight", "r"]
+    rows = np.stack([obs[n] for n in names])
+    held = {**obs, **dict(zip(names, rows))}
+    assert kernels._rows_of(held, names) is rows
+    assert kernels._rows_of(held, names[::-1]) is not rows and kernels._rows_of(obs, names).base is None
+    a, b = kernels.pixel_major(obs, wt[0].size, names), kernels.pixel_major(held, wt[0].size, names)
+    assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
 def test_fused_kernel_equals_the_numpy_formulas():
     image, r, dr, wt, t = _stacks()
     k, h, w = image.shape

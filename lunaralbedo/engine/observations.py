@@ -239,7 +239,8 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut):
     names = model.layer_names + (("cos_i",) if with_cos_i else ())
     counts = [len(e[3]) for e in kept]
     start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    obs = {n: np.empty(int(start[-1]), np.int32 if n == "pix" else np.float32) for n in ("pix", "image", "weight", *names)}
+    values = np.empty((2 + len(names), int(start[-1])), np.float32)  # one array: kernels.pixel_major moves its rows at once
+    obs = {"pix": np.empty(int(start[-1]), np.int32), **dict(zip(("image", "weight", *names), values))}
     obs["index"] = np.array([e[0] for e in kept], np.int32)
     obs["start"] = start
     for i in range(len(kept)):  # copied into place one image at a time, each image's arrays freed after
