@@ -222,3 +222,23 @@ def test_window_pixels_equal_the_numpy_steps(dtype, alpha, nodata, lut, thresh, 
         assert usable is None
     else:
         assert np.array_equal(usable, good) and 0 < good.sum() < ok.sum()
+
+
+def test_compact_keeps_the_candidates_it_is_told_to():
+    """The window's candidates that the cast-shadow test keeps, with their block pixel numbers, values and weights;
+    when it keeps all of them (no shadow in the window) their arrays are passed on as they are, not copied."""
+    from lunaralbedo.engine.observations import _compact
+
+    rng = np.random.default_rng(5)
+    val, wb = rng.uniform(1, 200, (6, 9)).astype(np.float32), rng.uniform(0, 1, (6, 9)).astype(np.float32)
+    rows, cols = (a.ravel().astype(np.int64) for a in np.nonzero(rng.random((6, 9)) > 0.3))
+    ci, ce, al = (rng.random(rows.size) for _ in range(3))
+    for keep in (np.ones(rows.size, bool), np.zeros(0, bool), rng.random(rows.size) > 0.4):
+        got = _compact(rows, cols, keep, val, wb, ci, ce, al, 2, 3, 20)
+        sel = keep if keep.size else np.ones(rows.size, bool)
+        r, c = rows[sel], cols[sel]
+        assert np.array_equal(got[0], r) and np.array_equal(got[1], c)
+        assert np.array_equal(got[2], ((r + 2) * 20 + c + 3).astype(np.int32)) and got[2].dtype == np.int32
+        assert np.array_equal(got[3], val[r, c]) and np.array_equal(got[4], wb[r, c])
+        assert all(np.array_equal(g, a[sel]) for g, a in zip(got[5:], (ci, ce, al)))
+        assert (got[5] is ci) == bool(sel.all())  # all kept: the same arrays, no copy

@@ -166,9 +166,9 @@ def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None):
 def _compact(rows, cols, keep, val, wb, ci, ce, al, row_off, col_off, width):
     """The candidates of one window that ``keep`` (all when it is empty), in one pass.
 
-    Returns their window ``rows``, ``cols`` and geometry (as given), their block pixel numbers
-    ``(row + row_off) * width + col + col_off`` (int32) and their value and blending weight
-    (float32, from the window arrays ``val``, ``wb``).
+    Returns their window ``rows``, ``cols`` and geometry (as given: the same arrays when every
+    candidate is kept), their block pixel numbers ``(row + row_off) * width + col + col_off``
+    (int32) and their value and blending weight (float32, from the window arrays ``val``, ``wb``).
     """
     n = rows.shape[0]
     m = n
@@ -176,12 +176,18 @@ def _compact(rows, cols, keep, val, wb, ci, ce, al, row_off, col_off, width):
         m = 0
         for o in range(n):
             m += keep[o]
-    out_r, out_c = np.empty(m, np.int64), np.empty(m, np.int64)
     pix, value, weight = np.empty(m, np.int32), np.empty(m, np.float32), np.empty(m, np.float32)
+    if m == n:  # nothing to leave out (no cast shadow in the window): the candidates' arrays as they are
+        for o in range(n):
+            r, c = rows[o], cols[o]
+            pix[o] = (r + row_off) * width + c + col_off
+            value[o], weight[o] = val[r, c], wb[r, c]
+        return rows, cols, pix, value, weight, ci, ce, al
+    out_r, out_c = np.empty(m, np.int64), np.empty(m, np.int64)
     out_i, out_e, out_a = np.empty(m, ci.dtype), np.empty(m, ce.dtype), np.empty(m, al.dtype)
     j = 0
     for o in range(n):
-        if keep.shape[0] and not keep[o]:
+        if not keep[o]:
             continue
         r, c = rows[o], cols[o]
         out_r[j], out_c[j] = r, c
