@@ -66,6 +66,13 @@ def test_the_rule_is_the_mean_of_the_dems_with_a_value():
     one = np.array([-0.0, 7.5, np.nan], np.float32)
     got = merge_dem_layers(iter([one]), (3,))  # one DEM: its heights, as the sum 0.0 + h gives them
     assert got.dtype == np.float64 and not np.signbit(got[0]) and got[1] == 7.5 and np.isnan(got[2])
+    rng = np.random.default_rng(2)
+    heights = rng.normal(0, 3000, 1000).astype(np.float32)
+    heights[:3] = [-0.0, np.nan, np.float32(1e-40)]  # negative zero, no value, a subnormal
+    for layers in ([heights], [heights, heights[::-1].copy()]):  # the solver asks float32: the bytes of the float64 mean
+        want = merge_dem_layers(layers, (1000,)).astype(np.float32)
+        got32 = merge_dem_layers(iter(layers), (1000,), np.float32)
+        assert got32.dtype == np.float32 and np.array_equal(got32.view(np.uint32), want.view(np.uint32))
 
 
 def test_radius_or_height_is_decided_by_the_median_of_the_finite_values():

@@ -377,4 +377,4 @@ def read_dem_onto_grid(
     layers = (radius_to_height(read_onto_grid(info, 1, dst_transform, dst_shape, dst_crs, Resampling.bilinear,
                                               nodata=nodata))[0]
               for info in infos if intersects_lon(info.lonlat_bounds, grid_box))
-    return merge_dem_layers(layers, dst_shape).astype(np.float32)
+    return merge_dem_layers(layers, dst_shape, np.float32)

@@ -163,7 +163,7 @@ def _illumination_flat(p, n, sun, sc):
     return ci, ce, al
 
 
-def merge_dem_layers(layers, shape) -> np.ndarray:
+def merge_dem_layers(layers, shape, dtype=np.float64) -> np.ndarray:
     """Heights where DEMs overlap: the mean of the DEMs with a value there (seed 000 section 6).
 
     The one overlap rule of the package, used by ``ingest`` (:class:`lunaralbedo.ingest.dem.DemMosaic`)
@@ -171,17 +171,21 @@ def merge_dem_layers(layers, shape) -> np.ndarray:
     overlap, the values from all images at a given pixel will be averaged".  ``layers``
     yields one array of ``shape`` per DEM (metres, NaN = no value), in file order; the
     float64 sum runs in that order, so the result does not depend on anything else.
-    Returns float64 metres, NaN where no DEM has a value.
+    Returns metres of ``dtype`` (the float64 mean rounded once), NaN where no DEM has a value;
+    one DEM gives its own values (``0.0 + h``: -0.0 becomes 0.0), formed in ``dtype`` directly
+    when its values are of that type (float32 heights: the same bytes, no float64 pass).
     """
     layers = iter(layers)
     first = next(layers, None)
     if first is None:
-        return np.full(shape, np.nan)
+        return np.full(shape, np.nan, dtype)
     second = next(layers, None)
     if second is None:  # one DEM: its values (the sum's 0.0 + h turns -0.0 into 0.0; NaN stays NaN)
-        out = np.array(np.broadcast_to(np.asarray(first, np.float64), shape))
-        out += 0.0
-        return out
+        first = np.asarray(first)
+        work = dtype if first.dtype == np.dtype(dtype) else np.float64
+        out = np.array(np.broadcast_to(first.astype(work, copy=False), shape))
+        out += work(0.0)
+        return out.astype(dtype, copy=False)
     total = np.zeros(shape, np.float64)
     count = np.zeros(shape, np.int32)
     for d in (first, second, *layers):
@@ -190,7 +194,7 @@ def merge_dem_layers(layers, shape) -> np.ndarray:
         total += np.where(ok, d, 0.0)  # total is never -0.0, so adding 0.0 where there is no value changes nothing
         count += ok
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(count > 0, total / count, np.nan)
+        return np.where(count > 0, total / count, np.nan).astype(dtype, copy=False)
 
 
 def radius_to_height(values_m: np.ndarray, mode: str = "auto") -> tuple[np.ndarray, bool]:
@@ -206,18 +210,32 @@ def radius_to_height(values_m: np.ndarray, mode: str = "auto") -> tuple[np.ndarr
 
 
 def _median_exceeds(values, threshold: float) -> bool:
-    """``median(finite values) > threshold`` (False when none), by counting: no sort unless the two middle
-    values straddle the threshold."""
+    """``median(finite values) > threshold`` (False when none), by counting (one numba pass): no sort unless the two
+    middle values straddle the threshold."""
     values = np.asarray(values)
-    n = int(np.count_nonzero(np.isfinite(values)))
+    if values.dtype.kind != "f":
+        values = values.astype(np.float64)
+    n, above = _count_finite_above(np.ascontiguousarray(values).ravel(), values.dtype.type(threshold))
     if n == 0:
         return False
-    above = int(np.count_nonzero(values > threshold)) - int(np.count_nonzero(values == np.inf))  # +inf is not finite
     if above >= n // 2 + 1:  # the middle value(s) all above
         return True
     if above <= (n - 1) // 2:  # the middle value(s) all at or below
         return False
     return float(np.median(values[np.isfinite(values)])) > threshold
+
+
+@njit(cache=True)
+def _count_finite_above(values, threshold):
+    """How many ``values`` are finite, and how many of those exceed ``threshold`` (of their type, as NumPy 2 compares
+    an array with a Python float)."""
+    n = 0
+    above = 0
+    for v in values:
+        if np.isfinite(v):
+            n += 1
+            above += v > threshold
+    return n, above
 
 
 # --------------------------------------------------------------------------- kernels of the solver's prepare step
