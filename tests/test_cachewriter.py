@@ -55,6 +55,32 @@ def test_an_entry_appears_complete_once_written_and_the_caller_goes_on_meanwhile
     assert _leftovers(tmp_path) == []
 
 
+def test_the_caller_waits_when_the_waiting_blocks_reach_the_byte_budget(tmp_path, monkeypatch):
+    """Small blocks queue several deep, up to ``pending_bytes`` of arrays; a block bigger than that still goes
+    alone, once nothing waits."""
+    gate, started, real = _held_writes(monkeypatch)
+    w = CacheWriter(pending=8, pending_bytes=1000)
+    e = w.entry(tmp_path / "tile_c")
+    done = []
+
+    def produce():
+        for i, n in enumerate((100, 100, 100, 100, 1000)):  # float32: 400 bytes each, then 4000
+            e.save(f"block_{i:04d}", {"x": np.zeros(n, np.float32)}, {})
+            done.append(i)
+
+    t = threading.Thread(target=produce)
+    t.start()
+    started.wait(10)
+    t.join(0.5)
+    assert t.is_alive() and done == [0, 1, 2]  # block 0 being written, 1 and 2 waiting (800 bytes), 3 held back
+    gate.set()
+    t.join(10)
+    assert done == [0, 1, 2, 3, 4]  # the 4000-byte block went through once the queue had emptied
+    e.complete({})
+    w.flush()
+    assert len(list((tmp_path / "tile_c").iterdir())) == 6
+
+
 def test_the_caller_waits_when_the_queue_is_full(tmp_path, monkeypatch):
     """At most ``pending`` jobs wait (plus the one being written): the blocks held in memory are bounded."""
     gate, started, real = _held_writes(monkeypatch)

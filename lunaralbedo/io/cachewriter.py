@@ -9,8 +9,11 @@ the pace of the disk (0.2 s for the strip's 530 MB of cache with few dirty pages
 beside its place, ``meta.json`` last, then renamed, so it is complete or absent, as
 :func:`.cache.save_stack` writes one.
 
-Bounded: at most :data:`PENDING` jobs wait; the caller blocks beyond that, so at most that many
-blocks (plus the one being written) are held in memory.  A failed write is raised, naming the
+Bounded: at most :data:`PENDING` jobs, and at most :data:`PENDING_BYTES` of their arrays (one
+job is always let in), wait; the caller blocks beyond that, so the blocks held in memory are
+that many bytes plus the one being written.  Small blocks (the narrow strips' ~30-65 MB) then
+queue several deep and the computation seldom waits for a slower write; big ones (4000 px
+tiles) one at a time.  A failed write is raised, naming the
 entry, by the next :meth:`Entry.save`, :meth:`Entry.complete` or :meth:`CacheWriter.flush`;
 from then on queued jobs are skipped and every entry not yet complete is removed.
 """
@@ -25,15 +28,21 @@ from pathlib import Path
 
 from .cache import _ensure_parent, save_meta, save_stack
 
-#: Jobs that may wait for the writer before :meth:`Entry.save` blocks (memory bound: blocks held).
-PENDING = 2
+#: Jobs that may wait for the writer before :meth:`Entry.save` blocks ...
+PENDING = 8
+#: ... and the bytes of their arrays (memory bound: the blocks held).  The strip of make bench item 6:
+#: the prepare step's waits 0.02-0.09 s with two jobs, 0.001-0.012 s with four (docs/performance-history.md 0h).
+PENDING_BYTES = 256 * 2**20
 
 
 class CacheWriter:
     """One background writing thread of this process (started on first use)."""
 
-    def __init__(self, pending: int = PENDING):
-        self._jobs: queue.Queue = queue.Queue(maxsize=pending)
+    def __init__(self, pending: int = PENDING, pending_bytes: int = PENDING_BYTES):
+        self.pending, self.pending_bytes = int(pending), int(pending_bytes)
+        self._jobs: queue.Queue = queue.Queue()  # admission below: _queued jobs of _queued_bytes wait
+        self._room = threading.Condition()
+        self._queued = self._queued_bytes = 0
         self._thread: threading.Thread | None = None
         self._start_lock = threading.Lock()
         self._error: BaseException | None = None
@@ -53,17 +62,26 @@ class CacheWriter:
         self._jobs.join()
         self._error = None
 
-    def _put(self, entry: "Entry", job) -> None:
+    def _put(self, entry: "Entry", job, nbytes: int = 0) -> None:
         self._raise()
         with self._start_lock:
             if self._thread is None or not self._thread.is_alive():
                 self._thread = threading.Thread(target=self._run, name="lunaralbedo-cache-writer", daemon=True)
                 self._thread.start()
-        self._jobs.put((entry, job))
+        with self._room:
+            while self._queued and (self._queued >= self.pending or self._queued_bytes + nbytes > self.pending_bytes):
+                self._room.wait()
+            self._queued += 1
+            self._queued_bytes += nbytes
+        self._jobs.put((entry, job, nbytes))
 
     def _run(self) -> None:
         while True:
-            entry, job = self._jobs.get()
+            entry, job, nbytes = self._jobs.get()
+            with self._room:  # taken: the next one may queue
+                self._queued -= 1
+                self._queued_bytes -= nbytes
+                self._room.notify_all()
             try:
                 if self._error is None and not entry.abandoned:
                     job()
@@ -94,7 +112,8 @@ class Entry:
 
     def save(self, name: str, arrays: dict, meta: dict) -> None:
         """Queue one part (a :func:`.cache.save_stack` entry ``name`` inside this one); ``arrays`` must not change after."""
-        self.writer._put(self, lambda: save_stack(self.tmp / name, arrays, meta))
+        self.writer._put(self, lambda: save_stack(self.tmp / name, arrays, meta),
+                         sum(int(getattr(a, "nbytes", 0)) for a in arrays.values()))
 
     def complete(self, meta: dict) -> None:
         """Queue ``meta.json`` and the rename that makes the entry appear, complete, at its place."""
