@@ -31,7 +31,7 @@ from .cache import _ensure_parent, save_meta, save_stack
 #: Jobs that may wait for the writer before :meth:`Entry.save` blocks ...
 PENDING = 8
 #: ... and the bytes of their arrays (memory bound: the blocks held).  The strip of make bench item 6:
-#: the prepare step's waits 0.02-0.09 s with two jobs, 0.001-0.012 s with four (docs/performance-history.md 0h).
+#: the prepare step's waits 0.02-0.09 s with two jobs, 0.001 s with this bound (docs/performance-history.md 0h).
 PENDING_BYTES = 256 * 2**20
 
 
