@@ -31,18 +31,28 @@ def _ensure_parent(folder: Path) -> None:
     folder.parent.mkdir(exist_ok=True)
 
 
+def temporary_beside(folder: Path) -> Path:
+    """A new temporary folder next to ``folder``, to fill and then :func:`move_into_place`."""
+    _ensure_parent(folder)
+    return Path(tempfile.mkdtemp(prefix=".tmp-", dir=folder.parent))
+
+
+def move_into_place(tmp: Path, folder: Path) -> None:
+    """Rename the filled temporary folder ``tmp`` to ``folder``, replacing an older entry there."""
+    if folder.exists():
+        shutil.rmtree(folder)
+    os.replace(tmp, folder)
+
+
 def save_stack(folder: str | Path, arrays: dict[str, np.ndarray], meta: dict) -> None:
     """Write ``arrays`` and ``meta`` (JSON) as a cache entry at ``folder`` (atomic rename)."""
     folder = Path(folder)
-    _ensure_parent(folder)
-    tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=folder.parent))
+    tmp = temporary_beside(folder)
     try:
         for name, arr in arrays.items():
             np.save(tmp / f"{name}.npy", np.ascontiguousarray(arr), allow_pickle=False)
         (tmp / "meta.json").write_text(json.dumps(meta))
-        if folder.exists():
-            shutil.rmtree(folder)
-        os.replace(tmp, folder)
+        move_into_place(tmp, folder)
     except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(exc, OSError) and exc.filename is None:  # np.save's write errors name no file

@@ -19,14 +19,12 @@ from then on queued jobs are skipped and every entry not yet complete is removed
 """
 from __future__ import annotations
 
-import os
 import queue
 import shutil
-import tempfile
 import threading
 from pathlib import Path
 
-from .cache import _ensure_parent, save_meta, save_stack
+from .cache import move_into_place, save_meta, save_stack, temporary_beside
 
 #: Jobs that may wait for the writer before :meth:`Entry.save` blocks ...
 PENDING = 8
@@ -106,8 +104,7 @@ class Entry:
 
     def __init__(self, writer: CacheWriter, folder: Path):
         self.writer, self.folder = writer, folder
-        _ensure_parent(folder)
-        self.tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=folder.parent))
+        self.tmp = temporary_beside(folder)
         self.abandoned = False
 
     def save(self, name: str, arrays: dict, meta: dict) -> None:
@@ -119,9 +116,7 @@ class Entry:
         """Queue ``meta.json`` and the rename that makes the entry appear, complete, at its place."""
         def finish():
             save_meta(self.tmp, meta)
-            if self.folder.exists():
-                shutil.rmtree(self.folder)
-            os.replace(self.tmp, self.folder)
+            move_into_place(self.tmp, self.folder)
         self.writer._put(self, finish)
 
     def abandon(self) -> None:
@@ -136,7 +131,7 @@ class Entry:
         shutil.rmtree(self.tmp, ignore_errors=True)
 
     def named(self, exc: BaseException) -> BaseException:
-        """``exc`` naming the entry rather than its temporary folder (as :func:`.cache.building` does)."""
+        """``exc`` naming the entry rather than its temporary folder (as :func:`.cache.save_stack` names it)."""
         if isinstance(exc, OSError) and str(self.tmp) in str(exc.filename or ""):
             named = OSError(exc.errno, exc.strerror or str(exc), str(self.folder))
             named.__cause__ = exc
