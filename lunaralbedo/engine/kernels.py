@@ -64,8 +64,8 @@ def by_pixel(pix, start, npix, image_of, src, dst):
 def _rows_of(obs, names):
     """The arrays ``names`` as the rows of one array: the array they are consecutive rows of (no copy), else stacked."""
     base = getattr(obs[names[0]], "base", None) if names else None
-    if (base is not None and base.ndim == 2 and base.shape[0] == len(names) and base.flags.c_contiguous
-            and all(obs[n].base is base and np.shares_memory(obs[n], base[i]) and obs[n].shape == base[i].shape
+    if (isinstance(base, np.ndarray) and base.ndim == 2 and base.shape[0] == len(names) and base.flags.c_contiguous
+            and all(obs[n].base is base and obs[n].shape == base[i].shape and obs[n].ctypes.data == base[i].ctypes.data
                     for i, n in enumerate(names))):
         return base
     return np.stack([np.asarray(obs[n]) for n in names]) if names else np.zeros((0, len(obs["pix"])), np.float32)
