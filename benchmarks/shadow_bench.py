@@ -120,17 +120,16 @@ def low_sun(repeat: int) -> None:
     from lunaralbedo.model import geometry
     from lunaralbedo.model.cast_shadows import MarchGrid
     from lunaralbedo.simulate import truth_dem
+    from lunaralbedo.simulate.forward import sun_position
 
     n, res = 800, 0.0025
     tr = Affine(res, 0, 20.0 - n * res / 2, 0, -res, n * res / 2)
     lon, lat = geometry.lonlat_grid(tr, (n, n))
     dem = truth_dem(lon, lat, (lon.min(), lon.max(), lat.min(), lat.max()), 600.0, fresh_per_square_degree=2.0 / res)
     rows, cols = (a.ravel() for a in np.mgrid[100:700, 100:700])
-    up = geometry.body_fixed(20.0, 0.0, 0.0) / 1737.4
+    centre = geometry.body_fixed(20.0, 0.0, 0.0)
     for inc in (80.0, 60.0, 35.0):
-        i, az = np.radians(inc), np.radians(240.0)
-        east, north = np.array([-np.sin(np.radians(20.0)), np.cos(np.radians(20.0)), 0.0]), np.array([0.0, 0.0, 1.0])
-        sun = (np.cos(i) * up + np.sin(i) * (np.sin(az) * east + np.cos(az) * north)) * 1.496e8
+        sun = sun_position(centre, 240.0, 90.0 - inc)
         times, masks = {}, {}
         for cells in (True, False):
             best = np.inf
