@@ -98,15 +98,19 @@ def test_fused_kernel_equals_the_numpy_formulas():
     got = _run(pm, 0, (pm["r"], pm["d0"], pm["d1"]), (), t, 2)
     # per-pixel sums run over the images in the same order as NumPy's axis-0 sum: identical bytes
     np.testing.assert_array_equal(got["alb"].reshape(h, w), alb)
-    t_pm = t[pm["image_of"]]
-    np.testing.assert_array_equal(got["alb"], kernels.albedo(pm["offsets"], pm["pixels"], pm["image"], t_pm * pm["r"],
-                                                             pm["weight"], h * w))
-    # finalise's eq. 7 numerator, pixel by pixel in tile order: the NumPy sums over the image axis, bit for bit
-    num = kernels.error_numerator(pm["offsets"], pm["pixels"], pm["image"], t_pm * pm["r"], pm["weight"],
-                                  got["alb"], h * w)
-    want = updates._f64sum(updates.error_terms(image, alb[None], tr.astype(np.float32), wt), axis=0)
-    assert np.count_nonzero(want) > 0.5 * h * w
-    np.testing.assert_array_equal(num.reshape(h, w), want)
+    # finalise's one pass: the same albedo, and eq. 7 pixel by pixel in tile order, the NumPy sums over the
+    # image axis bit for bit (its numerator over a blending sum that is 0 at some pixels, 2.5 elsewhere)
+    blend = np.where(np.arange(h * w) % 7 == 0, 0.0, 2.5).astype(np.float32)
+    alb2, err = np.empty(h * w, np.float32), np.empty(h * w, np.float32)
+    kernels.finalise_pixels(pm["offsets"], pm["pixels"], pm["image"], pm["image_of"], t, pm["r"], pm["weight"], blend,
+                            alb2, err)
+    np.testing.assert_array_equal(alb2, got["alb"])
+    num = updates._f64sum(updates.error_terms(image, alb[None], tr.astype(np.float32), wt), axis=0).ravel()
+    assert np.count_nonzero(num) > 0.5 * h * w
+    with np.errstate(divide="ignore", invalid="ignore"):
+        want = np.where(blend > 0, num / blend, np.nan).astype(np.float32)
+    assert np.isnan(want).sum() == np.count_nonzero(blend == 0) and np.count_nonzero(want == 0) > 0
+    np.testing.assert_array_equal(err, want)
     assert got["n_obs"] == np.count_nonzero(wt)
     # whole-tile sums: other summation order, float64 -> equal to ~1e-12
     np.testing.assert_allclose(got["q"], q, rtol=1e-12)

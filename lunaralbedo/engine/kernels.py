@@ -5,7 +5,7 @@ The prepare step gathers observations as 1-D float32 arrays ordered by image, th
 them in pixel-major order (:func:`pixel_major`, once per block at prepare, see
 :mod:`.tilework`): :func:`iterate_pixels` computes each pixel's albedo and all the sums in
 one pass, with the photometric model's ``point`` (R and dR/dp) inline; finalise's
-:func:`albedo` and :func:`error_numerator` sum each pixel's observations as it does.
+:func:`finalise_pixels` sums each pixel's observations as it does.
 Every product is formed in float32 as the former NumPy code did and summed into float64
 accumulators in one fixed order (fixed lanes for the global sums), so results do not depend on
 workers or threads.  ``cache=True``, no fastmath (IEEE semantics, no reassociation).
@@ -422,33 +422,42 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
     return sums[0], n_obs, amin, amax
 
 
-@njit(cache=True)
-def albedo(offsets, pixels, image, tr, w, npix):
-    r"""Eq. 3 of pixel-major observations: :math:`A = \sum I\,TR\,w / \sum (TR)^2 w` per pixel of the block
-    (float32, NaN where no weight); each pixel's float64 sums over its images in tile order, as
-    :func:`iterate_pixels` sums them (the same bits)."""
-    out = np.full(npix, np.nan, np.float32)
-    for j in range(pixels.shape[0]):
-        num, den = 0.0, 0.0
-        for o in range(offsets[j], offsets[j + 1]):
-            trw = tr[o] * w[o]
-            num += image[o] * trw
-            den += tr[o] * trw
-        if den > 0:
-            out[pixels[j]] = num / den
-    return out
+@njit(cache=True, error_model="numpy")  # IEEE division, as the NumPy formulas (model/updates.albedo, error_terms)
+def finalise_pixels(offsets, pixels, image, image_of, texp, r, w, blend, alb, err):
+    r"""Eq. 3's albedo and eq. 7's error of a block's pixel-major observations, in one pass, into ``alb`` and ``err``.
 
-
-@njit(cache=True, error_model="numpy")  # IEEE division, as the NumPy formula (model/updates.error_terms)
-def error_numerator(offsets, pixels, image, tr, w, alb, npix):
-    r"""Numerator of eq. 7 per pixel of pixel-major observations: :math:`\sum (I/(TR) - A)^2 S w` (float64)."""
-    num = np.zeros(npix)
+    ``texp`` (float32) are the exposures of the local images ``image_of``, ``r`` the model's R
+    and ``w`` the weights of the observations (float32); ``blend`` (per pixel) eq. 7's
+    denominator, the sum of blending weights.  ``alb`` (float32 per pixel of the block) gets
+    :math:`A = \sum I\,TR\,w / \sum (TR)^2 w` (NaN where no weight), each pixel's float64
+    sums over its images in tile order, as :func:`iterate_pixels` sums them (the same bits);
+    ``err`` (float32 per pixel, or size 0: not wanted) gets
+    :math:`\sum_{w>0} (I/(TR) - A)^2 w / \sum S` (float64 numerator and quotient; 0 where
+    the pixel has a blending weight and no observation, NaN where it has none), the bits of the
+    former NumPy code (``np.where(den > 0, num / den, nan)`` cast to float32).
+    """
+    nan = np.float32(np.nan)
+    want_err = err.shape[0] > 0
+    for p in range(alb.shape[0]):
+        alb[p] = nan
+    if want_err:
+        for p in range(err.shape[0]):
+            err[p] = np.float32(0.0 / blend[p]) if blend[p] > 0 else nan
     for j in range(pixels.shape[0]):
         p = pixels[j]
-        acc = 0.0
+        num, den = 0.0, 0.0
         for o in range(offsets[j], offsets[j + 1]):
-            if w[o] > 0:
-                dev = image[o] / tr[o] - alb[p]
-                acc += dev * dev * w[o]
-        num[p] = acc
-    return num
+            tr = texp[image_of[o]] * r[o]
+            trw = tr * w[o]
+            num += image[o] * trw
+            den += tr * trw
+        if den > 0:
+            alb[p] = num / den
+        if want_err and blend[p] > 0:
+            a = alb[p]
+            acc = 0.0
+            for o in range(offsets[j], offsets[j + 1]):
+                if w[o] > 0:
+                    dev = image[o] / (texp[image_of[o]] * r[o]) - a
+                    acc += dev * dev * w[o]
+            err[p] = acc / blend[p]

@@ -175,21 +175,21 @@ def _init_sums(scene: Scene, obs, width: int) -> dict:
 
 
 # --------------------------------------------------------------------------- iterate
-def tile_model(scene: Scene, obs, state: SolveState, npix: int):
-    """Albedo of a block's pixel-major observations for the given exposures and model parameters (eq. 3).
+def tile_model(scene: Scene, obs, state: SolveState):
+    """The model of a block's pixel-major observations for the given exposures and model parameters.
 
-    Returns ``(albedo (npix,), R, w, T)``; ``w`` includes the dynamic shadow mask.  Each pixel
-    sums its images in tile order, as the iterations do.
+    Returns ``(R, w, T)``: R (float32 per observation), the weights with the dynamic shadow
+    mask (eq. 1), and the exposures of the block's local images (float32; ``obs["image_of"]``
+    numbers them), which :func:`kernels.finalise_pixels` takes.
     """
     s = scene.settings
-    t_obs = state.exposure[obs["index"]].astype(np.float32)[obs["image_of"]]
+    texp = state.exposure[obs["index"]].astype(np.float32)
     r = np.asarray(s.model.reflectance_from(obs, state.params), dtype=np.float32)
     w = obs["weight"]
     if s.shadow_type in (shadows.LAMBERT_RATIO, shadows.LUNAR_LAMBERT_RATIO) and s.model.needs_geometry:
         rr = obs["cos_i"] if (s.shadow_type == shadows.LAMBERT_RATIO and "cos_i" in obs) else r
-        w = np.where(shadows.dynamic_lit(obs["image"], rr, t_obs, s.shadow_thresh), w, 0.0).astype(np.float32)
-    alb = kernels.albedo(obs["offsets"], obs["pixels"], obs["image"], t_obs * r, w, npix)
-    return alb, r, w, t_obs
+        w = np.where(shadows.dynamic_lit(obs["image"], rr, texp[obs["image_of"]], s.shadow_thresh), w, 0.0).astype(np.float32)
+    return r, w, texp
 
 
 #: Pixel-major observations of the blocks this process iterates stay in memory within this
@@ -336,22 +336,22 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
         with rasterio.open(out_dir / "albedo" / name) as ds:
             valid = int(np.count_nonzero(np.isfinite(ds.read(1))))
         return {**_tile_images(scene, t, idx), "valid_pixels": valid, "reused": True}
-    alb = np.full((h, w_), np.nan, np.float32)
+    alb = np.empty((h, w_), np.float32)
     want_err = s.compute_errors and len(idx)
-    err = np.full((h, w_), np.nan, np.float32) if want_err else None
+    err = np.empty((h, w_), np.float32) if want_err else None
+    no_err = np.empty(0, np.float32)
     has_dem = False
     for b0, b1, obs, per_pixel in _blocks(folder, meta):
         has_dem = "dem" in per_pixel
         if not len(obs["index"]):
+            alb[b0:b1] = np.nan
+            if want_err:
+                err[b0:b1] = np.nan
             continue
-        npix = (b1 - b0) * w_
-        a, r, w, t_obs = tile_model(scene, obs, state, npix)
-        alb[b0:b1] = a.reshape(b1 - b0, w_)
-        if want_err:
-            num = kernels.error_numerator(obs["offsets"], obs["pixels"], obs["image"], t_obs * r, w, a, npix)
-            den = per_pixel.get("wblend_sum", per_pixel["weights_sum"]).ravel()  # eq. 7's sum of blending weights
-            with np.errstate(divide="ignore", invalid="ignore"):
-                err[b0:b1] = np.where(den > 0, num / den, np.nan).astype(np.float32).reshape(b1 - b0, w_)
+        r, w, texp = tile_model(scene, obs, state)
+        kernels.finalise_pixels(obs["offsets"], obs["pixels"], obs["image"], obs["image_of"], texp, r, w,
+                                per_pixel.get("wblend_sum", per_pixel["weights_sum"]).ravel(),  # eq. 7's sum of blending weights
+                                alb[b0:b1].reshape(-1), err[b0:b1].reshape(-1) if want_err else no_err)
     write = partial(write_geotiff, transform=tile.transform, crs=scene.crs, threads=write_threads)
     write(out_dir / "albedo" / name, alb, nodata=float("nan"))
     valid = int(np.count_nonzero(np.isfinite(alb)))
