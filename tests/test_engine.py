@@ -519,9 +519,11 @@ def test_each_tile_kind_is_written_with_its_predictor(reference):
 
 def test_a_one_worker_solve_compresses_its_tiles_with_every_cpu_and_writes_the_same_files(scene, reference, tmp_path,
                                                                                           monkeypatch):
-    """In-process runs leave the other CPUs idle, so GDAL compresses each output tile on all of them (NUM_THREADS);
-    a worker of a cluster or a thread pool uses one.  The files are the same bytes either way (also checked by
-    ``test_local_cluster_matches_single_worker_byte_for_byte``: 2 and 4 workers write with one thread)."""
+    """In-process runs leave the other CPUs idle while they finalise, so GDAL compresses each albedo and error
+    tile on all of them (NUM_THREADS); a worker of a cluster or a thread pool uses one, and so do the DEM and
+    weight-sum tiles, written by the cache writer's thread while the prepare step computes on the other CPU.
+    The files are the same bytes either way (also checked by ``test_local_cluster_matches_single_worker_byte_for_byte``:
+    2 and 4 workers write with one thread)."""
     import numpy as np
     from rasterio.transform import Affine
 
@@ -534,14 +536,16 @@ def test_a_one_worker_solve_compresses_its_tiles_with_every_cpu_and_writes_the_s
     assert LocalPoolExecutor(2).cpus_per_task == 1 and DaskExecutor.cpus_per_task == 1
     seen, real = [], tilework.write_geotiff
 
-    def spy(*args, threads=1, **kwargs):
-        seen.append(threads)
-        return real(*args, threads=threads, **kwargs)
+    def spy(path, *args, threads=1, **kwargs):
+        path = Path(path)  # a tile output (albedo/tile_*.tif) or one in a cache entry (DEM.tif)
+        seen.append((path.parent.name if path.name.startswith("tile_") else path.stem, threads))
+        return real(path, *args, threads=threads, **kwargs)
 
     monkeypatch.setattr(tilework, "write_geotiff", spy)
     out = tmp_path / "out"
     solve(scene / "settings.txt", out=out, workers=1, plots=False)
-    assert seen and set(seen) == {available_cpus()}
+    assert set(seen) == {("albedo", available_cpus()), ("error", available_cpus()), ("DEM", 1), ("weightsSum", 1)}, seen
+    assert len(seen) == 4 * len(list((out / "albedo").glob("tile_*.tif")))
     same_results(reference, out)
     tile = np.random.default_rng(3).normal(size=(700, 900)).astype(np.float32).cumsum(1)  # 12 blocks of 256 px
     for threads in (1, 3):

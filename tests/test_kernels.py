@@ -340,26 +340,6 @@ def test_cached_arrays_are_read_only_file_mappings_equal_to_numpys(tmp_path):
         load_stack(folder)
 
 
-def test_read_into_fills_a_slice_with_a_cached_array_and_refuses_a_mismatch(tmp_path):
-    """Finalise assembles a tile's per-pixel outputs from its blocks' files, read straight into place; a float64
-    array of an older cache is cast; a file of another size or cut short is an error naming it."""
-    from lunaralbedo.io.cache import read_into
-
-    rng = np.random.default_rng(9)
-    a32, a64 = rng.random((3, 5), dtype=np.float32), rng.random((2, 5))
-    np.save(tmp_path / "a32.npy", a32)
-    np.save(tmp_path / "a64.npy", a64)
-    out = np.full((6, 5), -1.0, np.float32)
-    read_into(tmp_path / "a32.npy", out[1:4])
-    read_into(tmp_path / "a64.npy", out[4:6])
-    assert np.array_equal(out[1:4], a32) and np.array_equal(out[4:6], a64.astype(np.float32)) and np.all(out[0] == -1)
-    with pytest.raises(ValueError, match="a32.npy"):
-        read_into(tmp_path / "a32.npy", out[0:2])
-    (tmp_path / "a32.npy").write_bytes((tmp_path / "a32.npy").read_bytes()[:-4])
-    with pytest.raises(ValueError, match="shorter"):
-        read_into(tmp_path / "a32.npy", out[1:4])
-
-
 def test_memory_cache_keeps_within_budget_and_never_serves_a_replaced_entry(tmp_path):
     def entry(folder, value, n=1000):
         folder.parent.mkdir(parents=True, exist_ok=True)  # the cache root exists (solve creates it)

@@ -10,7 +10,8 @@ Cache layout of a tile (``OUTDIR/checkpoint/cache/<tile>/``): one folder per blo
 rows, ``block_0000/`` ... (a :func:`~lunaralbedo.io.cache.save_stack` entry each: the
 block's observations in pixel-major order (:func:`.kernels.pixel_major`: ``offsets``,
 ``pixels`` relative to the block, ``image_of``, ``index``, then ``image``, ``weight`` and the
-model's layers) and ``tile_*`` per-pixel arrays), then ``meta.json`` (written last: the
+model's layers) and ``tile_*`` per-pixel arrays), the tile's outputs known once it is
+prepared (``DEM.tif``, ``weightsSum.tif``: :data:`KNOWN_OUTPUTS`), then ``meta.json`` (written last: the
 tile is complete) with the initialisation sums, ``blocks``, the ``[b0, b1]`` rows of each
 block, and ``layout`` (:data:`CACHE_LAYOUT`; a cache of another layout is prepared again).
 Iterate and finalise read one block at a time (:func:`iterate_block` is one block's work),
@@ -26,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.cache import MemoryCache, discard, load_stack, read_into
+from ..io.cache import MemoryCache, discard, load_stack
 from ..io.cachewriter import CacheWriter
 from ..io.rasters import write_geotiff
 from ..model import exposure_init, shadows, updates
@@ -67,8 +68,9 @@ class TileSums:
             self.jtr = np.zeros(self.n_params + 1)
 
 
-#: Version of the cache layout above (2: pixel-major observations); ``meta.json`` records it.
-CACHE_LAYOUT = 2
+#: Version of the cache layout above (2: pixel-major observations; 3: the DEM and weight-sum
+#: tiles as GeoTIFFs in the entry, no cached DEM); ``meta.json`` records it.
+CACHE_LAYOUT = 3
 #: Folder of the cache root where finished tiles' blocks go to be deleted in the background.
 TRASH = ".discarded"
 #: GeoTIFF predictor of the error tiles: none (1).  Eq. 7's error has no smooth rows for the
@@ -81,6 +83,14 @@ ERROR_PREDICTOR = 1
 #: 50-image scene's 1000 x 1000 px tile 21 -> 10 ms, 0.13 -> 0.14 MB; make bench item 10's
 #: 4000 x 4000 px tile 176 -> 125 ms, 8.9 -> 5.8 MB).
 WEIGHTS_SUM_PREDICTOR = 2
+#: The tile outputs known once a tile is prepared, by output folder: the per-pixel array of the
+#: prepare step each is made of.  They are written into the tile's cache entry by the cache writer
+#: (behind the computation of the next tiles in a one-process run) and moved into place by
+#: finalise, ``weightsSum`` last.
+KNOWN_OUTPUTS = {"DEM": "dem", "weightsSum": "weights_sum"}
+#: :func:`write_geotiff` options of each tile output besides the albedo.
+OUTPUT_OPTIONS = {"error": {"nodata": float("nan"), "predictor": ERROR_PREDICTOR}, "DEM": {"nodata": float("nan")},
+                  "weightsSum": {"predictor": WEIGHTS_SUM_PREDICTOR}}
 
 
 def _cache_dir(cache_root: Path, scene: Scene, t: int) -> Path:
@@ -129,7 +139,13 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry) -> dict:
     r_sums: dict[int, list] = {}
     pairs: dict = {}
     blocks = []
+    tile = scene.tiles[t]
+    known = {}  # the tile's outputs that do not depend on the solve (DEM, weight sums), assembled block by block
     for b0, b1, obs, per_pixel in observations.gather_blocks(scene, t, lut):
+        for kind, name in KNOWN_OUTPUTS.items():
+            if name in per_pixel:
+                known.setdefault(kind, np.empty((tile.height, tile.width), np.float32))[b0:b1] = per_pixel[name]
+        per_pixel.pop("dem", None)  # the DEM is not cached: it is a tile output alone
         part = _init_sums(scene, obs, scene.tiles[t].width)
         for k, rs, n in zip(part["index"], part["r_sum"], part["r_count"]):
             acc = r_sums.setdefault(k, [0.0, 0.0])
@@ -143,6 +159,10 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry) -> dict:
         entry.save(f"block_{len(blocks):04d}", {**pm, **{f"tile_{k}": v for k, v in per_pixel.items()}}, {"rows": [b0, b1]})
         del pm, per_pixel
         blocks.append([b0, b1])
+    for kind, arr in known.items():  # written behind the computation too, into the entry (finalise moves them)
+        entry.save_file(f"{kind}.tif", partial(write_geotiff, bands=arr, transform=tile.transform, crs=scene.crs,
+                                               **OUTPUT_OPTIONS[kind]), arr.nbytes)
+    del known
     index = [int(k) for k in scene.tile_images[t] if int(k) in r_sums]  # tile order
     meta = {
         "index": index,
@@ -312,11 +332,12 @@ def _tile_images(scene: Scene, t: int, used) -> dict:
 
 def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, state: SolveState, skip_done: bool = False,
                   write_threads: int = 1) -> dict:
-    """Write the albedo, error, DEM and weight-sum tiles of tile ``t``; return a small report.
+    """Write the albedo and error tiles of tile ``t``, move its DEM and weight-sum tiles (written with its
+    cache entry: :data:`KNOWN_OUTPUTS`) into place; return a small report.
 
     ``write_threads``: threads GDAL may compress each tile with (the executor's ``cpus_per_task``).
 
-    ``weightsSum`` is written last, so with ``skip_done`` (a resumed run whose final
+    ``weightsSum`` is moved last, so with ``skip_done`` (a resumed run whose final
     state was already fixed) a tile that has it is complete and is not redone.  The
     blocks are read one at a time; a whole-tile raster is held for each output while it
     is written (4 bytes per pixel, 8 for albedo and error together).  Once the tile is
@@ -346,9 +367,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     want_err = s.compute_errors and len(idx)
     err = np.empty((h, w_), np.float32) if want_err else None
     no_err = np.empty(0, np.float32)
-    has_dem = False
     for b0, b1, obs, per_pixel in _blocks(folder, meta):
-        has_dem = "dem" in per_pixel
         if not len(obs["index"]):
             alb[b0:b1] = np.nan
             if want_err:
@@ -363,19 +382,15 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     valid = int(np.count_nonzero(np.isfinite(alb)))
     del alb
     if want_err:
-        write(out_dir / "error" / name, err, nodata=float("nan"), predictor=ERROR_PREDICTOR)
+        write(out_dir / "error" / name, err, **OUTPUT_OPTIONS["error"])
         del err
-    if has_dem:
-        write(out_dir / "DEM" / name, _per_pixel_tile(folder, meta, "dem", (h, w_)), nodata=float("nan"))
-    write(out_dir / "weightsSum" / name, _per_pixel_tile(folder, meta, "weights_sum", (h, w_)), predictor=WEIGHTS_SUM_PREDICTOR)
+    for kind in KNOWN_OUTPUTS:  # written at prepare: moved into place (weightsSum last: the tile is complete)
+        src, dst = folder / f"{kind}.tif", out_dir / kind / name
+        if src.exists():
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(src, dst)
+        elif not dst.exists() and kind == "weightsSum":  # not moved by an earlier try of this task either
+            raise FileNotFoundError(f"{src}: the cached weight-sum tile is missing")
     # the tile is complete: its observations are not needed again (deleted in the background)
     discard([folder / f"block_{i:04d}" for i in range(len(meta["blocks"]))], cache_root / TRASH)
     return {**_tile_images(scene, t, idx), "valid_pixels": valid, "reused": False}
-
-
-def _per_pixel_tile(folder: Path, meta: dict, name: str, shape) -> np.ndarray:
-    """One cached per-pixel array of a tile, assembled from its blocks (float32; each block's file read into place)."""
-    out = np.empty(shape, np.float32)
-    for i, (b0, b1) in enumerate(meta["blocks"]):
-        read_into(folder / f"block_{i:04d}" / f"tile_{name}.npy", out[b0:b1])
-    return out

@@ -95,26 +95,6 @@ def _map_npy(path: Path) -> np.ndarray:
     return np.frombuffer(buf, dtype, count, offset).reshape(shape, order="F" if fortran else "C")
 
 
-def read_into(path: str | Path, out: np.ndarray) -> None:
-    """Read the array of a ``.npy`` file into ``out`` (same number of elements; cast if the dtype differs).
-
-    One ``readinto`` from the file into ``out``'s memory: no mapping, so no page faults on a
-    map of the page cache (finalise assembles a tile's per-pixel outputs from its blocks this way).
-    """
-    with open(path, "rb") as f:
-        version = np.lib.format.read_magic(f)
-        read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-        shape, fortran, dtype = read_header(f)
-        count = int(np.prod(shape, dtype=np.int64))
-        if count != out.size or dtype.hasobject or fortran or not out.flags.c_contiguous:
-            raise ValueError(f"{path}: {shape} {dtype} array, not {out.shape} {out.dtype}")
-        target = out if dtype == out.dtype else np.empty(out.shape, dtype)
-        if f.readinto(memoryview(target.reshape(-1).view(np.uint8))) != count * dtype.itemsize:
-            raise ValueError(f"{path}: shorter than its {shape} {dtype} array")
-    if target is not out:
-        out[...] = target
-
-
 def mapped(a: np.ndarray) -> bool:
     """Whether ``a`` is a view of a memory-mapped file (:func:`_map_npy` or ``np.memmap``), not memory of its own."""
     while isinstance(a, np.ndarray):

@@ -112,6 +112,10 @@ class Entry:
         self.writer._put(self, lambda: save_stack(self.tmp / name, arrays, meta),
                          sum(int(getattr(a, "nbytes", 0)) for a in arrays.values()))
 
+    def save_file(self, name: str, write, nbytes: int = 0) -> None:
+        """Queue one file ``name`` inside this entry, written by ``write(path)`` (``nbytes``: the memory it holds)."""
+        self.writer._put(self, lambda: write(self.tmp / name), int(nbytes))
+
     def complete(self, meta: dict) -> None:
         """Queue ``meta.json`` and the rename that makes the entry appear, complete, at its place."""
         def finish():
