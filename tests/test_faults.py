@@ -9,6 +9,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -96,27 +97,35 @@ def test_worker_killed_mid_solve(scene, reference, tmp_path, dask_cluster, allow
     same_results(reference, out)
 
 
-def test_disk_full_while_writing_tiles(scene, reference, tmp_path, monkeypatch):
-    """A writer that fails with ENOSPC on the second tile's second file: exit 3, no result tiles, resumable."""
+@pytest.mark.parametrize("stage", ["finalise", "prepare"])
+def test_disk_full_while_writing_tiles(scene, reference, tmp_path, monkeypatch, stage):
+    """A tile writer that fails with ENOSPC on the second tile: exit 3, naming the file (finalise's albedo and
+    error tiles) or the tile's cache entry (the DEM and weight-sum tiles, written with it), no result tiles,
+    resumable."""
     import lunaralbedo.engine.tilework as tw
 
     real, calls = tw.write_geotiff, []
+    kind = {"finalise": "error", "prepare": "DEM"}[stage]
 
     def failing(path, *args, **kwargs):
-        calls.append(path)
-        if len(calls) == 6:  # 4 files per tile
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+        path = Path(path)
+        if kind in (path.parent.name, path.stem):  # error/tile_*.tif, or DEM.tif in a cache entry
+            calls.append(path)
+            if len(calls) == 2:
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
         return real(path, *args, **kwargs)
 
     monkeypatch.setattr(tw, "write_geotiff", failing)
     out = tmp_path / "out"
     res = cli("solve", scene / "settings.txt", "-o", out, "--quiet", "--workers", "1")
-    assert_clean_failure(res, 3, calls[5], "no space left")
+    line = assert_clean_failure(res, 3, "no space left")
+    assert str(calls[1]) in line if stage == "finalise" else re.search(rf"{out}/checkpoint/cache/tile_\w+: ", line), line
     assert_only_checkpoint(out)
     monkeypatch.undo()
     r = resume(scene, out)
     assert r.exit_code == 0, r.stderr
-    assert json.loads((out / "report.json").read_text())["resumed"]["tiles_written_before"] >= 1
+    resumed = json.loads((out / "report.json").read_text())["resumed"]
+    assert resumed["tiles_written_before" if stage == "finalise" else "tiles_prepared_before"] >= 1
     same_results(reference, out)
 
 

@@ -145,3 +145,31 @@ def rasterio_read(path):
 
     with rasterio.open(path) as ds:
         return ds.read(1)
+
+
+def test_reading_and_reducing_ahead_caches_the_same_bytes(tmp_path, monkeypatch):
+    """A prepare step that reads each image's window and reduces each block on helper threads (a one-worker run
+    with a CPU to spare) caches the bytes of the plain loop: blocks, initialisation sums, DEM and weight-sum tiles;
+    also when the blocks are too big to be held beside the next one (reduced in the task's thread)."""
+    import filecmp
+
+    from lunaralbedo.engine import tilework
+    from lunaralbedo.engine.scene import build_scene
+    from lunaralbedo.settings import load_settings
+    from lunaralbedo.simulate import SceneSpec, render_scene
+
+    render_scene(tmp_path / "s", SceneSpec(n_images=5, image_px=80, seed=5, cast_shadows=True))
+    scene = build_scene(load_settings(tmp_path / "s" / "settings.txt"), False, map_fn=lambda f, xs: list(map(f, xs)))
+    monkeypatch.setenv("LUNARALBEDO_BLOCK_ROWS", "9")
+    runs = {"plain": (False, tilework.AHEAD_BYTES), "ahead": (True, tilework.AHEAD_BYTES), "ahead, big blocks": (True, 0)}
+    for name, (read_ahead, ahead_bytes) in runs.items():
+        monkeypatch.setattr(tilework, "AHEAD_BYTES", ahead_bytes)
+        for t in range(len(scene.tiles)):
+            tilework.prepare_tile(t, scene=scene, cache_root=tmp_path / name, read_ahead=read_ahead)
+    files = sorted(p.relative_to(tmp_path / "plain") for p in (tmp_path / "plain").rglob("*") if p.is_file())
+    assert sum(p.name == "weight.npy" for p in files) > 2 * len(scene.tiles)  # tiles of several blocks
+    assert sum(p.name == "DEM.tif" for p in files) == len(scene.tiles)
+    for name in ("ahead", "ahead, big blocks"):
+        assert files == sorted(p.relative_to(tmp_path / name) for p in (tmp_path / name).rglob("*") if p.is_file())
+        for p in files:
+            assert filecmp.cmp(tmp_path / "plain" / p, tmp_path / name / p, shallow=False), f"{name}: {p}"

@@ -23,7 +23,7 @@ from ..model.photometry import lunar_lambert
 NO_SHADOW_TEST, SHADOW_ON_R, SHADOW_ON_LAYER = 0, 1, 2
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def by_pixel(pix, start, npix, image_of, src, dst):
     """Pixel-major order of image-major observations (counting sort, stable: images stay in tile order).
 

@@ -43,6 +43,7 @@ from ..io.drgs import read_drg_onto_grid
 from ..io.rasters import read_dem_onto_grid
 from ..model import geometry, shadows
 from ..model.longitude import overlap_shifts
+from ..parallel.ahead import ahead
 from .photometry import solver_model
 from .scene import Scene
 from .terrain import TileShadows
@@ -58,8 +59,11 @@ ROW_PIXEL_BYTES = 96
 #: blending weights, the initialisation sums' and the iteration's temporaries ...
 WINDOW_PIXEL_BYTES = 56
 #: ... and per pixel of the largest window: one image's bands, blending-weight tents (float64),
-#: geometry and model layers, one image at a time.
+#: geometry and model layers, one image at a time ...
 READ_PIXEL_BYTES = 200
+#: ... and, when the next image's window is read ahead (``gather_blocks(pool=...)``), that read's
+#: results and temporaries (value, masks, blending weight; GDAL's decoded bands).
+READ_AHEAD_PIXEL_BYTES = 48
 
 
 def image_window(tile, bounds) -> tuple[int, int, int, int] | None:
@@ -73,8 +77,9 @@ def image_window(tile, bounds) -> tuple[int, int, int, int] | None:
     return tile.grid.pixel_box((west + min(shifts), south, east + max(shifts), north), margin=1)
 
 
-def block_rows(scene: Scene, t: int) -> int:
-    """Rows per block of tile ``t``: the most that fit :data:`BLOCK_BYTES` (see module docstring)."""
+def block_rows(scene: Scene, t: int, reading_ahead: bool = False) -> int:
+    """Rows per block of tile ``t``: the most that fit :data:`BLOCK_BYTES` (see module docstring), with
+    :data:`READ_AHEAD_PIXEL_BYTES` more per pixel of the largest window when windows are read ahead."""
     forced = os.environ.get("LUNARALBEDO_BLOCK_ROWS")
     tile = scene.tiles[t]
     if forced:
@@ -83,7 +88,7 @@ def block_rows(scene: Scene, t: int) -> int:
     widths = [c1 - c0 for _, _, c0, c1 in filter(None, (image_window(tile, scene.images[k].lonlat_bounds)
                                                          for k in scene.tile_images[t]))]
     per_row = ((tile.width + 2) * ROW_PIXEL_BYTES + sum(widths) * WINDOW_PIXEL_BYTES
-               + max(widths, default=0) * READ_PIXEL_BYTES)
+               + max(widths, default=0) * (READ_PIXEL_BYTES + (READ_AHEAD_PIXEL_BYTES if reading_ahead else 0)))
     return max(1, min(tile.height, int(budget // per_row)))
 
 
@@ -140,14 +145,16 @@ def saturation_of(dtype: str) -> float | None:
     return float(np.iinfo(dt).max) if dt.kind in "ui" else None
 
 
-def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None):
+def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None, pool=None):
     """Read and reduce every image over tile ``t``, block by block: yields ``(b0, b1, observations, per-pixel arrays)``.
 
     See the module docstring for the arrays.  The ``usable`` flag (valid, lit, not
     saturated, not in a cast shadow, DEM, incidence <= 85 degrees and cos e > 0) and the
     blending weight are folded into ``weight``; observations with zero weight are
     dropped.  ``lut``: camera response g over 0..255 (seed 002), applied to each DRG's DN
-    before it is resampled onto the tile grid.
+    before it is resampled onto the tile grid.  ``pool``: a helper thread that reads each
+    image's window while the previous one is reduced (:func:`lunaralbedo.parallel.ahead.ahead`;
+    the same results).
     """
     s = scene.settings
     model = solver_model(s)
@@ -155,14 +162,14 @@ def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None):
     geometry_needed = model.needs_geometry
     cast = TileShadows(scene, tile, scene.tile_images[t]) if geometry_needed and s.uses_cast_shadows else None
     windows = [(int(k), image_window(tile, scene.images[int(k)].lonlat_bounds)) for k in scene.tile_images[t]]
-    for b0, b1 in row_blocks(tile.height, block_rows(scene, t)):
+    for b0, b1 in row_blocks(tile.height, block_rows(scene, t, pool is not None)):
         cols = [(w[2], w[3]) for _, w in windows if w is not None and w[0] < b1 and w[1] > b0]
         span = (min(c for c, _ in cols), max(c for _, c in cols)) if cols else (0, 0)
         geo = BlockGeometry(scene, tile, b0, b1, *span, shadows=cast) if geometry_needed else None
-        yield (b0, b1, *_gather_block(scene, tile, b0, b1, windows, geo, cast, model, lut))
+        yield (b0, b1, *_gather_block(scene, tile, b0, b1, windows, geo, cast, model, lut, pool))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _compact(rows, cols, keep, val, wb, ci, ce, al, row_off, col_off, width):
     """The candidates of one window that ``keep`` (all when it is empty), in one pass.
 
@@ -198,20 +205,23 @@ def _compact(rows, cols, keep, val, wb, ci, ce, al, row_off, col_off, width):
     return out_r, out_c, pix, value, weight, out_i, out_e, out_a
 
 
-def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut):
+def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut, pool=None):
     s = scene.settings
     h, w = b1 - b0, tile.width
     thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
     with_cos_i = geo is not None and s.shadow_type == shadows.LAMBERT_RATIO
     kept = []  # (k, window in block rows, window blending weights, then the observations: pix, value, weight, layers)
     weights_sum = np.zeros((h, w))
-    for k, win in windows:
-        if win is None or win[1] <= b0 or win[0] >= b1:
-            continue
-        r0, r1, c0, c1 = max(win[0], b0), min(win[1], b1), win[2], win[3]
+    todo = [(k, (max(win[0], b0), min(win[1], b1), win[2], win[3])) for k, win in windows
+            if win is not None and win[1] > b0 and win[0] < b1]
+
+    def read(item):
+        k, (r0, r1, c0, c1) = item
         info = scene.images[k]
-        got = read_drg_onto_grid(info, scene.profiles[k], tile.transform @ tile.transform.translation(c0, r0),
-                                 (r1 - r0, c1 - c0), scene.crs, thresh, saturation=saturation_of(info.dtype), lut=lut)
+        return read_drg_onto_grid(info, scene.profiles[k], tile.transform @ tile.transform.translation(c0, r0),
+                                  (r1 - r0, c1 - c0), scene.crs, thresh, saturation=saturation_of(info.dtype), lut=lut)
+
+    for (k, (r0, r1, c0, c1)), got in zip(todo, ahead(read, todo, pool)):
         if got is None:
             continue
         val, ok, wt, use = got

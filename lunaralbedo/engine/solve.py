@@ -282,7 +282,7 @@ def _prepare(on_tiles, executor, lut) -> list:
     if not executor.in_process:
         return on_tiles(prepare_tile, "prepare", home=None, lut=lut)
     try:
-        metas = on_tiles(prepare_tile, "prepare", home=None, lut=lut, wait=False)
+        metas = on_tiles(prepare_tile, "prepare", home=None, lut=lut, wait=False, read_ahead=executor.cpus_per_task > 1)
         WRITER.flush()
     except BaseException:
         WRITER.drain()  # nothing in flight while the run's folder is cleaned up

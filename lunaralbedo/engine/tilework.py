@@ -31,6 +31,7 @@ from ..io.cache import MemoryCache, discard, load_stack
 from ..io.cachewriter import CacheWriter
 from ..io.rasters import write_geotiff
 from ..model import exposure_init, shadows, updates
+from ..parallel.ahead import ahead, helper
 from . import kernels, observations
 from .scene import Scene
 
@@ -83,6 +84,11 @@ ERROR_PREDICTOR = 1
 #: 50-image scene's 1000 x 1000 px tile 21 -> 10 ms, 0.13 -> 0.14 MB; make bench item 10's
 #: 4000 x 4000 px tile 176 -> 125 ms, 8.9 -> 5.8 MB).
 WEIGHTS_SUM_PREDICTOR = 2
+#: Blocks whose observations take at most this many bytes are reduced (initialisation sums,
+#: pixel-major order) on a helper thread while the next block is gathered, when the prepare
+#: step reads ahead; bigger ones in the task's thread (a block less held at once: make bench
+#: item 10's blocks of a 4000 x 4000 px tile raised its peak by 120 MB when reduced ahead).
+AHEAD_BYTES = 64 * 2**20
 #: The tile outputs known once a tile is prepared, by output folder: the per-pixel array of the
 #: prepare step each is made of.  They are written into the tile's cache entry by the cache writer
 #: (behind the computation of the next tiles in a one-process run) and moved into place by
@@ -98,7 +104,8 @@ def _cache_dir(cache_root: Path, scene: Scene, t: int) -> Path:
 
 
 # --------------------------------------------------------------------------- prepare
-def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | None = None, wait: bool = True) -> dict:
+def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | None = None, wait: bool = True,
+                 read_ahead: bool = False) -> dict:
     """Read every image over tile ``t`` (its footprint window only), compute geometry, cache the observations.
 
     ``lut``: camera response g over 0..255 (seed 002), applied to each DRG's DN before
@@ -112,7 +119,9 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | No
     is read (a run in one process: the writing then overlaps the next tiles too).  Returns
     the tile's initialisation sums (also stored in the cache's meta, so a resumed run does not
     recompute them): per-image reflectance sums for the seed exposure, and pairwise log-ratio
-    sums for the overlap exposure, added block by block in block order.
+    sums for the overlap exposure, added block by block in block order.  ``read_ahead``: read
+    each image's window on this process's helper thread while the previous one is reduced (a
+    task with a CPU to spare: :mod:`lunaralbedo.parallel.ahead`).
     """
     folder = _cache_dir(cache_root, scene, t)
     cached = load_stack(folder)
@@ -120,7 +129,7 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | No
         return {**cached[1], "reused": True}
     entry = WRITER.entry(folder)  # the tile's folder appears when all its blocks are written
     try:
-        meta = _prepare_blocks(scene, t, lut, entry)
+        meta = _prepare_blocks(scene, t, lut, entry, helper() if read_ahead else None)
     except BaseException:
         entry.abandon()
         if wait:
@@ -135,27 +144,31 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | No
 WRITER = CacheWriter()
 
 
-def _prepare_blocks(scene: Scene, t: int, lut, entry) -> dict:
+def _prepare_blocks(scene: Scene, t: int, lut, entry, pool) -> dict:
     r_sums: dict[int, list] = {}
     pairs: dict = {}
     blocks = []
     tile = scene.tiles[t]
     known = {}  # the tile's outputs that do not depend on the solve (DEM, weight sums), assembled block by block
-    for b0, b1, obs, per_pixel in observations.gather_blocks(scene, t, lut):
+    width = tile.width
+
+    def reduce(block):  # the initialisation sums and the pixel-major order of a block
+        b0, b1, obs, per_pixel = block
+        names = [n for n in obs if n not in ("pix", "start", "index")]
+        return b0, b1, per_pixel, _init_sums(scene, obs, width), kernels.pixel_major(obs, (b1 - b0) * width, names)
+
+    big = lambda block: sum(a.nbytes for a in block[2].values()) > AHEAD_BYTES  # noqa: E731
+    for b0, b1, per_pixel, part, pm in ahead(reduce, observations.gather_blocks(scene, t, lut, pool),
+                                             helper("reduce") if pool is not None else None, here=big):
         for kind, name in KNOWN_OUTPUTS.items():
             if name in per_pixel:
                 known.setdefault(kind, np.empty((tile.height, tile.width), np.float32))[b0:b1] = per_pixel[name]
         per_pixel.pop("dem", None)  # the DEM is not cached: it is a tile output alone
-        part = _init_sums(scene, obs, scene.tiles[t].width)
         for k, rs, n in zip(part["index"], part["r_sum"], part["r_count"]):
             acc = r_sums.setdefault(k, [0.0, 0.0])
             acc[0] += rs
             acc[1] += n
         exposure_init.merge_pair_sums(pairs, part["pairs"])
-        npix = (b1 - b0) * scene.tiles[t].width
-        names = [n for n in obs if n not in ("pix", "start", "index")]
-        pm = kernels.pixel_major(obs, npix, names)
-        del obs
         entry.save(f"block_{len(blocks):04d}", {**pm, **{f"tile_{k}": v for k, v in per_pixel.items()}}, {"rows": [b0, b1]})
         del pm, per_pixel
         blocks.append([b0, b1])

@@ -70,7 +70,7 @@ SLOPE_SAFETY = 1.05
 #: Lowest radius (km) a sample can have: below every lunar height (the ground-distance bounds use it).
 LOW_RADIUS_KM = MOON_RADIUS_KM - 20.0
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _blocks(dem, cell):
     """Per ``cell`` x ``cell`` block, with its next row and column (the bilinear neighbours of its samples):
     the highest height (-inf: none) and the largest |dh| between x-, y-neighbours (inf if a height is NaN);
@@ -105,7 +105,7 @@ def _blocks(dem, cell):
     return top, gx, gy, low
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _coarsen(a, ratio):
     """Maximum over ``ratio`` x ``ratio`` blocks of ``a``."""
     ni, nj = (a.shape[0] + ratio - 1) // ratio, (a.shape[1] + ratio - 1) // ratio
@@ -116,7 +116,7 @@ def _coarsen(a, ratio):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _dilate3(a):
     """Maximum over the 3 x 3 neighbourhood of every cell."""
     ni, nj = a.shape

@@ -35,7 +35,7 @@ def mean_reflectance_sums(r, start):
     return _segment_sums(np.asarray(r), np.asarray(start, dtype=np.int64))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _segment_sums(r, start):
     k = start.shape[0] - 1
     rs = np.zeros(k)
@@ -102,7 +102,7 @@ def pair_sums(pix, start, image, r, index, width=None):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _pair_sums(pix, start, logq, width):
     """Shared pixels of every pair of images by a merge of their sorted pixel lists: ``(a, b, n, sum d)``."""
     k_count = start.shape[0] - 1

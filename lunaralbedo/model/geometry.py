@@ -154,7 +154,7 @@ def _illumination_at(px, py, pz, nx, ny, nz, sun, sc):
     return a, b, vacos.acos(c)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _illumination_flat(p, n, sun, sc):
     m = p.shape[0]
     ci, ce, al = np.empty(m), np.empty(m), np.empty(m)
@@ -225,7 +225,7 @@ def _median_exceeds(values, threshold: float) -> bool:
     return float(np.median(values[np.isfinite(values)])) > threshold
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _count_finite_above(values, threshold):
     """How many ``values`` are finite, and how many of those exceed ``threshold`` (of their type, as NumPy 2 compares
     an array with a Python float)."""
@@ -268,7 +268,7 @@ def _normal_at(x, y, z, xs, ys, zs, xn, yn, zn, xe, ye, ze, xw, yw, zw):
     return nx / norm, ny / norm, nz / norm
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def surface_block(coslon, sinlon, coslat, sinlat, height_m, radius_km):
     """Points (km) of a DEM block with a one-pixel halo, and the normals of its inner pixels, coordinate-major.
 
@@ -295,7 +295,7 @@ def surface_block(coslon, sinlon, coslat, sinlat, height_m, radius_km):
     return pts, nrm
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def observe_window(use, halo_m, coslon, sinlon, coslat, sinlat, radius_km, r_off, c_off, sun, sc, min_cos_i):
     """Candidate observations of one image window: pixels ``use`` with a DEM, cos i >= ``min_cos_i``, cos e > 0.
 

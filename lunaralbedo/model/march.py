@@ -60,7 +60,7 @@ def _sample_xy_exact(qx, qy, qz, lon0, dlon, lat0, dlat, lon_mid):
     return (lonq - lon0) / dlon - 0.5, (latq - lat0) / dlat - 0.5
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _trig_tables(lon0, dlon, w, lat0, dlat, h):
     """Cosines and sines of the pixel-centre longitudes and latitudes (radians from ``transform * (c + 0.5, r + 0.5)``)."""
     d2r = math.pi / 180.0
@@ -74,7 +74,7 @@ def _trig_tables(lon0, dlon, w, lat0, dlat, h):
     return cos_lon, sin_lon, cos_lat, sin_lat
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _march_pixels(dem, prm, max_steps, exact, decide, cos_lon, sin_lon, cos_lat, sin_lat, sun, rows, cols,
                   lev_top, lev_slope, lev_off, lev_width, lev_shift, lev_skip, out):
     """The march of every pixel ``(rows[o], cols[o])`` into ``out[o]``: 1 shadowed, 0 lit, 2 (``decide``) not
@@ -158,7 +158,7 @@ def _levels_passed(lev_top, lev_slope, lev_off, lev_width, lev_shift, iy, ix, hr
     return lev
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _corner_angle(lat, dlat_half, dlon_half):
     """Largest angle (rad) between the unit vector at latitude ``lat`` and those at ``lat +- dlat_half``,
     longitude ``+- dlon_half`` (radians): the corners of a lon/lat box, where its farthest points from its centre are."""
@@ -185,7 +185,7 @@ def sine_floor(ux, uy, uz, rc, sun, theta, d):
     return (ux * lx + uy * ly + uz * lz) / n - theta - 2.0 * d / n - 1e-12
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def lit_cells(low, top, prm, sun, bi0, bi1, bj0, bj1, cell, lev_top, lev_slope, lev_off, lev_width, lev_shift, lev_skip):
     r"""1 for every ``cell`` x ``cell`` block of the DEM grid (rows ``bi0:bi1``, columns ``bj0:bj1`` of blocks)
     all of whose pixels the march would find lit before its first sample; 0: not known.
@@ -236,7 +236,7 @@ def lit_cells(low, top, prm, sun, bi0, bi1, bj0, bj1, cell, lev_top, lev_slope, 
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def undecided(rows, cols, roff, coff, flags, bi0, bj0, shift):
     """Positions ``o`` whose pixel ``(roff + rows[o], coff + cols[o])`` lies in a block with flag 0 (:func:`lit_cells`)."""
     idx = np.empty(rows.shape[0], np.int64)
@@ -248,7 +248,7 @@ def undecided(rows, cols, roff, coff, flags, bi0, bj0, shift):
     return idx[:n]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def extent(rows, cols):
     """``(min(rows), max(rows), min(cols), max(cols))`` of non-empty index lists, in one pass."""
     r0 = r1 = np.int64(rows[0])

@@ -59,7 +59,7 @@ def window_pixels(dn, alpha=None, nodata=None, lut=None, lit_threshold=None, sat
     return value, valid, (usable if (lit_threshold is not None or saturation is not None) else None)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _window_pixels(dn, alpha, nodata, has_nodata, lut, thresh, has_thresh, saturation, has_saturation,
                    value, valid, usable):
     """:func:`window_pixels`: the float32 DN compared with float32 nodata and thresholds (NumPy 2 compares a

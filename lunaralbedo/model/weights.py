@@ -73,7 +73,7 @@ def merge_profiles(parts: list[tuple[int, WeightProfile]], height: int, width: i
     return WeightProfile(rf, rl, cf, cl)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _tent(x, centre, half):
     """The float64 tent of one point (:func:`tent_about`)."""
     if not half > 0:
@@ -113,7 +113,7 @@ def tent(x: np.ndarray, first: np.ndarray, last: np.ndarray) -> np.ndarray:
     return tent_about(x, (a + b) / 2.0, (b - a) / 2.0)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _window_weights(row_first, row_last, col_first, col_last, row_off, col_off, valid, out):
     """``out[i, j]``: the row tent times the column tent of pixel ``(row_off + i, col_off + j)`` (float64,
     rounded once to float32), 0 where not ``valid``; profiles of rows/columns outside the image are the edge ones."""

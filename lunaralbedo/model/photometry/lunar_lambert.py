@@ -53,7 +53,7 @@ _bracket_nb = njit(cache=True)(bracket)
 _DEGREES = 180.0 / math.pi
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _geometric_over(cos_i, cos_e, alpha_rad, out):
     """:func:`geometric` per element (float64): the same operations as the NumPy form, in one pass."""
     for o in range(out.shape[0]):
@@ -69,7 +69,7 @@ def geometric(cos_i, cos_e, alpha_rad):
     return out.reshape(arrays[0].shape)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def point(g, alpha, _unused, c):
     r"""One observation (eq. 2): :math:`(R, \partial R/\partial c_1, \partial R/\partial c_2)
     = ((e^{-c_1\alpha} + c_2) G,\; -\alpha e^{-c_1\alpha} G,\; G)`, in the dtype of ``g``, ``alpha``, ``c``.
@@ -81,7 +81,7 @@ def point(g, alpha, _unused, c):
     return (e + c[1]) * g, -alpha * e * g, g
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _over_arrays(g, alpha, unused, c, out):
     """:func:`point` over arrays (:func:`.pointwise.evaluate`): rows R, dR/dc1, dR/dc2 of ``out``."""
     m = out.shape[0]
