@@ -517,36 +517,63 @@ def test_each_tile_kind_is_written_with_its_predictor(reference):
                     "weightsSum": {("ZSTD", "2")}}, seen
 
 
-def test_a_one_worker_solve_compresses_its_tiles_with_every_cpu_and_writes_the_same_files(scene, reference, tmp_path,
-                                                                                          monkeypatch):
-    """In-process runs leave the other CPUs idle while they finalise, so GDAL compresses each albedo and error
-    tile on all of them (NUM_THREADS); a worker of a cluster or a thread pool uses one, and so do the DEM and
-    weight-sum tiles, written by the cache writer's thread while the prepare step computes on the other CPU.
-    The files are the same bytes either way (also checked by ``test_local_cluster_matches_single_worker_byte_for_byte``:
-    2 and 4 workers write with one thread)."""
+def test_a_one_worker_solve_runs_its_tiles_on_every_cpu_and_writes_the_same_files(scene, reference, tmp_path,
+                                                                                   monkeypatch):
+    """In-process runs (one worker) iterate and finalise their tiles on as many threads as they have CPUs (the
+    kernels release the GIL; the sums are added in tile order), each tile's GeoTIFFs compressed by one thread; a
+    run of one tile gives GDAL's compression every CPU instead (NUM_THREADS).  DEM and weight-sum tiles are written
+    by the cache writer's thread.  A worker of a cluster or a thread pool uses one CPU per task.  The files are the
+    same bytes either way: here against a run confined to one CPU, and in
+    ``test_local_cluster_matches_single_worker_byte_for_byte`` against 2 and 4 workers."""
+    import threading
+
     import numpy as np
     from rasterio.transform import Affine
 
+    import lunaralbedo.engine.solve as solve_module
+    import lunaralbedo.parallel.executor as executor_module
     from lunaralbedo.engine import tilework
     from lunaralbedo.io.rasters import MOON_CRS
     from lunaralbedo.parallel.executor import DaskExecutor, LocalPoolExecutor, SerialExecutor
     from lunaralbedo.parallel.workers import available_cpus
 
-    assert SerialExecutor().cpus_per_task == available_cpus() == len(os.sched_getaffinity(0))
+    cpus = available_cpus()
+    assert SerialExecutor().cpus_per_task == cpus == len(os.sched_getaffinity(0))
     assert LocalPoolExecutor(2).cpus_per_task == 1 and DaskExecutor.cpus_per_task == 1
     seen, real = [], tilework.write_geotiff
+    ran = {"iterate": set(), "finalise": set()}
 
     def spy(path, *args, threads=1, **kwargs):
         path = Path(path)  # a tile output (albedo/tile_*.tif) or one in a cache entry (DEM.tif)
         seen.append((path.parent.name if path.name.startswith("tile_") else path.stem, threads))
         return real(path, *args, threads=threads, **kwargs)
 
+    def on_thread(stage, fn):
+        def task(*args, **kwargs):
+            ran[stage].add(threading.get_ident())
+            time.sleep(0.01)  # long enough for the other threads to take the next tiles
+            return fn(*args, **kwargs)
+        return task
+
     monkeypatch.setattr(tilework, "write_geotiff", spy)
+    monkeypatch.setattr(solve_module, "iterate_tile", on_thread("iterate", solve_module.iterate_tile))
+    monkeypatch.setattr(solve_module, "finalize_tile", on_thread("finalise", solve_module.finalize_tile))
     out = tmp_path / "out"
     solve(scene / "settings.txt", out=out, workers=1, plots=False)
-    assert set(seen) == {("albedo", available_cpus()), ("error", available_cpus()), ("DEM", 1), ("weightsSum", 1)}, seen
-    assert len(seen) == 4 * len(list((out / "albedo").glob("tile_*.tif")))
+    n_tiles = len(list((out / "albedo").glob("tile_*.tif")))
+    assert n_tiles >= 2
+    assert len(ran["iterate"]) == len(ran["finalise"]) == min(cpus, n_tiles), ran
+    each = max(1, cpus // min(cpus, n_tiles))
+    assert set(seen) == {("albedo", each), ("error", each), ("DEM", 1), ("weightsSum", 1)}, seen
+    assert len(seen) == 4 * n_tiles
     same_results(reference, out)
+    # confined to one CPU: one tile at a time, the same bytes
+    monkeypatch.setattr(executor_module, "available_cpus", lambda: 1)
+    seen.clear()
+    ran = {"iterate": set(), "finalise": set()}
+    solve(scene / "settings.txt", out=tmp_path / "one_cpu", workers=1, plots=False)
+    assert len(ran["iterate"]) == len(ran["finalise"]) == 1 and {t for _, t in seen} == {1}
+    same_results(reference, tmp_path / "one_cpu")
     tile = np.random.default_rng(3).normal(size=(700, 900)).astype(np.float32).cumsum(1)  # 12 blocks of 256 px
     for threads in (1, 3):
         real(tmp_path / f"t{threads}.tif", tile, Affine(0.01, 0, 0, 0, -0.01, 0), MOON_CRS, threads=threads)

@@ -292,7 +292,7 @@ def _exposure_lanes(A, R, W, img, ims, PN, PD, expl, n):
         expl[e + 1] += PD[i]
 
 
-@njit(cache=True, error_model="numpy")  # IEEE division: I / 0 is inf (lit), 0 / 0 NaN (shadow)
+@njit(cache=True, nogil=True, error_model="numpy")  # IEEE division: I / 0 is inf (lit), 0 / 0 NaN (shadow)
 def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, n_par, n_cols,
                    shadow, ratio, thresh, alpha, exp_num, exp_den, jtj, jtr, alb):
     r"""One iteration over pixel-major observations: albedo (eq. 3), then Q (eq. 1), the exposure
@@ -422,7 +422,7 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
     return sums[0], n_obs, amin, amax
 
 
-@njit(cache=True, error_model="numpy")  # IEEE division, as the NumPy formulas (model/updates.albedo, error_terms)
+@njit(cache=True, nogil=True, error_model="numpy")  # IEEE division, as the NumPy formulas (model/updates.albedo, error_terms)
 def finalise_pixels(offsets, pixels, image, image_of, texp, r, w, blend, alb, err):
     r"""Eq. 3's albedo and eq. 7's error of a block's pixel-major observations, in one pass, into ``alb`` and ``err``.
 

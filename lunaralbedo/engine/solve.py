@@ -226,8 +226,9 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     if lut is not None:  # the cached stacks hold g(DN): one cache per response, never a stale one on --resume
         cache = cache / f"g-{lut_digest(lut)}"
     cache.mkdir(parents=True, exist_ok=True)  # tasks create entries inside it, never the run's folders
-    def on_tiles(fn, desc, home="tiles", **kwargs):  # the scene sent to each worker once; a tile stays on its worker
-        return executor.map(fn, tiles, desc, shared=("scene",), home=home, scene=scene, cache_root=cache, **kwargs)
+    def on_tiles(fn, desc, home="tiles", threads=1, **kwargs):  # the scene sent to each worker once; a tile stays on its worker
+        return executor.map(fn, tiles, desc, shared=("scene",), home=home, threads=threads, scene=scene, cache_root=cache,
+                            **kwargs)
 
     metas = _prepare(on_tiles, executor, lut)
     executor.place("tiles", {t: TASK_OBSERVATIONS + sum(m["r_count"]) for t, m in zip(tiles, metas)})
@@ -252,7 +253,8 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     t2 = time.perf_counter()
     want_phase = bool(s.model.parameters)
     while not ck["done"] and ck["iteration"] < max_iter:
-        parts = on_tiles(iterate_tile, f"iteration {ck['iteration'] + 1}", state=state, want_phase=want_phase)
+        parts = on_tiles(iterate_tile, f"iteration {ck['iteration'] + 1}", state=state, want_phase=want_phase,
+                         threads=executor.cpus_per_task)  # one process: its tiles on every CPU, summed in tile order
         sums = _reduce_iteration(len(scene.images), len(s.model.parameters), parts)
         q_prev = ck["q"][-1] if ck["q"] else None
         ck["q"].append(sums.q)
@@ -268,8 +270,9 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     if not skip_done:
         ck["finalising"] = True  # from here on the state is fixed; finished tiles can be kept
         outputs.write_json(out / STATE_FILE, ck)
+    at_once = min(executor.cpus_per_task, len(tiles))  # one process: tiles on every CPU, or GDAL's threads on them
     tile_reports = on_tiles(finalize_tile, "write tiles", out_dir=out / TILES_DIR, state=state, skip_done=skip_done,
-                            write_threads=executor.cpus_per_task)
+                            write_threads=max(1, executor.cpus_per_task // max(at_once, 1)), threads=at_once)
     resume_info["tiles_written_before"] = sum(bool(r.pop("reused")) for r in tile_reports)
     timings["finalise"] = time.perf_counter() - t3
     return _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info)

@@ -50,8 +50,13 @@ class SerialExecutor:
         self.progress = progress
 
     def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), home: str | None = None,
-            meanwhile: bool = False, **kwargs: Any) -> list:
+            meanwhile: bool = False, threads: int = 1, **kwargs: Any) -> list:
+        """``fn(item, **kwargs)`` for every item, in order.  ``threads`` > 1: tasks that release the GIL
+        (numba ``nogil`` kernels) may run that many at once on this process's threads (executors whose
+        workers have one CPU each ignore it); the results come back in the order of the items all the same."""
         items = list(items)  # one process: every item is at home
+        if threads > 1 and len(items) > 1:
+            return _on_threads(fn, items, min(threads, len(items)), desc, self.progress, kwargs)
         return [fn(x, **kwargs) for x in tqdm(items, desc=desc, disable=not self.progress, leave=False)]
 
     def place(self, label: str, costs: dict) -> None:
@@ -67,6 +72,13 @@ class SerialExecutor:
         pass
 
 
+def _on_threads(fn: Callable, items: list, threads: int, desc: str, progress: bool, kwargs: dict) -> list:
+    """``fn(item, **kwargs)`` for every item on ``threads`` threads of this process, results in the order of the items."""
+    with ThreadPoolExecutor(threads) as pool:
+        it = pool.map(lambda x: fn(x, **kwargs), items)
+        return list(tqdm(it, total=len(items), desc=desc, disable=not progress, leave=False))
+
+
 class LocalPoolExecutor(SerialExecutor):
     """Runs tasks on ``workers`` threads of this process (GIL-releasing work: GDAL reads and writes)."""
 
@@ -78,11 +90,8 @@ class LocalPoolExecutor(SerialExecutor):
         self.description = f"thread pool ({workers} threads)"
 
     def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), home: str | None = None,
-            meanwhile: bool = False, **kwargs: Any) -> list:
-        items = list(items)
-        with ThreadPoolExecutor(self.workers) as pool:
-            it = pool.map(lambda x: fn(x, **kwargs), items)
-            return list(tqdm(it, total=len(items), desc=desc, disable=not self.progress, leave=False))
+            meanwhile: bool = False, threads: int = 1, **kwargs: Any) -> list:
+        return _on_threads(fn, list(items), self.workers, desc, self.progress, kwargs)
 
     def compute(self, tasks: list) -> list:
         import dask
@@ -126,10 +135,11 @@ class DaskExecutor:
         return isinstance(self._client, Future) and not self._client.done()
 
     def map(self, fn: Callable, items: Iterable, desc: str = "", shared: tuple = (), home: str | None = None,
-            meanwhile: bool = False, **kwargs: Any) -> list:
+            meanwhile: bool = False, threads: int = 1, **kwargs: Any) -> list:
         """Run ``fn(item, **kwargs)`` for every item; ``shared`` names large kwargs sent to each worker once;
         ``home``: keep each (hashable) item on the worker that ran it in the first map with this label;
-        ``meanwhile``: run in this process's threads if the workers are still starting (GDAL reads)."""
+        ``meanwhile``: run in this process's threads if the workers are still starting (GDAL reads);
+        ``threads``: ignored (a worker's task thread is its share of the machine)."""
         from distributed import as_completed
 
         items = list(items)
