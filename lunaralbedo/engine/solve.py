@@ -32,6 +32,7 @@ from ..io.guard import check_output_dir
 from ..model import exposure_init, updates
 from ..settings import Settings, load_settings
 from ..parallel import local_workers, make_executor
+from ..parallel.workers import trim_malloc
 from .response import check_resume, known_exposures, lut_digest, move_outputs, report_parts, resolve_response
 from .scene import Scene, build_scene
 from .tilework import WRITER, SolveState, finalize_tile, iterate_tile, prepare_tile
@@ -287,6 +288,7 @@ def _prepare(on_tiles, executor, lut) -> list:
     try:
         metas = on_tiles(prepare_tile, "prepare", home=None, lut=lut, wait=False, read_ahead=executor.cpus_per_task > 1)
         WRITER.flush()
+        trim_malloc()  # the prepare step's freed heap, not kept resident under the iterations' stacks
     except BaseException:
         WRITER.drain()  # nothing in flight while the run's folder is cleaned up
         raise
