@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from lunaralbedo.settings import load_settings
 from lunaralbedo.engine.scene import build_scene
-from lunaralbedo.engine import kernels, tilework
+from lunaralbedo.engine import kernels, pixelmajor, tilework
 
 def cpu():
     t = resource.getrusage(resource.RUSAGE_SELF)
@@ -64,7 +64,7 @@ k = {}
 if "offsets" not in obs:  # an image-major cache (before the pixel-major layout): reordered once per tile in memory
     pm = tilework.pixel_stack(blk(t), npix, cache)
     names = [x for x in obs if x not in ("pix", "start", "index")]
-    k["reorder (once per tile in memory)"] = timed(lambda: kernels.pixel_major(obs, npix, names), 1)
+    k["reorder (once per tile in memory)"] = timed(lambda: pixelmajor.pixel_major(obs, npix, names), 1)
 else:
     pm = tilework.pixel_stack(blk(t), cache)
 s = tilework.TileSums(index=pm["index"], n_params=2, exp_num=np.zeros(len(pm["index"])), exp_den=np.zeros(len(pm["index"])))

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from lunaralbedo.engine import kernels, tilework
+from lunaralbedo.engine import kernels, pixelmajor, tilework
 from lunaralbedo.io.cache import MemoryCache, load_stack, mapped, save_stack
 from lunaralbedo.model import shadows, updates
 from lunaralbedo.model.photometry import REGISTRY, lunar_lambert
@@ -59,7 +59,7 @@ def _run(pm, kind, layers, params, t, n_par, shadow=kernels.NO_SHADOW_TEST, rati
 def test_pixel_major_order_is_stable_and_complete():
     image, r, dr, wt, t = _stacks()
     obs = _compact(wt, image=image, weight=wt)
-    pm = kernels.pixel_major(obs, wt[0].size, ["image", "weight"])
+    pm = pixelmajor.pixel_major(obs, wt[0].size, ["image", "weight"])
     counts = np.diff(pm["offsets"])
     pix = np.repeat(pm["pixels"], counts)
     assert np.all(np.diff(pm["pixels"]) > 0) and counts.sum() == len(obs["pix"])
@@ -77,9 +77,9 @@ def test_pixel_major_moves_rows_of_one_array_without_copying_them():
     names = ["image", "weight", "r"]
     rows = np.stack([obs[n] for n in names])
     held = {**obs, **dict(zip(names, rows))}
-    assert kernels._rows_of(held, names) is rows
-    assert kernels._rows_of(held, names[::-1]) is not rows and kernels._rows_of(obs, names).base is None
-    a, b = kernels.pixel_major(obs, wt[0].size, names), kernels.pixel_major(held, wt[0].size, names)
+    assert pixelmajor._rows_of(held, names) is rows
+    assert pixelmajor._rows_of(held, names[::-1]) is not rows and pixelmajor._rows_of(obs, names).base is None
+    a, b = pixelmajor.pixel_major(obs, wt[0].size, names), pixelmajor.pixel_major(held, wt[0].size, names)
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
 
 
@@ -94,7 +94,7 @@ def test_fused_kernel_equals_the_numpy_formulas():
     jtj, jtr = updates.phase_sums(res, alb, t, list(dr), r, wt)
 
     obs = _compact(wt, image=image, weight=wt, r=r, d0=dr[0], d1=dr[1])
-    pm = {**kernels.pixel_major(obs, h * w, ["image", "weight", "r", "d0", "d1"]), "npix": h * w}
+    pm = {**pixelmajor.pixel_major(obs, h * w, ["image", "weight", "r", "d0", "d1"]), "npix": h * w}
     got = _run(pm, 0, (pm["r"], pm["d0"], pm["d1"]), (), t, 2)
     # per-pixel sums run over the images in the same order as NumPy's axis-0 sum: identical bytes
     np.testing.assert_array_equal(got["alb"].reshape(h, w), alb)
@@ -132,7 +132,7 @@ def test_dynamic_shadow_test_is_dynamic_lit():
     image[:, 10:20] = (np.float32(thresh) * (t[:, None, None] * r))[:, 10:20]  # ratios on the threshold
     cos_i = np.random.default_rng(0).uniform(0.05, 1.0, image.shape).astype(np.float32)
     obs = _compact(wt, image=image, weight=wt, r=r, cos_i=cos_i)
-    pm = {**kernels.pixel_major(obs, h * w, ["image", "weight", "r", "cos_i"]), "npix": h * w}
+    pm = {**pixelmajor.pixel_major(obs, h * w, ["image", "weight", "r", "cos_i"]), "npix": h * w}
     for mode, rho in ((kernels.SHADOW_ON_R, r), (kernels.SHADOW_ON_LAYER, cos_i)):
         lit = shadows.dynamic_lit(image, rho, t[:, None, None], thresh)
         assert 0 < np.count_nonzero(lit & (wt > 0)) < np.count_nonzero(wt)
@@ -173,7 +173,7 @@ def test_fused_model_point_equals_its_numpy_functions(model):
     alpha = rng.uniform(0.05, 1.4, image.shape)
     layers = {n: np.asarray(v, np.float32) for n, v in model.layers(ci, ce, alpha).items()}
     obs = _compact(wt, image=image, weight=wt, **layers)
-    pm = {**kernels.pixel_major(obs, h * w, ["image", "weight", *layers]), "npix": h * w}
+    pm = {**pixelmajor.pixel_major(obs, h * w, ["image", "weight", *layers]), "npix": h * w}
     params = np.array([1.2, 0.4][: len(model.parameters)])
     n_par = len(model.parameters)
     r = model.reflectance_from(pm, params)
@@ -243,7 +243,7 @@ def test_models_without_point_and_more_parameters_take_the_generic_path():
     en, ed = updates.exposure_sums(image, alb, r, wt)
 
     obs = _compact(wt, image=image, weight=wt, **layers)
-    pm = kernels.pixel_major(obs, h * w, ["image", "weight", *layers])
+    pm = pixelmajor.pixel_major(obs, h * w, ["image", "weight", *layers])
     s = SimpleNamespace(model=model, shadow_type=shadows.NONE, shadow_thresh=0.0)
     state = tilework.SolveState(t.astype(np.float64), params)
     out = tilework.TileSums(index=pm["index"], n_params=3, exp_num=np.zeros(k), exp_den=np.zeros(k))
@@ -263,7 +263,7 @@ def test_sums_do_not_depend_on_anything_but_the_data():
     obs = _compact(wt, image=image, weight=wt, r=r, d0=dr[0])
     outs = []
     for _ in range(2):
-        pm = {**kernels.pixel_major({n: v.copy() for n, v in obs.items()}, wt[0].size, ["image", "weight", "r", "d0"]),
+        pm = {**pixelmajor.pixel_major({n: v.copy() for n, v in obs.items()}, wt[0].size, ["image", "weight", "r", "d0"]),
               "npix": wt[0].size}
         got = _run(pm, 0, (pm["r"], pm["d0"], pm["d0"]), (), t, 1)
         outs.append(tuple(np.asarray(v).tobytes() for v in got.values()))
@@ -281,7 +281,7 @@ def test_the_fused_kernel_is_vectorised():
 
     image, r, dr, wt, t = _stacks(seed=6)
     obs = _compact(wt, image=image, weight=wt, geometric=r, alpha=np.abs(dr[0]))
-    pm = kernels.pixel_major(obs, wt[0].size, ["image", "weight", "geometric", "alpha"])
+    pm = pixelmajor.pixel_major(obs, wt[0].size, ["image", "weight", "geometric", "alpha"])
     fresh = njit(error_model="numpy")(kernels.iterate_pixels.py_func)
     k = len(t)
     fresh(1, pm["offsets"], pm["image_of"], pm["image"], pm["weight"], pm["geometric"], pm["alpha"], pm["geometric"],

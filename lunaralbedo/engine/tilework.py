@@ -8,7 +8,7 @@ iteration's partial sums from them in one fused pass (:mod:`.kernels`); ``finali
 
 Cache layout of a tile (``OUTDIR/checkpoint/cache/<tile>/``): one folder per block of
 rows, ``block_0000/`` ... (a :func:`~lunaralbedo.io.cache.save_stack` entry each: the
-block's observations in pixel-major order (:func:`.kernels.pixel_major`: ``offsets``,
+block's observations in pixel-major order (:func:`.pixelmajor.pixel_major`: ``offsets``,
 ``pixels`` relative to the block, ``image_of``, ``index``, then ``image``, ``weight`` and the
 model's layers) and ``tile_*`` per-pixel arrays), the tile's outputs known once it is
 prepared (``DEM.tif``, ``weightsSum.tif``: :data:`KNOWN_OUTPUTS`), then ``meta.json`` (written last: the
@@ -32,7 +32,7 @@ from ..io.cachewriter import CacheWriter
 from ..io.rasters import write_geotiff
 from ..model import exposure_init, shadows, updates
 from ..parallel.ahead import ahead, helper
-from . import kernels, observations
+from . import kernels, observations, pixelmajor
 from .scene import Scene
 
 
@@ -155,7 +155,7 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, pool) -> dict:
     def reduce(block):  # the initialisation sums and the pixel-major order of a block
         b0, b1, obs, per_pixel = block
         names = [n for n in obs if n not in ("pix", "start", "index")]
-        return b0, b1, per_pixel, _init_sums(scene, obs, width), kernels.pixel_major(obs, (b1 - b0) * width, names)
+        return b0, b1, per_pixel, _init_sums(scene, obs, width), pixelmajor.pixel_major(obs, (b1 - b0) * width, names)
 
     big = lambda block: sum(a.nbytes for a in block[2].values()) > AHEAD_BYTES  # noqa: E731
     for b0, b1, per_pixel, part, pm in ahead(reduce, observations.gather_blocks(scene, t, lut, pool),
