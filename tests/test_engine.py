@@ -456,6 +456,38 @@ def test_a_map_with_homes_runs_in_a_few_batches_per_worker_and_returns_results_i
         assert len(sizes) == BATCHES_PER_WORKER and sum(sizes) == n and sizes[-1] - sizes[0] <= 1, (worker, sizes)
 
 
+def test_a_one_process_map_on_threads_keeps_the_items_order_and_stops_at_a_failure():
+    """``SerialExecutor.map(threads=n)`` (a one-worker solve's iterations and finalise): the tasks run on n threads
+    at once, the results come back in the order of the items; a failure is raised (the first in the items' order)
+    once the running tasks end, and the items not started are dropped."""
+    import threading
+
+    from lunaralbedo.parallel.executor import SerialExecutor
+
+    ex, started, running, most = SerialExecutor(), [], [0], [0]
+    lock = threading.Lock()
+
+    def task(x, fail=None):
+        with lock:
+            started.append(x)
+            running[0] += 1
+            most[0] = max(most[0], running[0])
+        time.sleep(0.02 if x % 2 else 0.005)  # items end out of order
+        with lock:
+            running[0] -= 1
+        if x == fail:
+            raise ValueError(f"item {x} failed")
+        return x * 10
+
+    assert ex.map(task, range(12), threads=3) == [x * 10 for x in range(12)]
+    assert most[0] == 3 and sorted(started) == list(range(12))
+    assert ex.map(task, range(3), threads=1) == [0, 10, 20]
+    started.clear()
+    with pytest.raises(ValueError, match="item 2 failed"):
+        ex.map(task, range(40), threads=2, fail=2)
+    assert 3 <= len(started) < 40 and sorted(started) == list(range(len(started)))
+
+
 #: The process and the modules already imported where a task runs (defined by value, as above).
 PID_AND_MODULES = """
 def pid_and_modules(item, names=()):

@@ -73,10 +73,19 @@ class SerialExecutor:
 
 
 def _on_threads(fn: Callable, items: list, threads: int, desc: str, progress: bool, kwargs: dict) -> list:
-    """``fn(item, **kwargs)`` for every item on ``threads`` threads of this process, results in the order of the items."""
+    """``fn(item, **kwargs)`` for every item on ``threads`` threads of this process, results in the order of the items.
+
+    The first failure (in the items' order) is raised once the tasks already running have ended;
+    the items not started yet are dropped, as a cluster's pending tasks are.
+    """
     with ThreadPoolExecutor(threads) as pool:
-        it = pool.map(lambda x: fn(x, **kwargs), items)
-        return list(tqdm(it, total=len(items), desc=desc, disable=not progress, leave=False))
+        futures = [pool.submit(fn, x, **kwargs) for x in items]
+        try:
+            return [f.result() for f in tqdm(futures, desc=desc, disable=not progress, leave=False)]
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
 
 
 class LocalPoolExecutor(SerialExecutor):
