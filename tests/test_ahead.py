@@ -90,7 +90,8 @@ def test_a_caller_that_stops_leaves_nothing_running():
         assert done == [0, 1]
 
 
-def test_the_helper_is_one_thread_per_name():
-    assert helper() is helper() and helper("reduce") is helper("reduce") and helper() is not helper("reduce")
-    names = {helper(n).submit(lambda: threading.current_thread().name).result() for n in ("read", "reduce")}
-    assert names == {"lunaralbedo-read-ahead_0", "lunaralbedo-reduce-ahead_0"}
+def test_the_helpers_are_one_pool_per_name_and_size():
+    assert helper("a") is helper("a") and helper("a") is not helper("b") and helper("a") is not helper("a", 2)
+    assert helper("a", 2)._max_workers == 2
+    names = {helper(n).submit(lambda: threading.current_thread().name).result() for n in ("a", "b")}
+    assert names == {"lunaralbedo-a-ahead_0", "lunaralbedo-b-ahead_0"}

@@ -148,7 +148,7 @@ def rasterio_read(path):
 
 
 def test_reading_and_reducing_ahead_caches_the_same_bytes(tmp_path, monkeypatch):
-    """A prepare step that reads each image's window and reduces each block on helper threads (a one-worker run
+    """A prepare step that reads and reduces image windows and reorders each block on helper threads (a one-worker run
     with a CPU to spare) caches the bytes of the plain loop: blocks, initialisation sums, DEM and weight-sum tiles;
     also when the blocks are too big to be held beside the next one (reduced in the task's thread)."""
     import filecmp
@@ -161,11 +161,11 @@ def test_reading_and_reducing_ahead_caches_the_same_bytes(tmp_path, monkeypatch)
     render_scene(tmp_path / "s", SceneSpec(n_images=5, image_px=80, seed=5, cast_shadows=True))
     scene = build_scene(load_settings(tmp_path / "s" / "settings.txt"), False, map_fn=lambda f, xs: list(map(f, xs)))
     monkeypatch.setenv("LUNARALBEDO_BLOCK_ROWS", "9")
-    runs = {"plain": (False, tilework.AHEAD_BYTES), "ahead": (True, tilework.AHEAD_BYTES), "ahead, big blocks": (True, 0)}
-    for name, (read_ahead, ahead_bytes) in runs.items():
+    runs = {"plain": (0, tilework.AHEAD_BYTES), "ahead": (2, tilework.AHEAD_BYTES), "ahead, big blocks": (3, 0)}
+    for name, (helpers, ahead_bytes) in runs.items():
         monkeypatch.setattr(tilework, "AHEAD_BYTES", ahead_bytes)
         for t in range(len(scene.tiles)):
-            tilework.prepare_tile(t, scene=scene, cache_root=tmp_path / name, read_ahead=read_ahead)
+            tilework.prepare_tile(t, scene=scene, cache_root=tmp_path / name, helpers=helpers)
     files = sorted(p.relative_to(tmp_path / "plain") for p in (tmp_path / "plain").rglob("*") if p.is_file())
     assert sum(p.name == "weight.npy" for p in files) > 2 * len(scene.tiles)  # tiles of several blocks
     assert sum(p.name == "DEM.tif" for p in files) == len(scene.tiles)

@@ -61,9 +61,7 @@ WINDOW_PIXEL_BYTES = 56
 #: ... and per pixel of the largest window: one image's bands, blending-weight tents (float64),
 #: geometry and model layers, one image at a time ...
 READ_PIXEL_BYTES = 200
-#: ... and, when the next image's window is read ahead (``gather_blocks(pool=...)``), that read's
-#: results and temporaries (value, masks, blending weight; GDAL's decoded bands).
-READ_AHEAD_PIXEL_BYTES = 48
+
 
 
 def image_window(tile, bounds) -> tuple[int, int, int, int] | None:
@@ -77,9 +75,9 @@ def image_window(tile, bounds) -> tuple[int, int, int, int] | None:
     return tile.grid.pixel_box((west + min(shifts), south, east + max(shifts), north), margin=1)
 
 
-def block_rows(scene: Scene, t: int, reading_ahead: bool = False) -> int:
+def block_rows(scene: Scene, t: int, ahead: int = 0) -> int:
     """Rows per block of tile ``t``: the most that fit :data:`BLOCK_BYTES` (see module docstring), with
-    :data:`READ_AHEAD_PIXEL_BYTES` more per pixel of the largest window when windows are read ahead."""
+    ``ahead`` more windows of the largest width being read and reduced at once (helper threads)."""
     forced = os.environ.get("LUNARALBEDO_BLOCK_ROWS")
     tile = scene.tiles[t]
     if forced:
@@ -88,7 +86,7 @@ def block_rows(scene: Scene, t: int, reading_ahead: bool = False) -> int:
     widths = [c1 - c0 for _, _, c0, c1 in filter(None, (image_window(tile, scene.images[k].lonlat_bounds)
                                                          for k in scene.tile_images[t]))]
     per_row = ((tile.width + 2) * ROW_PIXEL_BYTES + sum(widths) * WINDOW_PIXEL_BYTES
-               + max(widths, default=0) * (READ_PIXEL_BYTES + (READ_AHEAD_PIXEL_BYTES if reading_ahead else 0)))
+               + max(widths, default=0) * READ_PIXEL_BYTES * (1 + ahead))
     return max(1, min(tile.height, int(budget // per_row)))
 
 
@@ -152,9 +150,10 @@ def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None, pool=None
     saturated, not in a cast shadow, DEM, incidence <= 85 degrees and cos e > 0) and the
     blending weight are folded into ``weight``; observations with zero weight are
     dropped.  ``lut``: camera response g over 0..255 (seed 002), applied to each DRG's DN
-    before it is resampled onto the tile grid.  ``pool``: a helper thread that reads each
-    image's window while the previous one is reduced (:func:`lunaralbedo.parallel.ahead.ahead`;
-    the same results).
+    before it is resampled onto the tile grid.  ``pool``: helper threads that read the images'
+    windows and reduce them to observations, as many at once as it has threads, while this
+    thread adds up the earlier ones in tile order (:func:`lunaralbedo.parallel.ahead.ahead`; the
+    same results; the blocks are made shorter by as many windows).
     """
     s = scene.settings
     model = solver_model(s)
@@ -162,11 +161,12 @@ def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None, pool=None
     geometry_needed = model.needs_geometry
     cast = TileShadows(scene, tile, scene.tile_images[t]) if geometry_needed and s.uses_cast_shadows else None
     windows = [(int(k), image_window(tile, scene.images[int(k)].lonlat_bounds)) for k in scene.tile_images[t]]
-    for b0, b1 in row_blocks(tile.height, block_rows(scene, t, pool is not None)):
+    depth = pool._max_workers if pool is not None else 0
+    for b0, b1 in row_blocks(tile.height, block_rows(scene, t, depth)):
         cols = [(w[2], w[3]) for _, w in windows if w is not None and w[0] < b1 and w[1] > b0]
         span = (min(c for c, _ in cols), max(c for _, c in cols)) if cols else (0, 0)
         geo = BlockGeometry(scene, tile, b0, b1, *span, shadows=cast) if geometry_needed else None
-        yield (b0, b1, *_gather_block(scene, tile, b0, b1, windows, geo, cast, model, lut, pool))
+        yield (b0, b1, *_gather_block(scene, tile, b0, b1, windows, geo, cast, model, lut, pool, depth))
 
 
 @njit(cache=True, nogil=True)
@@ -205,7 +205,7 @@ def _compact(rows, cols, keep, val, wb, ci, ce, al, row_off, col_off, width):
     return out_r, out_c, pix, value, weight, out_i, out_e, out_a
 
 
-def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut, pool=None):
+def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut, pool=None, depth=0):
     s = scene.settings
     h, w = b1 - b0, tile.width
     thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
@@ -215,15 +215,14 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut, po
     todo = [(k, (max(win[0], b0), min(win[1], b1), win[2], win[3])) for k, win in windows
             if win is not None and win[1] > b0 and win[0] < b1]
 
-    def read(item):
+    def observe(item):
+        """One image's window: its observations with positive weight, or None (thread-safe: no shared writes)."""
         k, (r0, r1, c0, c1) = item
         info = scene.images[k]
-        return read_drg_onto_grid(info, scene.profiles[k], tile.transform @ tile.transform.translation(c0, r0),
-                                  (r1 - r0, c1 - c0), scene.crs, thresh, saturation=saturation_of(info.dtype), lut=lut)
-
-    for (k, (r0, r1, c0, c1)), got in zip(todo, ahead(read, todo, pool)):
+        got = read_drg_onto_grid(info, scene.profiles[k], tile.transform @ tile.transform.translation(c0, r0),
+                                 (r1 - r0, c1 - c0), scene.crs, thresh, saturation=saturation_of(info.dtype), lut=lut)
         if got is None:
-            continue
+            return None
         val, ok, wt, use = got
         wb = (wt if s.use_weights else ok).astype(np.float32, copy=False)
         use &= (val > 0) & (wb > 0)  # zero blending weight: no observation (no geometry, no shadow test either)
@@ -233,21 +232,27 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut, po
             lit = ~cast.shadowed(k, rows, cols, r0, c0) if (cast is not None and len(rows)) else np.ones(0, bool)
             rows, cols, pix, value, weight, ci, ce, al = _compact(rows, cols, lit, val, wb, ci, ce, al, r0 - b0, c0, w)
             if not len(rows):
-                continue
+                return None
             where = dict(lon=geo.lon[c0 + cols], lat=geo.lat[r0 - b0 + rows]) if model.needs_location else {}
             layers = model.layers(ci, ce, al, **where)
             if with_cos_i:
                 layers["cos_i"] = ci
         else:
             if not use.any():
-                continue
+                return None
             rows, cols = np.nonzero(use)
             pix, value, weight = _compact(rows, cols, np.ones(0, bool), val, wb, *(np.zeros(len(rows)),) * 3,
                                           r0 - b0, c0, w)[2:5]
+        return wb, pix, value, weight, {n: np.asarray(layers[n]).astype(np.float32, copy=False) for n in layers}
+
+    for (k, (r0, r1, c0, c1)), got in zip(todo, ahead(observe, todo, pool, depth=max(depth, 1))):
+        if got is None:
+            continue
+        wb, pix, value, weight, layers = got
         weights_sum[r0 - b0:r1 - b0, c0:c1] += wb  # float64, images in tile order
         # compact at once: only the window's blending weights stay (for eq. 7's denominator)
-        kept.append((k, (r0 - b0, r1 - b0, c0, c1), wb if s.use_normalized_cost_fun else None, pix, value, weight,
-                     {n: np.asarray(layers[n]).astype(np.float32, copy=False) for n in layers}))
+        kept.append((k, (r0 - b0, r1 - b0, c0, c1), wb if s.use_normalized_cost_fun else None, pix, value, weight, layers))
+        del got, wb
     if s.use_normalized_cost_fun:  # the weights are divided by their float32 sums; eq. 7 then has its own denominator
         weights_sum32, wblend_sum = weights_sum.astype(np.float32), np.zeros((h, w))
     else:

@@ -286,7 +286,7 @@ def _prepare(on_tiles, executor, lut) -> list:
     if not executor.in_process:
         return on_tiles(prepare_tile, "prepare", home=None, lut=lut)
     try:
-        metas = on_tiles(prepare_tile, "prepare", home=None, lut=lut, wait=False, read_ahead=executor.cpus_per_task > 1)
+        metas = on_tiles(prepare_tile, "prepare", home=None, lut=lut, wait=False, helpers=executor.cpus_per_task)
         WRITER.flush()
         trim_malloc()  # the prepare step's freed heap, not kept resident under the iterations' stacks
     except BaseException:

@@ -86,7 +86,7 @@ ERROR_PREDICTOR = 1
 WEIGHTS_SUM_PREDICTOR = 2
 #: Blocks whose observations take at most this many bytes are reduced (initialisation sums,
 #: pixel-major order) on a helper thread while the next block is gathered, when the prepare
-#: step reads ahead; bigger ones in the task's thread (a block less held at once: make bench
+#: step has helpers; bigger ones in the task's thread (a block less held at once: make bench
 #: item 10's blocks of a 4000 x 4000 px tile raised its peak by 120 MB when reduced ahead).
 AHEAD_BYTES = 64 * 2**20
 #: The tile outputs known once a tile is prepared, by output folder: the per-pixel array of the
@@ -105,7 +105,7 @@ def _cache_dir(cache_root: Path, scene: Scene, t: int) -> Path:
 
 # --------------------------------------------------------------------------- prepare
 def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | None = None, wait: bool = True,
-                 read_ahead: bool = False) -> dict:
+                 helpers: int = 0) -> dict:
     """Read every image over tile ``t`` (its footprint window only), compute geometry, cache the observations.
 
     ``lut``: camera response g over 0..255 (seed 002), applied to each DRG's DN before
@@ -119,9 +119,11 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | No
     is read (a run in one process: the writing then overlaps the next tiles too).  Returns
     the tile's initialisation sums (also stored in the cache's meta, so a resumed run does not
     recompute them): per-image reflectance sums for the seed exposure, and pairwise log-ratio
-    sums for the overlap exposure, added block by block in block order.  ``read_ahead``: read
-    each image's window on this process's helper thread while the previous one is reduced (a
-    task with a CPU to spare: :mod:`lunaralbedo.parallel.ahead`).
+    sums for the overlap exposure, added block by block in block order.  ``helpers`` (>= 2, a
+    task with CPUs to spare: :mod:`lunaralbedo.parallel.ahead`): each block's image windows are
+    read and reduced to observations on that many helper threads, ahead of the task's thread,
+    which adds them up in tile order, and each block is reordered on another while the next
+    one is gathered (the same bytes as one thread's).
     """
     folder = _cache_dir(cache_root, scene, t)
     cached = load_stack(folder)
@@ -129,7 +131,7 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | No
         return {**cached[1], "reused": True}
     entry = WRITER.entry(folder)  # the tile's folder appears when all its blocks are written
     try:
-        meta = _prepare_blocks(scene, t, lut, entry, helper() if read_ahead else None)
+        meta = _prepare_blocks(scene, t, lut, entry, helper("windows", helpers) if helpers > 1 else None)
     except BaseException:
         entry.abandon()
         if wait:

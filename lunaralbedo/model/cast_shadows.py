@@ -21,6 +21,7 @@ Frames and units: body-fixed km for positions, metres for heights above the
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 from numba import njit
@@ -203,30 +204,36 @@ class MarchGrid:
         self.slope = 0.0 if self.empty else _global_slope(self.blocks, _ground_px_km(transform, dem.shape))
         self.tolerance_m = float(tolerance_m)
         self._pyramid = None
+        self._lock = threading.Lock()
 
     def pyramid(self):
         """Per level (cells of 8, 64, 512 ... px): the highest height and the slope bound (m/km, x 1.05) over the
-        3 x 3 cells around each cell, flattened, with each level's offset, width, log2 cell size and skippable steps."""
-        if self._pyramid is None:
-            dem, tr = self.dem, self.transform
-            px = _ground_px_km(tr, dem.shape)
-            tops, slopes, offs, widths, cells, skips = [], [], [0], [], [], []
-            cell = CELL_PX
-            if px is not None and not self.empty:
-                top, gx, gy = self.blocks[:3]
-                while cell < max(dem.shape):
-                    tops.append(_dilate3(top).ravel())
-                    slopes.append((SLOPE_SAFETY * (_dilate3(gx) / px[0] + _dilate3(gy) / px[1])).ravel())
-                    offs.append(offs[-1] + top.size)
-                    widths.append(top.shape[1])
-                    cells.append(int(round(math.log2(cell))))
-                    skips.append(_skip_steps(tr, dem.shape, self.step_km, cell))
-                    top, gx, gy = (_coarsen(a, LEVEL_RATIO) for a in (top, gx, gy))
-                    cell *= LEVEL_RATIO
-            cat = (lambda a: np.concatenate(a)) if tops else (lambda a: np.zeros(0))
-            self._pyramid = (cat(tops), cat(slopes), np.array(offs[:-1], np.int64), np.array(widths, np.int64),
-                             np.array(cells, np.int64), np.array(skips, np.int64))
+        3 x 3 cells around each cell, flattened, with each level's offset, width, log2 cell size and skippable steps
+        (built once, by the first thread that asks)."""
+        with self._lock:
+            if self._pyramid is None:
+                self._pyramid = self._build_pyramid()
         return self._pyramid
+
+    def _build_pyramid(self):
+        dem, tr = self.dem, self.transform
+        px = _ground_px_km(tr, dem.shape)
+        tops, slopes, offs, widths, cells, skips = [], [], [0], [], [], []
+        cell = CELL_PX
+        if px is not None and not self.empty:
+            top, gx, gy = self.blocks[:3]
+            while cell < max(dem.shape):
+                tops.append(_dilate3(top).ravel())
+                slopes.append((SLOPE_SAFETY * (_dilate3(gx) / px[0] + _dilate3(gy) / px[1])).ravel())
+                offs.append(offs[-1] + top.size)
+                widths.append(top.shape[1])
+                cells.append(int(round(math.log2(cell))))
+                skips.append(_skip_steps(tr, dem.shape, self.step_km, cell))
+                top, gx, gy = (_coarsen(a, LEVEL_RATIO) for a in (top, gx, gy))
+                cell *= LEVEL_RATIO
+        cat = (lambda a: np.concatenate(a)) if tops else (lambda a: np.zeros(0))
+        return (cat(tops), cat(slopes), np.array(offs[:-1], np.int64), np.array(widths, np.int64),
+                np.array(cells, np.int64), np.array(skips, np.int64))
 
     def _undecided(self, sun, rows, cols, offset):
         """Positions of the pixels not in a block :func:`.march.lit_cells` finds lit; None when it cannot tell any

@@ -1,11 +1,11 @@
-"""Work done one item ahead on a helper thread of this process, for a task that has a CPU to spare.
+"""Work done a few items ahead on helper threads of this process, for a task that has CPUs to spare.
 
-A one-worker solve runs its tasks in this process and leaves the other CPUs of the machine
-idle but for its cache writer (:mod:`lunaralbedo.io.cachewriter`) and GDAL's compression.
-:func:`ahead` lets such a task read its next input (GDAL decodes, which release the GIL) while
-it computes on the current one (numba kernels declared ``nogil``), in the order of the items:
-results are the same as a plain loop's.  Workers of a cluster have one CPU per task and do
-not use it (``pool=None``: the plain loop).
+A one-worker solve runs its tasks in this process and would leave the other CPUs of the
+machine idle but for its cache writer (:mod:`lunaralbedo.io.cachewriter`) and GDAL's
+compression.  :func:`ahead` lets such a task have its next items made on a pool of helper
+threads (GDAL decodes and numba kernels declared ``nogil`` release the GIL) while it uses the
+current one, in the order of the items: results are the same as a plain loop's.  Workers of a
+cluster have one CPU per task and do not use it (``pool=None``: the plain loop).
 """
 from __future__ import annotations
 
@@ -18,12 +18,12 @@ _POOLS: dict = {}
 _LOCK = threading.Lock()
 
 
-def helper(name: str = "read") -> ThreadPoolExecutor:
-    """This process's helper thread ``name`` (one thread each; started on first use)."""
+def helper(name: str, threads: int = 1) -> ThreadPoolExecutor:
+    """This process's pool of helper threads ``name`` with ``threads`` threads (started on first use)."""
     with _LOCK:
-        if name not in _POOLS:
-            _POOLS[name] = ThreadPoolExecutor(1, thread_name_prefix=f"lunaralbedo-{name}-ahead")
-        return _POOLS[name]
+        if (name, threads) not in _POOLS:
+            _POOLS[(name, threads)] = ThreadPoolExecutor(threads, thread_name_prefix=f"lunaralbedo-{name}-ahead")
+        return _POOLS[(name, threads)]
 
 
 def ahead(fn: Callable, items: Iterable, pool: ThreadPoolExecutor | None, depth: int = 1,
