@@ -594,11 +594,20 @@ def test_a_one_worker_solve_runs_its_tiles_on_every_cpu_and_writes_the_same_file
     solve(scene / "settings.txt", out=out, workers=1, plots=False)
     n_tiles = len(list((out / "albedo").glob("tile_*.tif")))
     assert n_tiles >= 2
-    assert len(ran["iterate"]) == len(ran["finalise"]) == min(cpus, n_tiles), ran
-    each = max(1, cpus // min(cpus, n_tiles))
+    at_once = min(cpus, n_tiles, solve_module.MAX_THREADS)
+    assert len(ran["iterate"]) == len(ran["finalise"]) == at_once, ran
+    each = max(1, cpus // at_once)
     assert set(seen) == {("albedo", each), ("error", each), ("DEM", 1), ("weightsSum", 1)}, seen
     assert len(seen) == 4 * n_tiles
     same_results(reference, out)
+    # finalise within its memory bound (here: one tile's rasters): one tile at a time, GDAL's threads on the CPUs
+    monkeypatch.setattr(solve_module, "FINALISE_BYTES", 1)
+    seen.clear()
+    ran = {"iterate": set(), "finalise": set()}
+    solve(scene / "settings.txt", out=tmp_path / "bounded", workers=1, plots=False)
+    assert len(ran["iterate"]) == min(cpus, n_tiles, solve_module.MAX_THREADS) and len(ran["finalise"]) == 1, ran
+    assert {t for k, t in seen if k in ("albedo", "error")} == {cpus}
+    same_results(reference, tmp_path / "bounded")
     # confined to one CPU: one tile at a time, the same bytes
     monkeypatch.setattr(executor_module, "available_cpus", lambda: 1)
     seen.clear()

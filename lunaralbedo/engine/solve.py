@@ -255,7 +255,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     want_phase = bool(s.model.parameters)
     while not ck["done"] and ck["iteration"] < max_iter:
         parts = on_tiles(iterate_tile, f"iteration {ck['iteration'] + 1}", state=state, want_phase=want_phase,
-                         threads=executor.cpus_per_task)  # one process: its tiles on every CPU, summed in tile order
+                         threads=_threads(executor))  # one process: tiles on its CPUs, summed in tile order
         sums = _reduce_iteration(len(scene.images), len(s.model.parameters), parts)
         q_prev = ck["q"][-1] if ck["q"] else None
         ck["q"].append(sums.q)
@@ -271,12 +271,29 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     if not skip_done:
         ck["finalising"] = True  # from here on the state is fixed; finished tiles can be kept
         outputs.write_json(out / STATE_FILE, ck)
-    at_once = min(executor.cpus_per_task, len(tiles))  # one process: tiles on every CPU, or GDAL's threads on them
+    # one process: tiles on its CPUs, at most FINALISE_BYTES of their rasters at once; GDAL's threads on the CPUs left
+    tile_px = max((t.height * t.width for t in scene.tiles), default=1)
+    at_once = max(1, min(_threads(executor), len(tiles), FINALISE_BYTES // (8 * tile_px)))
     tile_reports = on_tiles(finalize_tile, "write tiles", out_dir=out / TILES_DIR, state=state, skip_done=skip_done,
                             write_threads=max(1, executor.cpus_per_task // max(at_once, 1)), threads=at_once)
     resume_info["tiles_written_before"] = sum(bool(r.pop("reused")) for r in tile_reports)
     timings["finalise"] = time.perf_counter() - t3
     return _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info)
+
+
+#: Most threads a one-process run gives its tiles (iterations, finalise) and a block's image windows
+#: (prepare), however many CPUs it has: memory grows with them (each window in flight, each tile
+#: being finalised), the gains flatten beyond (the work is shared with the cache writer, GDAL and
+#: the memory bus); more CPUs are for more workers (``--workers N``).
+MAX_THREADS = 4
+#: Bytes of whole-tile rasters (albedo and error, 8 per pixel) finalise may hold at once over the tiles
+#: it writes on threads (a tile always: 4000 x 4000 px tiles go one at a time).
+FINALISE_BYTES = 256 * 2**20
+
+
+def _threads(executor) -> int:
+    """Threads for the tiles and windows of a run: the executor's CPUs per task, at most :data:`MAX_THREADS`."""
+    return max(1, min(executor.cpus_per_task, MAX_THREADS))
 
 
 def _prepare(on_tiles, executor, lut) -> list:
@@ -286,7 +303,7 @@ def _prepare(on_tiles, executor, lut) -> list:
     if not executor.in_process:
         return on_tiles(prepare_tile, "prepare", home=None, lut=lut)
     try:
-        metas = on_tiles(prepare_tile, "prepare", home=None, lut=lut, wait=False, helpers=executor.cpus_per_task)
+        metas = on_tiles(prepare_tile, "prepare", home=None, lut=lut, wait=False, helpers=_threads(executor))
         WRITER.flush()
         trim_malloc()  # the prepare step's freed heap, not kept resident under the iterations' stacks
     except BaseException:
