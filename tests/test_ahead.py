@@ -92,6 +92,7 @@ def test_a_caller_that_stops_leaves_nothing_running():
 
 def test_the_helpers_are_one_pool_per_name_and_size():
     assert helper("a") is helper("a") and helper("a") is not helper("b") and helper("a") is not helper("a", 2)
-    assert helper("a", 2)._max_workers == 2
+    both = threading.Barrier(2, timeout=5)  # two threads: two tasks at once
+    assert [f.result() for f in [helper("a", 2).submit(both.wait) for _ in range(2)]] in ([0, 1], [1, 0])
     names = {helper(n).submit(lambda: threading.current_thread().name).result() for n in ("a", "b")}
     assert names == {"lunaralbedo-a-ahead_0", "lunaralbedo-b-ahead_0"}

@@ -43,7 +43,7 @@ from ..io.drgs import read_drg_onto_grid
 from ..io.rasters import read_dem_onto_grid
 from ..model import geometry, shadows
 from ..model.longitude import overlap_shifts
-from ..parallel.ahead import ahead
+from ..parallel.ahead import ahead, helper
 from .photometry import solver_model
 from .scene import Scene
 from .terrain import TileShadows
@@ -62,12 +62,11 @@ WINDOW_PIXEL_BYTES = 56
 #: geometry and model layers, one image at a time ...
 READ_PIXEL_BYTES = 200
 #: ... and per pixel of the largest window for each more window read and reduced at once on
-#: helper threads (``gather_blocks(pool=...)``): most of a window's 200 bytes are temporaries,
+#: helper threads (``gather_blocks(helpers=...)``): most of a window's 200 bytes are temporaries,
 #: and the windows in flight seldom all peak together (counting 200 bytes for each made the
 #: 50-image scene's blocks a third shorter and its iterations 2 s slower, for item 10's peak
 #: within its spread).
 AHEAD_PIXEL_BYTES = 48
-
 
 
 def image_window(tile, bounds) -> tuple[int, int, int, int] | None:
@@ -149,17 +148,17 @@ def saturation_of(dtype: str) -> float | None:
     return float(np.iinfo(dt).max) if dt.kind in "ui" else None
 
 
-def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None, pool=None):
+def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None, helpers: int = 0):
     """Read and reduce every image over tile ``t``, block by block: yields ``(b0, b1, observations, per-pixel arrays)``.
 
     See the module docstring for the arrays.  The ``usable`` flag (valid, lit, not
     saturated, not in a cast shadow, DEM, incidence <= 85 degrees and cos e > 0) and the
     blending weight are folded into ``weight``; observations with zero weight are
     dropped.  ``lut``: camera response g over 0..255 (seed 002), applied to each DRG's DN
-    before it is resampled onto the tile grid.  ``pool``: helper threads that read the images'
-    windows and reduce them to observations, as many at once as it has threads, while this
-    thread adds up the earlier ones in tile order (:func:`lunaralbedo.parallel.ahead.ahead`; the
-    same results; the blocks are made shorter by as many windows).
+    before it is resampled onto the tile grid.  ``helpers`` >= 2: that many helper threads read
+    the images' windows and reduce them to observations, as many at once, while this thread
+    adds up the earlier ones in tile order (:func:`lunaralbedo.parallel.ahead.ahead`; the same
+    results; the blocks are made shorter by as many windows).
     """
     s = scene.settings
     model = solver_model(s)
@@ -167,7 +166,8 @@ def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None, pool=None
     geometry_needed = model.needs_geometry
     cast = TileShadows(scene, tile, scene.tile_images[t]) if geometry_needed and s.uses_cast_shadows else None
     windows = [(int(k), image_window(tile, scene.images[int(k)].lonlat_bounds)) for k in scene.tile_images[t]]
-    depth = pool._max_workers if pool is not None else 0
+    depth = helpers if helpers > 1 else 0
+    pool = helper("windows", depth) if depth else None
     for b0, b1 in row_blocks(tile.height, block_rows(scene, t, depth)):
         cols = [(w[2], w[3]) for _, w in windows if w is not None and w[0] < b1 and w[1] > b0]
         span = (min(c for c, _ in cols), max(c for _, c in cols)) if cols else (0, 0)

@@ -131,7 +131,7 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | No
         return {**cached[1], "reused": True}
     entry = WRITER.entry(folder)  # the tile's folder appears when all its blocks are written
     try:
-        meta = _prepare_blocks(scene, t, lut, entry, helper("windows", helpers) if helpers > 1 else None)
+        meta = _prepare_blocks(scene, t, lut, entry, helpers)
     except BaseException:
         entry.abandon()
         if wait:
@@ -146,7 +146,7 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | No
 WRITER = CacheWriter()
 
 
-def _prepare_blocks(scene: Scene, t: int, lut, entry, pool) -> dict:
+def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
     r_sums: dict[int, list] = {}
     pairs: dict = {}
     blocks = []
@@ -160,8 +160,8 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, pool) -> dict:
         return b0, b1, per_pixel, _init_sums(scene, obs, width), pixelmajor.pixel_major(obs, (b1 - b0) * width, names)
 
     big = lambda block: sum(a.nbytes for a in block[2].values()) > AHEAD_BYTES  # noqa: E731
-    for b0, b1, per_pixel, part, pm in ahead(reduce, observations.gather_blocks(scene, t, lut, pool),
-                                             helper("reduce") if pool is not None else None, here=big):
+    for b0, b1, per_pixel, part, pm in ahead(reduce, observations.gather_blocks(scene, t, lut, helpers),
+                                             helper("reduce") if helpers > 1 else None, here=big):
         for kind, name in KNOWN_OUTPUTS.items():
             if name in per_pixel:
                 known.setdefault(kind, np.empty((tile.height, tile.width), np.float32))[b0:b1] = per_pixel[name]
