@@ -275,7 +275,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     tile_px = max((t.height * t.width for t in scene.tiles), default=1)
     at_once = max(1, min(_threads(executor), len(tiles), FINALISE_BYTES // (8 * tile_px)))
     tile_reports = on_tiles(finalize_tile, "write tiles", out_dir=out / TILES_DIR, state=state, skip_done=skip_done,
-                            write_threads=max(1, executor.cpus_per_task // max(at_once, 1)), threads=at_once)
+                            write_threads=max(1, executor.cpus_per_task // at_once), threads=at_once)
     resume_info["tiles_written_before"] = sum(bool(r.pop("reused")) for r in tile_reports)
     timings["finalise"] = time.perf_counter() - t3
     return _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info)

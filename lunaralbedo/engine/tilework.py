@@ -94,9 +94,9 @@ AHEAD_BYTES = 64 * 2**20
 #: (behind the computation of the next tiles in a one-process run) and moved into place by
 #: finalise, ``weightsSum`` last.
 KNOWN_OUTPUTS = {"DEM": "dem", "weightsSum": "weights_sum"}
-#: :func:`write_geotiff` options of each tile output besides the albedo.
-OUTPUT_OPTIONS = {"error": {"nodata": float("nan"), "predictor": ERROR_PREDICTOR}, "DEM": {"nodata": float("nan")},
-                  "weightsSum": {"predictor": WEIGHTS_SUM_PREDICTOR}}
+#: :func:`write_geotiff` options of each tile output.
+OUTPUT_OPTIONS = {"albedo": {"nodata": float("nan")}, "error": {"nodata": float("nan"), "predictor": ERROR_PREDICTOR},
+                  "DEM": {"nodata": float("nan")}, "weightsSum": {"predictor": WEIGHTS_SUM_PREDICTOR}}
 
 
 def _cache_dir(cache_root: Path, scene: Scene, t: int) -> Path:
@@ -393,7 +393,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
                                 per_pixel.get("wblend_sum", per_pixel["weights_sum"]).ravel(),  # eq. 7's sum of blending weights
                                 alb[b0:b1].reshape(-1), err[b0:b1].reshape(-1) if want_err else no_err)
     write = partial(write_geotiff, transform=tile.transform, crs=scene.crs, threads=write_threads)
-    write(out_dir / "albedo" / name, alb, nodata=float("nan"))
+    write(out_dir / "albedo" / name, alb, **OUTPUT_OPTIONS["albedo"])
     valid = int(np.count_nonzero(np.isfinite(alb)))
     del alb
     if want_err:

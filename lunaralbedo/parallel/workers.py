@@ -77,7 +77,8 @@ def trim_malloc() -> bool:
 
     :data:`MALLOC_ENV` keeps up to 256 MiB of freed heap for the next block; at the end of a stage
     whose arrays are all freed (a one-process run's prepare step), that memory would stay resident
-    under the next stage's own (make bench item 10: peaks of 857-945 MB over three runs, 8xx with it).
+    under the next stage's own (make bench item 10: peaks of 857, 909, 945 MB in three runs without
+    the trim, 846, 858, 872 MB with it).
     """
     import ctypes
 
