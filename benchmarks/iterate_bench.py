@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from lunaralbedo.settings import load_settings
 from lunaralbedo.engine.scene import build_scene
-from lunaralbedo.engine import kernels, pixelmajor, tilework
+from lunaralbedo.engine import tilework
 
 def cpu():
     t = resource.getrusage(resource.RUSAGE_SELF)
@@ -61,7 +61,8 @@ def timed(f, reps=3):
     return 1e9 * (cpu() - c0) / reps / m
 
 k = {}
-if "offsets" not in obs:  # an image-major cache (before the pixel-major layout): reordered once per tile in memory
+if "offsets" not in obs and "chunks" not in obs:  # an image-major cache (before the pixel-major layout): reordered once per tile in memory
+    from lunaralbedo.engine import pixelmajor
     pm = tilework.pixel_stack(blk(t), npix, cache)
     names = [x for x in obs if x not in ("pix", "start", "index")]
     k["reorder (once per tile in memory)"] = timed(lambda: pixelmajor.pixel_major(obs, npix, names), 1)

@@ -51,15 +51,14 @@ def test_local_cluster_matches_single_worker_byte_for_byte(scene, reference, tmp
     same_results(reference, out)
 
 
-def test_blocks_are_cached_pixel_major_and_read_as_they_are_over_the_memory_budget(scene, reference, tmp_path,
-                                                                                 monkeypatch):
+def test_blocks_are_cached_in_runs_and_read_as_they_are_over_the_memory_budget(scene, reference, tmp_path, monkeypatch):
     """The cache holds the iteration's order, so a block over the stack budget is read memory-mapped as it
     is (no reordering every pass) and gives the bytes of a run that keeps its stacks in memory; a cache
     of another layout (no ``layout`` in its meta) is prepared again, not misread; a finished tile's blocks
     are deleted by its finalise task."""
     import numpy as np
 
-    from lunaralbedo.engine import tilework
+    from lunaralbedo.engine import runs, tilework
     from lunaralbedo.engine.scene import build_scene
     from lunaralbedo.io.cache import load_stack, mapped
     from lunaralbedo.settings import load_settings
@@ -71,11 +70,15 @@ def test_blocks_are_cached_pixel_major_and_read_as_they_are_over_the_memory_budg
     assert tilework.prepare_tile(t, scene=sc, cache_root=cache)["reused"] is False
     folder = cache / sc.tiles[t].name
     arrays, _ = load_stack(folder / "block_0000")
-    offsets, pixels, image_of = (np.asarray(arrays[n]) for n in ("offsets", "pixels", "image_of"))
-    assert len(pixels) > 100 and np.all(np.diff(pixels) > 0) and np.all(np.diff(offsets) > 0)
-    assert offsets[-1] == len(arrays["image"]) == len(image_of) and (np.diff(offsets) > 1).any()
-    for j in range(len(pixels)):  # each pixel's images in tile order
-        assert np.all(np.diff(image_of[offsets[j]:offsets[j + 1]].astype(int)) > 0)
+    start, pixel = np.asarray(arrays["run_start"]), np.asarray(arrays["run_pixel"])
+    assert len(arrays["chunks"]) >= 2 and np.all(np.diff(start) > 0) and start[-1] == len(arrays["image"])
+    assert np.diff(start).mean() > 20  # runs are rows of the images' footprints, not single pixels
+    pix, img = runs.observation_pixels(arrays), runs.observation_images(arrays).astype(np.int64)
+    key = pix * len(arrays["index"]) + img
+    assert len(np.unique(key)) == len(key) and (np.bincount(pix) > 1).any()  # each observation once; pixels under several images
+    for c in range(len(arrays["chunks"]) - 1):  # each chunk image by image in tile order, then by pixel
+        o = slice(start[arrays["chunks"][c]], start[arrays["chunks"][c + 1]])
+        assert np.all(np.diff(img[o] * (pix.max() + 1) + pix[o]) > 0)
     meta = json.loads((folder / "meta.json").read_text())
     assert tilework.prepare_tile(t, scene=sc, cache_root=cache)["reused"] is True
     (folder / "meta.json").write_text(json.dumps({k: v for k, v in meta.items() if k != "layout"}))

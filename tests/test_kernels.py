@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from lunaralbedo.engine import kernels, pixelmajor, tilework
+from lunaralbedo.engine import kernels, runs, tilework
 from lunaralbedo.io.cache import MemoryCache, load_stack, mapped, save_stack
 from lunaralbedo.model import shadows, updates
 from lunaralbedo.model.photometry import REGISTRY, lunar_lambert
@@ -45,45 +45,61 @@ def _run(pm, kind, layers, params, t, n_par, shadow=kernels.NO_SHADOW_TEST, rati
     k = len(t)
     n_cols = n_par + 1 if n_par else 0
     en, ed, jtj, jtr = np.zeros(k), np.zeros(k), np.zeros((n_cols, n_cols)), np.zeros(n_cols)
-    alb = np.empty(len(pm["pixels"]), np.float32)
+    alb = np.full(pm["npix"], np.nan, np.float32)
     empty = pm["image"][:0]
-    q, n_obs, amin, amax = kernels.iterate_pixels(
-        kind, pm["offsets"], pm["image_of"], pm["image"], pm["weight"], *layers, np.asarray(params, np.float32), t,
-        n_par, n_cols, shadow, empty if ratio is None else ratio, np.float32(thresh), empty if alpha is None else alpha,
-        en, ed, jtj, jtr, alb)
-    full = np.full(pm["npix"], np.nan, np.float32)
-    full[pm["pixels"]] = alb
-    return dict(alb=full, q=q, n_obs=n_obs, en=en, ed=ed, jtj=jtj, jtr=jtr, amin=amin, amax=amax)
+    q, n_obs, amin, amax = kernels.iterate_runs(
+        kind, pm["chunks"], pm["run_start"], pm["run_pixel"], pm["run_image"], pm["image"], pm["weight"], *layers,
+        np.asarray(params, np.float32), t, n_par, n_cols, shadow, empty if ratio is None else ratio, np.float32(thresh),
+        empty if alpha is None else alpha, en, ed, jtj, jtr, alb)
+    return dict(alb=alb, q=q, n_obs=n_obs, en=en, ed=ed, jtj=jtj, jtr=jtr, amin=amin, amax=amax)
 
 
-def test_pixel_major_order_is_stable_and_complete():
+@pytest.mark.parametrize("chunk_px", [None, 64, 100])
+def test_chunk_runs_order_is_stable_and_complete(chunk_px):
+    """Chunks of consecutive pixels; in a chunk, images in tile order, each image's observations in runs of
+    consecutive pixels; every observation once, with its own value."""
     image, r, dr, wt, t = _stacks()
+    wt[2, 20, 14:16] = 0  # a hole inside an image's footprint: its row breaks into two runs
     obs = _compact(wt, image=image, weight=wt)
-    pm = pixelmajor.pixel_major(obs, wt[0].size, ["image", "weight"])
-    counts = np.diff(pm["offsets"])
-    pix = np.repeat(pm["pixels"], counts)
-    assert np.all(np.diff(pm["pixels"]) > 0) and counts.sum() == len(obs["pix"])
-    # within a pixel, images in tile order; every observation once, with its own value
-    key = pix.astype(np.int64) * len(t) + pm["image_of"]
-    assert np.all(np.diff(key) > 0)
-    np.testing.assert_array_equal(pm["image"], image[pm["image_of"], pix // wt.shape[2], pix % wt.shape[2]])
+    pm = runs.chunk_runs(obs, wt[0].size, ["image", "weight"], chunk_px)
+    cpx = chunk_px or runs.chunk_pixels(len(obs["pix"]), wt[0].size)
+    start, pixel, img = pm["run_start"], pm["run_pixel"], pm["run_image"].astype(int)
+    assert start[0] == 0 and start[-1] == len(obs["pix"]) and np.all(np.diff(start) > 0)
+    pix, im = runs.observation_pixels(pm), runs.observation_images(pm)
+    chunk = pix // cpx
+    assert np.all(np.diff(chunk) >= 0)  # chunk-major
+    assert np.all(chunk[start[:-1]] == chunk[start[1:] - 1])  # a run stays in its chunk
+    bounds = start[pm["chunks"]]  # the chunks' first observations
+    assert len(np.unique(chunk)) == len(pm["chunks"]) - 1 and np.all(np.diff(chunk)[bounds[1:-1] - 1] > 0)
+    key = chunk.astype(np.int64) * len(t) * wt[0].size + im.astype(np.int64) * wt[0].size + pix
+    assert np.all(np.diff(key) > 0)  # within a chunk: image by image in tile order, then by pixel
+    for c in range(len(pm["chunks"]) - 1):  # runs are maximal: neighbours in a chunk differ in image or break the pixels
+        r0, r1 = pm["chunks"][c], pm["chunks"][c + 1]
+        same = img[r0 + 1:r1] == img[r0:r1 - 1]
+        assert not np.any(same & (pixel[r0 + 1:r1] == pixel[r0:r1 - 1] + np.diff(start)[r0:r1 - 1]))
+    np.testing.assert_array_equal(pm["image"], image[im, pix // wt.shape[2], pix % wt.shape[2]])
+    np.testing.assert_array_equal(pm["weight"], wt[im, pix // wt.shape[2], pix % wt.shape[2]])
+    assert runs.pixel_extent(pm) == pix.max() + 1
+    if chunk_px == 64:  # the hole: image 2 has two runs on row 20 (columns 10..13 and 16..21)
+        assert np.count_nonzero((img == 2) & (pixel // wt.shape[2] == 20)) >= 2
 
 
-def test_pixel_major_moves_rows_of_one_array_without_copying_them():
-    """Arrays held as the rows of one array (as the prepare step holds them) are permuted in one pass, with the
+def test_chunk_runs_moves_rows_of_one_array_without_copying_them():
+    """Arrays held as the rows of one array (as the prepare step holds them) are reordered in one pass, with the
     result of separate arrays; rows of another order, or separate arrays, are stacked first."""
     image, r, dr, wt, t = _stacks()
     obs = _compact(wt, image=image, weight=wt, r=r)
     names = ["image", "weight", "r"]
     rows = np.stack([obs[n] for n in names])
     held = {**obs, **dict(zip(names, rows))}
-    assert pixelmajor._rows_of(held, names) is rows
-    assert pixelmajor._rows_of(held, names[::-1]) is not rows and pixelmajor._rows_of(obs, names).base is None
-    a, b = pixelmajor.pixel_major(obs, wt[0].size, names), pixelmajor.pixel_major(held, wt[0].size, names)
+    assert runs._rows_of(held, names) is rows
+    assert runs._rows_of(held, names[::-1]) is not rows and runs._rows_of(obs, names).base is None
+    a, b = runs.chunk_runs(obs, wt[0].size, names), runs.chunk_runs(held, wt[0].size, names)
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
 
 
-def test_fused_kernel_equals_the_numpy_formulas():
+@pytest.mark.parametrize("chunk_px", [None, 16, 100])
+def test_fused_kernel_equals_the_numpy_formulas(chunk_px):
     image, r, dr, wt, t = _stacks()
     k, h, w = image.shape
     tr = t[:, None, None] * r
@@ -94,7 +110,7 @@ def test_fused_kernel_equals_the_numpy_formulas():
     jtj, jtr = updates.phase_sums(res, alb, t, list(dr), r, wt)
 
     obs = _compact(wt, image=image, weight=wt, r=r, d0=dr[0], d1=dr[1])
-    pm = {**pixelmajor.pixel_major(obs, h * w, ["image", "weight", "r", "d0", "d1"]), "npix": h * w}
+    pm = {**runs.chunk_runs(obs, h * w, ["image", "weight", "r", "d0", "d1"], chunk_px), "npix": h * w}
     got = _run(pm, 0, (pm["r"], pm["d0"], pm["d1"]), (), t, 2)
     # per-pixel sums run over the images in the same order as NumPy's axis-0 sum: identical bytes
     np.testing.assert_array_equal(got["alb"].reshape(h, w), alb)
@@ -102,8 +118,8 @@ def test_fused_kernel_equals_the_numpy_formulas():
     # image axis bit for bit (its numerator over a blending sum that is 0 at some pixels, 2.5 elsewhere)
     blend = np.where(np.arange(h * w) % 7 == 0, 0.0, 2.5).astype(np.float32)
     alb2, err = np.empty(h * w, np.float32), np.empty(h * w, np.float32)
-    kernels.finalise_pixels(pm["offsets"], pm["pixels"], pm["image"], pm["image_of"], t, pm["r"], pm["weight"], blend,
-                            alb2, err)
+    kernels.finalise_runs(pm["chunks"], pm["run_start"], pm["run_pixel"], pm["run_image"], pm["image"], t, pm["r"],
+                          pm["weight"], blend, alb2, err)
     np.testing.assert_array_equal(alb2, got["alb"])
     num = updates._f64sum(updates.error_terms(image, alb[None], tr.astype(np.float32), wt), axis=0).ravel()
     assert np.count_nonzero(num) > 0.5 * h * w
@@ -132,7 +148,7 @@ def test_dynamic_shadow_test_is_dynamic_lit():
     image[:, 10:20] = (np.float32(thresh) * (t[:, None, None] * r))[:, 10:20]  # ratios on the threshold
     cos_i = np.random.default_rng(0).uniform(0.05, 1.0, image.shape).astype(np.float32)
     obs = _compact(wt, image=image, weight=wt, r=r, cos_i=cos_i)
-    pm = {**pixelmajor.pixel_major(obs, h * w, ["image", "weight", "r", "cos_i"]), "npix": h * w}
+    pm = {**runs.chunk_runs(obs, h * w, ["image", "weight", "r", "cos_i"]), "npix": h * w}
     for mode, rho in ((kernels.SHADOW_ON_R, r), (kernels.SHADOW_ON_LAYER, cos_i)):
         lit = shadows.dynamic_lit(image, rho, t[:, None, None], thresh)
         assert 0 < np.count_nonzero(lit & (wt > 0)) < np.count_nonzero(wt)
@@ -173,7 +189,7 @@ def test_fused_model_point_equals_its_numpy_functions(model):
     alpha = rng.uniform(0.05, 1.4, image.shape)
     layers = {n: np.asarray(v, np.float32) for n, v in model.layers(ci, ce, alpha).items()}
     obs = _compact(wt, image=image, weight=wt, **layers)
-    pm = {**pixelmajor.pixel_major(obs, h * w, ["image", "weight", *layers]), "npix": h * w}
+    pm = {**runs.chunk_runs(obs, h * w, ["image", "weight", *layers]), "npix": h * w}
     params = np.array([1.2, 0.4][: len(model.parameters)])
     n_par = len(model.parameters)
     r = model.reflectance_from(pm, params)
@@ -243,7 +259,7 @@ def test_models_without_point_and_more_parameters_take_the_generic_path():
     en, ed = updates.exposure_sums(image, alb, r, wt)
 
     obs = _compact(wt, image=image, weight=wt, **layers)
-    pm = pixelmajor.pixel_major(obs, h * w, ["image", "weight", *layers])
+    pm = runs.chunk_runs(obs, h * w, ["image", "weight", *layers])
     s = SimpleNamespace(model=model, shadow_type=shadows.NONE, shadow_thresh=0.0)
     state = tilework.SolveState(t.astype(np.float64), params)
     out = tilework.TileSums(index=pm["index"], n_params=3, exp_num=np.zeros(k), exp_den=np.zeros(k))
@@ -263,7 +279,7 @@ def test_sums_do_not_depend_on_anything_but_the_data():
     obs = _compact(wt, image=image, weight=wt, r=r, d0=dr[0])
     outs = []
     for _ in range(2):
-        pm = {**pixelmajor.pixel_major({n: v.copy() for n, v in obs.items()}, wt[0].size, ["image", "weight", "r", "d0"]),
+        pm = {**runs.chunk_runs({n: v.copy() for n, v in obs.items()}, wt[0].size, ["image", "weight", "r", "d0"]),
               "npix": wt[0].size}
         got = _run(pm, 0, (pm["r"], pm["d0"], pm["d0"]), (), t, 1)
         outs.append(tuple(np.asarray(v).tobytes() for v in got.values()))
@@ -281,10 +297,11 @@ def test_the_fused_kernel_is_vectorised():
 
     image, r, dr, wt, t = _stacks(seed=6)
     obs = _compact(wt, image=image, weight=wt, geometric=r, alpha=np.abs(dr[0]))
-    pm = pixelmajor.pixel_major(obs, wt[0].size, ["image", "weight", "geometric", "alpha"])
-    fresh = njit(error_model="numpy")(kernels.iterate_pixels.py_func)
+    pm = runs.chunk_runs(obs, wt[0].size, ["image", "weight", "geometric", "alpha"])
+    fresh = njit(error_model="numpy")(kernels.iterate_runs.py_func)
     k = len(t)
-    fresh(1, pm["offsets"], pm["image_of"], pm["image"], pm["weight"], pm["geometric"], pm["alpha"], pm["geometric"],
+    fresh(1, pm["chunks"], pm["run_start"], pm["run_pixel"], pm["run_image"], pm["image"], pm["weight"], pm["geometric"],
+          pm["alpha"], pm["geometric"],
           np.array([1.4, 0.5], np.float32), t, 2, 3, kernels.NO_SHADOW_TEST, pm["image"][:0], np.float32(0), pm["alpha"],
           np.zeros(k), np.zeros(k), np.zeros((3, 3)), np.zeros(3), np.empty(0, np.float32))
     asm = fresh.inspect_asm(fresh.signatures[0])
@@ -299,15 +316,20 @@ def test_the_fused_kernel_is_vectorised():
     assert len(packed) >= kernels.N_SUMS
 
 
-def test_a_pixel_seen_by_more_images_than_the_kernel_takes_is_an_error():
-    m = kernels.PIXEL_MAX + 1  # one pixel under more images than a uint16 image number holds
-    pm = {"offsets": np.array([0, m], np.int32), "pixels": np.zeros(1, np.int32), "image_of": np.arange(m, dtype=np.int32),
-          "image": np.ones(m, np.float32), "weight": np.ones(m, np.float32), "r": np.ones(m, np.float32), "npix": 1}
-    with pytest.raises(ValueError, match="PIXEL_MAX"):
-        _run(pm, 0, (pm["r"],) * 3, (), np.ones(m, np.float32), 0)
-    pm.update(offsets=np.array([0, m - 1], np.int32), image_of=pm["image_of"][:-1], **{n: pm[n][:-1] for n in ("image", "weight", "r")})
-    got = _run(pm, 0, (pm["r"],) * 3, (), np.ones(m - 1, np.float32), 0)
-    assert got["alb"][0] == 1 and got["n_obs"] == m - 1 and got["q"] == 0  # PIXEL_MAX observations of one pixel: fine
+def test_a_pixel_seen_by_more_images_than_uint16_numbers():
+    """70 000 images over one pixel: the runs number their images in int32, and the kernels take them."""
+    m = 70_000
+    obs = {"pix": np.zeros(m, np.int32), "start": np.arange(m + 1, dtype=np.int64), "index": np.arange(m, dtype=np.int32),
+           "image": np.full(m, 3.0, np.float32), "weight": np.ones(m, np.float32), "r": np.ones(m, np.float32)}
+    pm = {**runs.chunk_runs(obs, 1, ["image", "weight", "r"]), "npix": 1}
+    assert pm["run_image"].dtype == np.int32 and len(pm["run_start"]) == m + 1 and pm["run_image"][-1] == m - 1
+    t = np.full(m, 1.5, np.float32)
+    got = _run(pm, 0, (pm["r"],) * 3, (), t, 0)
+    assert got["alb"][0] == 2 and got["n_obs"] == m and got["q"] == 0 and np.all(got["en"] == 6) and np.all(got["ed"] == 4)
+    alb, err = np.empty(1, np.float32), np.empty(1, np.float32)
+    kernels.finalise_runs(pm["chunks"], pm["run_start"], pm["run_pixel"], pm["run_image"], pm["image"], t, pm["r"],
+                          pm["weight"], np.full(1, 2.0, np.float32), alb, err)
+    assert alb[0] == 2 and err[0] == 0
 
 
 def test_cached_arrays_are_read_only_file_mappings_equal_to_numpys(tmp_path):

@@ -1,14 +1,15 @@
-r"""Fused numba kernels of one iteration over a tile's compact observations (eqs. 1, 3, 4, 5, 7).
+r"""Fused numba kernels of one iteration over a block's compact observations (eqs. 1, 3, 4, 5, 7).
 
-The prepare step gathers observations as 1-D float32 arrays ordered by image, then by pixel
-(``pix``: flat index into the block; ``start[k]:start[k+1]`` are image ``k``'s) and caches
-them in pixel-major order (:func:`.pixelmajor.pixel_major`, once per block at prepare, see
-:mod:`.tilework`): :func:`iterate_pixels` computes each pixel's albedo and all the sums in
-one pass, with the photometric model's ``point`` (R and dR/dp) inline; finalise's
-:func:`finalise_pixels` sums each pixel's observations as it does.
-Every product is formed in float32 as the former NumPy code did and summed into float64
-accumulators in one fixed order (fixed lanes for the global sums), so results do not depend on
-workers or threads.  ``cache=True``, no fastmath (IEEE semantics, no reassociation).
+The prepare step caches each block's observations in chunk-major runs (:mod:`.runs`): chunks
+of consecutive pixels; within a chunk, each image's observations (images in tile order) in
+runs of consecutive pixels.  :func:`iterate_runs` computes, chunk by chunk, each pixel's
+albedo and all the sums of an iteration, with the photometric model's ``point`` (R and
+dR/dp) inline; finalise's :func:`finalise_runs` computes the albedo and eq. 7's error the
+same way.  Every product is formed in float32 as the NumPy formulas of
+:mod:`lunaralbedo.model.updates` form it and summed into float64 accumulators in one fixed
+order (each pixel's sums over its images in tile order; fixed lanes for the global sums), so
+results do not depend on workers or threads.  ``cache=True``, no fastmath (IEEE semantics, no
+reassociation).
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from numba import njit
 from ..model.photometry import lunar_lambert
 
 
-#: Dynamic shadow test of :func:`iterate_pixels` (eq. 1's mask of shadow types 2 and 3,
+#: Dynamic shadow test of :func:`iterate_runs` (eq. 1's mask of shadow types 2 and 3,
 #: :func:`lunaralbedo.model.shadows.dynamic_lit`): none, on the model's R, on a given layer.
 NO_SHADOW_TEST, SHADOW_ON_R, SHADOW_ON_LAYER = 0, 1, 2
 
@@ -44,59 +45,25 @@ def _point(kind, l0, l1, l2, params):
     return l0, l1, l2
 
 
-#: Observations per chunk of :func:`iterate_pixels` (whole pixels; a pixel with more is a chunk alone):
-#: 1024 keeps its ~50 KB of work rows near the core (the strip's biggest tile, the kernel as one function:
-#: 7.5-7.8 ns per observation with 4096, 6.6-7.1 ns with 1024, 6.8-7.4 ns with 256; docs/performance-history.md 0g).
-CHUNK = 1024
-#: Most observations of one pixel :func:`iterate_pixels` takes (a tile with fewer than 65536
-#: images always fits); with :data:`CHUNK` and a pad, the row length of its float32 work
-#: buffer, whose rows then start in different L1 sets.
-PIXEL_MAX = 65536
-STRIDE = PIXEL_MAX + CHUNK + 32
-#: Lanes of the global sums (Q, the normal equations): observation ``i``
-#: of a chunk goes to lane ``i % LANES``; lanes are combined in lane order at the end.
+#: Lanes of the global sums (Q, then the normal equations' b0, b1, b2, a00, a01, a02, a11, a12,
+#: a22): observation ``i`` of a chunk goes to lane ``i % LANES``; lanes are combined in lane order at the end.
 LANES = 64
-#: Lanes of each image's exposure sums, by position ``i % EXP_LANES`` in the chunk.
-EXP_LANES = 8
-#: Rows of the float32 work buffer; global sums (Q, then the normal equations' b0, b1, b2, a00,
-#: a01, a02, a11, a12, a22).
-_R, _D0, _D1, _T, _W, _A, _PN, _PD, _ROWS = range(9)
 N_SUMS = 10
+#: Lanes of each image's exposure sums (eq. 4): observation ``i`` of a run goes to lane ``i % EXP_LANES``.
+EXP_LANES = 32
+#: Float32 work rows of a chunk in :func:`iterate_runs`.
+_R, _D0, _D1, _T, _W, _A, _PN, _PD, _ROWS = range(9)
 # int32 keys of float32 bits for the phase-angle range (positive floats keep their bits, negative
 # ones get their magnitude bits flipped: the keys order as the floats do; NaN keys exceed +inf's)
 _MAG, _MAX32, _MIN32 = np.int32(0x7FFFFFFF), np.int32(0x7FFFFFFF), np.int32(-0x80000000)
 _INF_KEY, _NINF_KEY = np.int32(0x7F800000), np.int32(-0x7F800001)
 
 
-@njit(cache=True)
-def _carry_sums(s, p, first, n, half):
-    """One round of the per-pixel partial sums, between the two buffers of ``s`` (from the first
-    into the second when ``half`` is 1, else back): ``out[i] = (0 if first[i] else prev[i - 1]) + p[i]``
-    (elementwise, vectorised)."""
-    src = s[:STRIDE] if half == 1 else s[STRIDE:]
-    dst = s[STRIDE:] if half == 1 else s[:STRIDE]
-    dst[0] = 0.0 + p[0]
-    prev, out, p1, f1 = src[:n - 1], dst[1:n], p[1:n], first[1:n]
-    for k in range(n - 1):
-        out[k] = (0.0 if f1[k] else prev[k]) + p1[k]
-
-
-@njit(cache=True)
-def _carry_back(ends, src, dst, first, n, t):
-    """One round carrying each pixel's albedo back from its last observation: ``dst[i] = ends[i]``
-    where ``i`` ends a pixel, else ``src[i + 1]`` (``ends`` itself in the first round)."""
-    nxt = ends[1:n] if t == 1 else src[1:n]
-    e, out, last = ends[:n - 1], dst[:n - 1], first[1:n + 1]
-    for k in range(n - 1):
-        out[k] = e[k] if last[k] else nxt[k]
-    dst[n - 1] = ends[n - 1]
-
-
-# The loops of one chunk of :func:`iterate_pixels`, each its own function: LLVM vectorises a
-# small loop over a few arrays where, inlined into the one big function, it kept several of them
-# scalar (the normal equations' lanes: 2.5 ns per observation in the big function, 1.7 ns as their own).
-# They stay in this file: numba's cache checks a function's own file only, so loops inlined from
-# another module could run stale after an edit (docs/architecture.md).
+# The loops of one chunk, each its own function: LLVM vectorises a small loop over a few arrays
+# where, inlined into one big function, it kept several of them scalar (the normal equations'
+# lanes: 2.5 ns per observation in the big function, 1.7 ns as their own).  They stay in this
+# file: numba's cache checks a function's own file only, so loops inlined from another module
+# could run stale after an edit (docs/architecture.md).
 @njit(cache=True)
 def _model_rows(kind, g0, g1, g2, params, R, D0, D1, n):
     """R and dR/dp of each observation (:func:`_point`)."""
@@ -106,13 +73,6 @@ def _model_rows(kind, g0, g1, g2, params, R, D0, D1, n):
     else:
         for i in range(n):
             R[i], D0[i], D1[i] = g0[i], g1[i], g2[i]
-
-
-@njit(cache=True)
-def _exposures(ims, texp, T, n):
-    """Each observation's exposure (a gather: scalar)."""
-    for i in range(n):
-        T[i] = texp[ims[i]]
 
 
 @njit(cache=True, error_model="numpy")
@@ -134,40 +94,6 @@ def _alpha_keys(ab, W, n, kmin, kmax):
         kmin = min(kmin, key if used else _MAX32)
         kmax = max(kmax, key if used else _MIN32)
     return kmin, kmax
-
-
-@njit(cache=True)
-def _eq3_terms(img, T, R, W, PN, PD, SN, SD, n):
-    r"""Eq. 3's terms :math:`I\,TR\,w` and :math:`(TR)^2 w`, each observation's first partial sums, and the count of used observations."""
-    used = 0
-    for i in range(n):
-        wo = W[i]
-        used += wo > 0
-        tr = T[i] * R[i]
-        trw = tr * wo
-        pn = img[i] * trw
-        pd = tr * trw
-        PN[i] = pn
-        PD[i] = pd
-        SN[i] = 0.0 + pn
-        SD[i] = 0.0 + pd
-    return used
-
-
-@njit(cache=True, error_model="numpy")
-def _ratios(sn, sd, out, n):
-    """Eq. 3's quotient at every observation (float32; NaN where no weight)."""
-    for i in range(n):
-        out[i] = np.float32(sn[i] / sd[i]) if sd[i] > 0 else np.float32(np.nan)
-
-
-@njit(cache=True)
-def _finite(ap, A, n):
-    """The albedo of each observation's pixel, 0 where it has none (NaN)."""
-    zero = np.float32(0.0)
-    for i in range(n):
-        a = ap[i]
-        A[i] = a if a == a else zero
 
 
 @njit(cache=True)
@@ -212,66 +138,151 @@ def _normal_lanes(A, T, R, W, D0, D1, img, acc, n, n_par):
 
 
 @njit(cache=True)
-def _exposure_lanes(A, R, W, img, ims, PN, PD, expl, n):
-    """Eq. 4's terms, then each image's exposure sums in :data:`EXP_LANES` lanes by position (a scatter: scalar)."""
+def _chunk_extent(chunks, run_start, run_pixel):
+    """The most observations, pixels (first to last pixel of its runs) and runs of one chunk."""
+    most_obs, most_px, most_runs = 1, 1, 1
+    for c in range(chunks.shape[0] - 1):
+        r0, r1 = chunks[c], chunks[c + 1]
+        lo, hi = run_pixel[r0], run_pixel[r0]
+        for r in range(r0, r1):
+            lo = min(lo, run_pixel[r])
+            hi = max(hi, run_pixel[r] + run_start[r + 1] - run_start[r])
+        most_obs = max(most_obs, run_start[r1] - run_start[r0])
+        most_px = max(most_px, hi - lo)
+        most_runs = max(most_runs, r1 - r0)
+    return most_obs, most_px, most_runs
+
+
+@njit(cache=True)
+def _spans(run_start, run_pixel, r0, r1, lo, order, spans):
+    """The pixels of runs ``r0:r1`` as disjoint ``[start, end)`` rows of ``spans`` (pixels from
+    ``lo``; the union of the runs' intervals, ascending); returns their number."""
+    for i in range(r1 - r0):  # the runs by first pixel (insertion sort: a chunk has a few runs)
+        r = r0 + i
+        j = i
+        while j > 0 and run_pixel[order[j - 1]] > run_pixel[r]:
+            order[j] = order[j - 1]
+            j -= 1
+        order[j] = r
+    m = -1
+    for i in range(r1 - r0):
+        r = order[i]
+        a = run_pixel[r] - lo
+        b = a + run_start[r + 1] - run_start[r]
+        if m >= 0 and a <= spans[m, 1]:
+            spans[m, 1] = max(spans[m, 1], b)
+        else:
+            m += 1
+            spans[m, 0] = a
+            spans[m, 1] = b
+    return m + 1
+
+
+@njit(cache=True)
+def _zero_sums(SN, SD, n):
+    """A span's per-pixel float64 sums set to 0."""
+    for i in range(n):
+        SN[i] = 0.0
+        SD[i] = 0.0
+
+
+@njit(cache=True)
+def _eq3_run(img, R, W, t, SN, SD, n):
+    r"""Eq. 3's terms :math:`I\,TR\,w` and :math:`(TR)^2 w` of one run (one image, exposure ``t``)
+    added to its consecutive pixels' float64 sums; returns the count of used observations."""
+    used = 0
+    for i in range(n):
+        wo = W[i]
+        used += wo > 0
+        tr = t * R[i]
+        trw = tr * wo
+        SN[i] += img[i] * trw
+        SD[i] += tr * trw
+    return used
+
+
+@njit(cache=True, error_model="numpy")
+def _albedo_span(SN, SD, out, n):
+    """Eq. 3's quotient of a span's pixels (float32; NaN where no weight)."""
+    for i in range(n):
+        out[i] = np.float32(SN[i] / SD[i]) if SD[i] > 0 else np.float32(np.nan)
+
+
+@njit(cache=True)
+def _albedo_obs(AP, A, n):
+    """The albedo of each observation of a run, from its consecutive pixels, 0 where they have none (NaN)."""
+    zero = np.float32(0.0)
+    for i in range(n):
+        a = AP[i]
+        A[i] = a if a == a else zero
+
+
+@njit(cache=True)
+def _exposure_terms(A, R, W, img, PN, PD, n):
+    r"""Eq. 4's terms :math:`I\,AR\,w` and :math:`(AR)^2 w` of each observation."""
     for i in range(n):
         ar = A[i] * R[i]
         arw = ar * W[i]
         PN[i] = img[i] * arw
         PD[i] = ar * arw
-    for i in range(n):
-        e = (ims[i] * EXP_LANES + i % EXP_LANES) * 2
-        expl[e] += PN[i]
-        expl[e + 1] += PD[i]
+
+
+@njit(cache=True)
+def _run_lanes(PN, PD, lanes, n):
+    """One run's eq. 4 terms into its image's :data:`EXP_LANES` lanes (numerator, then denominator), by position in the run."""
+    for g in range(0, n, EXP_LANES):
+        pn, pd = PN[g:g + EXP_LANES], PD[g:g + EXP_LANES]
+        for lane in range(min(EXP_LANES, n - g)):
+            lanes[lane] += pn[lane]
+            lanes[EXP_LANES + lane] += pd[lane]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")  # IEEE division: I / 0 is inf (lit), 0 / 0 NaN (shadow)
-def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, n_par, n_cols,
-                   shadow, ratio, thresh, alpha, exp_num, exp_den, jtj, jtr, alb):
-    r"""One iteration over pixel-major observations: albedo (eq. 3), then Q (eq. 1), the exposure
-    sums (eq. 4) and the parameters' normal equations (eq. 5), pixel by pixel.
+def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1, l2, params, texp, n_par, n_cols,
+                 shadow, ratio, thresh, alpha, exp_num, exp_den, jtj, jtr, alb):
+    r"""One iteration over a block's observations in chunk-major runs (:mod:`.runs`): albedo
+    (eq. 3), then Q (eq. 1), the exposure sums (eq. 4) and the parameters' normal equations
+    (eq. 5), chunk by chunk.
 
     ``kind`` picks the model's ``point(l0, l1, l2, params) -> (R, dR/dp_0, dR/dp_1)``
     (:data:`POINT_KINDS`, :mod:`lunaralbedo.model.photometry.pointwise`); 0: the layers are R
-    and its derivatives.  ``params`` and the layers are float32.  ``texp`` (float32) are the exposures of the
-    local images ``image_of``.  ``shadow``/``ratio``/``thresh``: dynamic shadow test
-    :math:`I/(\rho T) \ge t` on R or on the layer ``ratio`` (:data:`SHADOW_ON_R`, ...).
+    and its derivatives.  ``params`` and the layers are float32.  ``texp`` (float32) are the
+    exposures of the local images ``run_image``.  ``shadow``/``ratio``/``thresh``: dynamic
+    shadow test :math:`I/(\rho T) \ge t` on R or on the layer ``ratio`` (:data:`SHADOW_ON_R`, ...).
     ``n_cols`` Jacobian columns (``n_par`` derivatives, then R; 0: no parameter sums); ``alpha``
     (size 0: not wanted) gives the phase-angle range of the used observations.  ``exp_num``,
     ``exp_den`` (float64) are added to, ``jtj``, ``jtr`` (float64) filled; ``alb`` (float32 per
-    pixel, or size 0) gets the albedo.  Returns ``(Q, n_obs, alpha_min, alpha_max)``.
+    pixel of the block, or size 0) gets the albedo where the block has observations.  Returns
+    ``(Q, n_obs, alpha_min, alpha_max)``.
 
-    Observations go in chunks of whole pixels, in flat loops over the chunk, nearly all of them
-    elementwise so that LLVM vectorises them (AVX2; ``tests/test_kernels.py`` checks the packed
-    instructions): R and dR/dp (the model's ``point``, whose ``exp`` is
-    :mod:`~lunaralbedo.model.photometry.vexp`), the weights after the shadow test, eq. 3's terms,
-    each pixel's albedo, then the terms of the sums.  The float32 products are formed as the
-    former image-major NumPy code formed them.  Eq. 3's float64 sums run over each pixel's
-    observations in tile order, ``((0 + p0) + p1) + ...``, as :func:`albedo` sums them, so the
-    albedo is the same bits; they are built for every observation at once, round ``t`` extending
-    each partial sum by one more observation (:func:`_carry_sums`), and the albedo is carried
-    back from each pixel's last observation (:func:`_carry_back`).  The global sums (Q and the
-    normal equations) go to :data:`LANES` float64 lanes by position in the chunk, updated
-    elementwise (vectorised with no sum reassociated), each image's exposure sums to
-    :data:`EXP_LANES` lanes (a scatter: scalar, as is the gather of the exposures); lanes are
+    A chunk's loops are flat over its observations where they need no pixel (R and dR/dp, whose
+    ``exp`` is :mod:`~lunaralbedo.model.photometry.vexp`; the weights after the shadow test;
+    eq. 4's terms; the lanes of the global sums) and run by run where they do: a run's terms
+    add into its consecutive pixels' float64 sums, and its pixels' albedo is read back, as
+    contiguous slices, so nearly every loop is elementwise and LLVM vectorises it
+    (``tests/test_kernels.py`` checks the packed instructions).  Eq. 3's sums of a pixel run
+    over its images in tile order, ``((0 + p0) + p1) + ...``, as :func:`lunaralbedo.model.updates.albedo`
+    sums them: the same bits.  The quotient is taken once per pixel, over the union of the
+    chunk's runs (:func:`_spans`).  The global sums (Q and the normal equations) go to
+    :data:`LANES` float64 lanes by position in the chunk, each image's exposure sums to
+    :data:`EXP_LANES` lanes by position in its run (a run has one image: no gather of exposures,
+    no scatter of sums), updated elementwise (vectorised with no sum reassociated); lanes are
     added in lane order at the end.  These sums equal image-major ones within float64 rounding,
     in one order fixed by the data alone: no dependence on workers or threads.  The phase-angle
     range is an integer min / max of the angles' bits (order-free, vectorised).  The float32 work
     rows are slices of one array at constant distances: LLVM then sees that they do not overlap
     (numba arrays carry no ``noalias``; too many possibly overlapping arrays and it gives up).
-    Each loop is a small function of its own (``_model_rows`` ... ``_exposure_lanes``): LLVM
-    vectorises each before it is inlined, where the loops written out in this one function left
-    the lanes of the normal equations scalar (docs/performance-history.md, section 0g).  Chunks of
-    :data:`CHUNK` observations keep the work rows in the L1/L2 caches.
     """
     nimg = texp.shape[0]
-    buf = np.empty(_ROWS * STRIDE, np.float32)
-    R, D0, D1 = buf[_R * STRIDE:(_R + 1) * STRIDE], buf[_D0 * STRIDE:(_D0 + 1) * STRIDE], buf[_D1 * STRIDE:(_D1 + 1) * STRIDE]
-    T, W, A = buf[_T * STRIDE:(_T + 1) * STRIDE], buf[_W * STRIDE:(_W + 1) * STRIDE], buf[_A * STRIDE:(_A + 1) * STRIDE]
-    PN, PD = buf[_PN * STRIDE:(_PN + 1) * STRIDE], buf[_PD * STRIDE:(_PD + 1) * STRIDE]
-    sums64 = np.empty(4 * STRIDE)  # eq. 3's float64 partial sums (numerator, denominator), two buffers each
-    SN, SD = sums64[:2 * STRIDE], sums64[2 * STRIDE:]
-    first = np.empty(STRIDE + 1, np.uint8)  # 1 where a pixel starts
+    most_obs, most_px, most_runs = _chunk_extent(chunks, run_start, run_pixel)
+    stride = most_obs + 32  # rows start in different L1 sets
+    buf = np.empty(_ROWS * stride, np.float32)
+    R, D0, D1 = buf[_R * stride:(_R + 1) * stride], buf[_D0 * stride:(_D0 + 1) * stride], buf[_D1 * stride:(_D1 + 1) * stride]
+    T, W, A = buf[_T * stride:(_T + 1) * stride], buf[_W * stride:(_W + 1) * stride], buf[_A * stride:(_A + 1) * stride]
+    PN, PD = buf[_PN * stride:(_PN + 1) * stride], buf[_PD * stride:(_PD + 1) * stride]
+    SN, SD = np.empty(most_px), np.empty(most_px)  # eq. 3's float64 sums of the chunk's pixels
+    AP = np.empty(most_px, np.float32)
+    order, spans = np.empty(most_runs, np.int32), np.empty((most_runs, 2), np.int32)
     acc = np.zeros(N_SUMS * LANES)
     expl = np.zeros(2 * nimg * EXP_LANES)
     want_alb = alb.shape[0] > 0
@@ -280,66 +291,54 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
     n_obs = 0
     abits = alpha.view(np.int32)
     kmin, kmax = _MAX32, _MIN32
-    npx = offsets.shape[0] - 1
-    j0 = 0
-    while j0 < npx:
-        s0 = offsets[j0]
-        j1 = max(j0 + 1, np.searchsorted(offsets, s0 + CHUNK, "right") - 1)  # whole pixels, <= CHUNK observations
-        s1 = offsets[j1]
+    for c in range(chunks.shape[0] - 1):
+        r0, r1 = chunks[c], chunks[c + 1]
+        s0, s1 = run_start[r0], run_start[r1]
         n = s1 - s0
-        npc = j1 - j0
-        if n > PIXEL_MAX:
-            raise ValueError("a pixel with more observations than iterate_pixels takes (PIXEL_MAX)")
-        off = offsets[j0:j1 + 1]
-        most = 0  # most observations of one pixel in the chunk
-        for jj in range(npc):
-            most = max(most, off[jj + 1] - off[jj])
-        img, wgt, ims = image[s0:s1], w[s0:s1], image_of[s0:s1]
+        lo = run_pixel[r0]
+        for r in range(r0, r1):
+            lo = min(lo, run_pixel[r])
+        img, wgt = image[s0:s1], w[s0:s1]
         _model_rows(kind, l0[s0:s1], l1[s0:s1], l2[s0:s1], params, R, D0, D1, n)
-        _exposures(ims, texp, T, n)
+        for r in range(r0, r1):
+            T[run_start[r] - s0:run_start[r + 1] - s0] = texp[run_image[r]]
         if shadow_on:
             _lit_weights(img, wgt, ratio[s0:s1] if shadow == SHADOW_ON_LAYER else R, T, thresh, W, n)
         else:
             W[:n] = wgt
         if want_alpha:
             kmin, kmax = _alpha_keys(abits[s0:s1], W, n, kmin, kmax)
-        n_obs += _eq3_terms(img, T, R, W, PN, PD, SN, SD, n)
-        # eq. 3 per pixel, over the observations: each one's partial sums of its pixel's terms in
-        # tile order (round t extends them by one more observation back: ((0 + p0) + p1) + ...,
-        # the order of albedo()), the albedo where they end, then carried back over the pixel
-        first[:n + 1] = 0
-        for jj in range(npc):
-            first[off[jj] - s0] = 1
-        first[n] = 1  # past the last pixel
-        for t in range(1, most):
-            _carry_sums(SN, PN, first, n, t % 2)
-            _carry_sums(SD, PD, first, n, t % 2)
-        sn = SN[STRIDE:] if most % 2 == 0 else SN[:STRIDE]
-        sd = SD[STRIDE:] if most % 2 == 0 else SD[:STRIDE]
-        _ratios(sn, sd, PN, n)
-        for t in range(1, most):
-            _carry_back(PN, A if t % 2 == 1 else PD, PD if t % 2 == 1 else A, first, n, t)
-        ap = PN if most == 1 else (PD if most % 2 == 0 else A)  # the albedo of each observation's pixel
-        if want_alb:
-            for jj in range(npc):
-                alb[j0 + jj] = ap[off[jj] - s0]
-        _finite(ap, A, n)
+        nsp = _spans(run_start, run_pixel, r0, r1, lo, order, spans)
+        for q in range(nsp):
+            _zero_sums(SN[spans[q, 0]:spans[q, 1]], SD[spans[q, 0]:spans[q, 1]], spans[q, 1] - spans[q, 0])
+        for r in range(r0, r1):
+            a, b, p = run_start[r] - s0, run_start[r + 1] - s0, run_pixel[r] - lo
+            n_obs += _eq3_run(img[a:b], R[a:b], W[a:b], texp[run_image[r]], SN[p:p + b - a], SD[p:p + b - a], b - a)
+        for q in range(nsp):
+            a, b = spans[q, 0], spans[q, 1]
+            _albedo_span(SN[a:b], SD[a:b], AP[a:b], b - a)
+            if want_alb:
+                alb[lo + a:lo + b] = AP[a:b]
+        for r in range(r0, r1):
+            a, b, p = run_start[r] - s0, run_start[r + 1] - s0, run_pixel[r] - lo
+            _albedo_obs(AP[p:p + b - a], A[a:b], b - a)
+        _exposure_terms(A, R, W, img, PN, PD, n)
+        for r in range(r0, r1):
+            a, b, k = run_start[r] - s0, run_start[r + 1] - s0, run_image[r]
+            _run_lanes(PN[a:b], PD[a:b], expl[2 * EXP_LANES * k:2 * EXP_LANES * (k + 1)], b - a)
         if n_cols:
             _normal_lanes(A, T, R, W, D0, D1, img, acc, n, n_par)
         else:
             _cost_lanes(A, T, R, W, img, acc, n)
-        _exposure_lanes(A, R, W, img, ims, PN, PD, expl, n)
-        j0 = j1
     sums = np.zeros(N_SUMS)
     for m in range(N_SUMS):
         for lane in range(LANES):
             sums[m] += acc[m * LANES + lane]
     for k in range(nimg):
-        num = 0.0
-        den = 0.0
+        num, den = 0.0, 0.0
         for lane in range(EXP_LANES):
-            num += expl[(k * EXP_LANES + lane) * 2]
-            den += expl[(k * EXP_LANES + lane) * 2 + 1]
+            num += expl[2 * EXP_LANES * k + lane]
+            den += expl[2 * EXP_LANES * k + EXP_LANES + lane]
         exp_num[k] += num
         exp_den[k] += den
     if n_cols:
@@ -355,19 +354,28 @@ def iterate_pixels(kind, offsets, image_of, image, w, l0, l1, l2, params, texp, 
     return sums[0], n_obs, amin, amax
 
 
-@njit(cache=True, nogil=True, error_model="numpy")  # IEEE division, as the NumPy formulas (model/updates.albedo, error_terms)
-def finalise_pixels(offsets, pixels, image, image_of, texp, r, w, blend, alb, err):
-    r"""Eq. 3's albedo and eq. 7's error of a block's pixel-major observations, in one pass, into ``alb`` and ``err``.
+@njit(cache=True)
+def _error_run(img, r, w, t, a, E, n):
+    r"""Eq. 7's terms :math:`(I/(TR) - A)^2 w` (where :math:`w > 0`) of one run added to its consecutive pixels' float64 sums."""
+    for i in range(n):
+        if w[i] > 0:
+            dev = img[i] / (t * r[i]) - a[i]
+            E[i] += dev * dev * w[i]
 
-    ``texp`` (float32) are the exposures of the local images ``image_of``, ``r`` the model's R
+
+@njit(cache=True, nogil=True, error_model="numpy")  # IEEE division, as the NumPy formulas (model/updates.albedo, error_terms)
+def finalise_runs(chunks, run_start, run_pixel, run_image, image, texp, r, w, blend, alb, err):
+    r"""Eq. 3's albedo and eq. 7's error of a block's observations in chunk-major runs, into ``alb`` and ``err``.
+
+    ``texp`` (float32) are the exposures of the local images ``run_image``, ``r`` the model's R
     and ``w`` the weights of the observations (float32); ``blend`` (per pixel) eq. 7's
     denominator, the sum of blending weights.  ``alb`` (float32 per pixel of the block) gets
     :math:`A = \sum I\,TR\,w / \sum (TR)^2 w` (NaN where no weight), each pixel's float64
-    sums over its images in tile order, as :func:`iterate_pixels` sums them (the same bits);
+    sums over its images in tile order, as :func:`iterate_runs` sums them (the same bits);
     ``err`` (float32 per pixel, or size 0: not wanted) gets
-    :math:`\sum_{w>0} (I/(TR) - A)^2 w / \sum S` (float64 numerator and quotient; 0 where
-    the pixel has a blending weight and no observation, NaN where it has none), the bits of the
-    former NumPy code (``np.where(den > 0, num / den, nan)`` cast to float32).
+    :math:`\sum_{w>0} (I/(TR) - A)^2 w / \sum S` (float64 numerator and quotient, its terms in
+    the same order; 0 where the pixel has a blending weight and no observation, NaN where it has
+    none), the bits of the NumPy formulas (``np.where(den > 0, num / den, nan)`` cast to float32).
     """
     nan = np.float32(np.nan)
     want_err = err.shape[0] > 0
@@ -376,21 +384,31 @@ def finalise_pixels(offsets, pixels, image, image_of, texp, r, w, blend, alb, er
     if want_err:
         for p in range(err.shape[0]):
             err[p] = np.float32(0.0 / blend[p]) if blend[p] > 0 else nan
-    for j in range(pixels.shape[0]):
-        p = pixels[j]
-        num, den = 0.0, 0.0
-        for o in range(offsets[j], offsets[j + 1]):
-            tr = texp[image_of[o]] * r[o]
-            trw = tr * w[o]
-            num += image[o] * trw
-            den += tr * trw
-        if den > 0:
-            alb[p] = num / den
-        if want_err and blend[p] > 0:
-            a = alb[p]
-            acc = 0.0
-            for o in range(offsets[j], offsets[j + 1]):
-                if w[o] > 0:
-                    dev = image[o] / (texp[image_of[o]] * r[o]) - a
-                    acc += dev * dev * w[o]
-            err[p] = acc / blend[p]
+    most_obs, most_px, most_runs = _chunk_extent(chunks, run_start, run_pixel)
+    SN, SD = np.empty(most_px), np.empty(most_px)
+    order, spans = np.empty(most_runs, np.int32), np.empty((most_runs, 2), np.int32)
+    for c in range(chunks.shape[0] - 1):
+        r0, r1 = chunks[c], chunks[c + 1]
+        lo = run_pixel[r0]
+        for rr in range(r0, r1):
+            lo = min(lo, run_pixel[rr])
+        nsp = _spans(run_start, run_pixel, r0, r1, lo, order, spans)
+        for q in range(nsp):
+            _zero_sums(SN[spans[q, 0]:spans[q, 1]], SD[spans[q, 0]:spans[q, 1]], spans[q, 1] - spans[q, 0])
+        for rr in range(r0, r1):
+            a, b, p = run_start[rr], run_start[rr + 1], run_pixel[rr] - lo
+            _eq3_run(image[a:b], r[a:b], w[a:b], texp[run_image[rr]], SN[p:p + b - a], SD[p:p + b - a], b - a)
+        for q in range(nsp):
+            a, b = spans[q, 0], spans[q, 1]
+            _albedo_span(SN[a:b], SD[a:b], alb[lo + a:lo + b], b - a)
+        if not want_err:
+            continue
+        for q in range(nsp):  # SN holds eq. 7's numerators now
+            _zero_sums(SN[spans[q, 0]:spans[q, 1]], SD[spans[q, 0]:spans[q, 1]], spans[q, 1] - spans[q, 0])
+        for rr in range(r0, r1):
+            a, b, p = run_start[rr], run_start[rr + 1], run_pixel[rr] - lo
+            _error_run(image[a:b], r[a:b], w[a:b], texp[run_image[rr]], alb[lo + p:lo + p + b - a], SN[p:p + b - a], b - a)
+        for q in range(nsp):
+            for j in range(spans[q, 0], spans[q, 1]):
+                if blend[lo + j] > 0:
+                    err[lo + j] = SN[j] / blend[lo + j]

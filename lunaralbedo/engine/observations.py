@@ -266,7 +266,7 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut, po
     names = model.layer_names + (("cos_i",) if with_cos_i else ())
     counts = [len(e[3]) for e in kept]
     start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    values = np.empty((2 + len(names), int(start[-1])), np.float32)  # one array: pixelmajor.pixel_major moves its rows at once
+    values = np.empty((2 + len(names), int(start[-1])), np.float32)  # one array: runs.chunk_runs moves its rows at once
     obs = {"pix": np.empty(int(start[-1]), np.int32), **dict(zip(("image", "weight", *names), values))}
     obs["index"] = np.array([e[0] for e in kept], np.int32)
     obs["start"] = start

@@ -8,9 +8,9 @@ iteration's partial sums from them in one fused pass (:mod:`.kernels`); ``finali
 
 Cache layout of a tile (``OUTDIR/checkpoint/cache/<tile>/``): one folder per block of
 rows, ``block_0000/`` ... (a :func:`~lunaralbedo.io.cache.save_stack` entry each: the
-block's observations in pixel-major order (:func:`.pixelmajor.pixel_major`: ``offsets``,
-``pixels`` relative to the block, ``image_of``, ``index``, then ``image``, ``weight`` and the
-model's layers) and ``tile_*`` per-pixel arrays), the tile's outputs known once it is
+block's observations in chunk-major runs (:func:`.runs.chunk_runs`: ``chunks``,
+``run_start``, ``run_pixel`` relative to the block, ``run_image``, ``index``, then ``image``,
+``weight`` and the model's layers) and ``tile_*`` per-pixel arrays), the tile's outputs known once it is
 prepared (``DEM.tif``, ``weightsSum.tif``: :data:`KNOWN_OUTPUTS`), then ``meta.json`` (written last: the
 tile is complete) with the initialisation sums, ``blocks``, the ``[b0, b1]`` rows of each
 block, and ``layout`` (:data:`CACHE_LAYOUT`; a cache of another layout is prepared again).
@@ -32,7 +32,7 @@ from ..io.cachewriter import CacheWriter
 from ..io.rasters import write_geotiff
 from ..model import exposure_init, shadows, updates
 from ..parallel.ahead import ahead, helper
-from . import kernels, observations, pixelmajor
+from . import kernels, observations, runs
 from .scene import Scene
 
 
@@ -70,8 +70,8 @@ class TileSums:
 
 
 #: Version of the cache layout above (2: pixel-major observations; 3: the DEM and weight-sum
-#: tiles as GeoTIFFs in the entry, no cached DEM); ``meta.json`` records it.
-CACHE_LAYOUT = 3
+#: tiles as GeoTIFFs in the entry, no cached DEM; 4: chunk-major runs); ``meta.json`` records it.
+CACHE_LAYOUT = 4
 #: Folder of the cache root where finished tiles' blocks go to be deleted in the background.
 TRASH = ".discarded"
 #: GeoTIFF predictor of the error tiles: none (1).  Eq. 7's error has no smooth rows for the
@@ -85,7 +85,7 @@ ERROR_PREDICTOR = 1
 #: 4000 x 4000 px tile 176 -> 125 ms, 8.9 -> 5.8 MB).
 WEIGHTS_SUM_PREDICTOR = 2
 #: Blocks whose observations take at most this many bytes are reduced (initialisation sums,
-#: pixel-major order) on a helper thread while the next block is gathered, when the prepare
+#: chunk-major runs) on a helper thread while the next block is gathered, when the prepare
 #: step has helpers; bigger ones in the task's thread (a block less held at once: make bench
 #: item 10's blocks of a 4000 x 4000 px tile raised its peak by 120 MB when reduced ahead).
 AHEAD_BYTES = 64 * 2**20
@@ -154,10 +154,10 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
     known = {}  # the tile's outputs that do not depend on the solve (DEM, weight sums), assembled block by block
     width = tile.width
 
-    def reduce(block):  # the initialisation sums and the pixel-major order of a block
+    def reduce(block):  # the initialisation sums and the chunk-major runs of a block
         b0, b1, obs, per_pixel = block
         names = [n for n in obs if n not in ("pix", "start", "index")]
-        return b0, b1, per_pixel, _init_sums(scene, obs, width), pixelmajor.pixel_major(obs, (b1 - b0) * width, names)
+        return b0, b1, per_pixel, _init_sums(scene, obs, width), runs.chunk_runs(obs, (b1 - b0) * width, names)
 
     big = lambda block: sum(a.nbytes for a in block[2].values()) > AHEAD_BYTES  # noqa: E731
     for b0, b1, per_pixel, part, pm in ahead(reduce, observations.gather_blocks(scene, t, lut, helpers),
@@ -217,11 +217,11 @@ def _init_sums(scene: Scene, obs, width: int) -> dict:
 
 # --------------------------------------------------------------------------- iterate
 def tile_model(scene: Scene, obs, state: SolveState):
-    """The model of a block's pixel-major observations for the given exposures and model parameters.
+    """The model of a block's observations (chunk-major runs) for the given exposures and model parameters.
 
     Returns ``(R, w, T)``: R (float32 per observation), the weights with the dynamic shadow
-    mask (eq. 1), and the exposures of the block's local images (float32; ``obs["image_of"]``
-    numbers them), which :func:`kernels.finalise_pixels` takes.
+    mask (eq. 1), and the exposures of the block's local images (float32; ``obs["run_image"]``
+    numbers them), which :func:`kernels.finalise_runs` takes.
     """
     s = scene.settings
     texp = state.exposure[obs["index"]].astype(np.float32)
@@ -229,11 +229,12 @@ def tile_model(scene: Scene, obs, state: SolveState):
     w = obs["weight"]
     if s.shadow_type in (shadows.LAMBERT_RATIO, shadows.LUNAR_LAMBERT_RATIO) and s.model.needs_geometry:
         rr = obs["cos_i"] if (s.shadow_type == shadows.LAMBERT_RATIO and "cos_i" in obs) else r
-        w = np.where(shadows.dynamic_lit(obs["image"], rr, texp[obs["image_of"]], s.shadow_thresh), w, 0.0).astype(np.float32)
+        t_obs = texp[runs.observation_images(obs)]
+        w = np.where(shadows.dynamic_lit(obs["image"], rr, t_obs, s.shadow_thresh), w, 0.0).astype(np.float32)
     return r, w, texp
 
 
-#: Pixel-major observations of the blocks this process iterates stay in memory within this
+#: The observations of the blocks this process iterates stay in memory within this
 #: budget (bytes; environment variable ``LUNARALBEDO_STACK_MEMORY_MB``, default 512); blocks
 #: beyond it are read from the memory-mapped cache every iteration (no reordering: the cache
 #: holds the iteration's order).
@@ -241,14 +242,14 @@ STACKS = MemoryCache(int(float(os.environ.get("LUNARALBEDO_STACK_MEMORY_MB", "51
 
 
 def pixel_stack(folder: Path, cache_root: Path) -> dict:
-    """The pixel-major observations of one cached block, from :data:`STACKS` (memory-mapped if over its budget)."""
+    """The observations (chunk-major runs) of one cached block, from :data:`STACKS` (memory-mapped if over its budget)."""
     return STACKS.get(folder, lambda arrays, meta: _split(arrays)[0], group=cache_root)
 
 
 def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> TileSums:
     """Partial sums of one iteration over tile ``t`` (eqs. 1, 3, 4, 5): its blocks' sums added in block order.
 
-    Each block's observations, in pixel-major order, come from :data:`STACKS` (kept in memory
+    Each block's observations, in chunk-major runs, come from :data:`STACKS` (kept in memory
     across iterations within its budget) and run through one fused kernel (:func:`iterate_block`).
     """
     folder = _cache_dir(cache_root, scene, t)
@@ -280,7 +281,7 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
 
 
 def iterate_block(arrays: dict, s, state: SolveState, phase: bool, out: TileSums) -> None:
-    """Add one block of pixel-major observations (all of a tile, or rows of it) to ``out``.
+    """Add one block of observations in chunk-major runs (all of a tile, or rows of it) to ``out``.
 
     The model's ``point`` runs inside the kernel (:data:`.kernels.POINT_KINDS`); a model without
     one gives R and its derivatives as NumPy arrays (also when it fits more than two parameters:
@@ -307,10 +308,11 @@ def iterate_block(arrays: dict, s, state: SolveState, phase: bool, out: TileSums
         else:
             shadow = kernels.SHADOW_ON_R
     alpha = arrays["alpha"] if (n_par and "alpha" in arrays) else arrays["image"][:0]
-    alb = np.empty(len(arrays["pixels"]) if n_par > 2 else 0, np.float32)
+    alb = np.full(runs.pixel_extent(arrays) if n_par > 2 else 0, np.nan, np.float32)
     jtj, jtr = np.zeros((n_cols, n_cols)), np.zeros(n_cols)
-    q, n_obs, amin, amax = kernels.iterate_pixels(
-        kind, arrays["offsets"], arrays["image_of"], arrays["image"], arrays["weight"], *layers, params, texp,
+    q, n_obs, amin, amax = kernels.iterate_runs(
+        kind, arrays["chunks"], arrays["run_start"], arrays["run_pixel"], arrays["run_image"], arrays["image"],
+        arrays["weight"], *layers, params, texp,
         n_par, n_cols, shadow, ratio, np.float32(s.shadow_thresh), alpha, out.exp_num, out.exp_den, jtj, jtr, alb)
     if n_par > 2:  # no such model yet: the normal equations in NumPy
         jtj, jtr = _normal_equations(arrays, alb, texp, layers[0], dr, ratio if shadow == kernels.SHADOW_ON_LAYER else None,
@@ -324,9 +326,9 @@ def iterate_block(arrays: dict, s, state: SolveState, phase: bool, out: TileSums
 
 
 def _normal_equations(arrays, alb, texp, r, dr, ratio, thresh):
-    """Eq. 5's sums in NumPy (pixel-major observations; ``thresh`` None: no dynamic shadow test)."""
-    a = np.repeat(np.nan_to_num(alb), np.diff(arrays["offsets"]))
-    t_obs = texp[arrays["image_of"]]
+    """Eq. 5's sums in NumPy (chunk-major runs; ``alb`` per pixel of the block; ``thresh`` None: no dynamic shadow test)."""
+    a = np.nan_to_num(alb)[runs.observation_pixels(arrays)]
+    t_obs = texp[runs.observation_images(arrays)]
     w = arrays["weight"]
     if thresh is not None:
         w = np.where(shadows.dynamic_lit(arrays["image"], r if ratio is None else ratio, t_obs, thresh), w, 0).astype(np.float32)
@@ -389,9 +391,9 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
                 err[b0:b1] = np.nan
             continue
         r, w, texp = tile_model(scene, obs, state)
-        kernels.finalise_pixels(obs["offsets"], obs["pixels"], obs["image"], obs["image_of"], texp, r, w,
-                                per_pixel.get("wblend_sum", per_pixel["weights_sum"]).ravel(),  # eq. 7's sum of blending weights
-                                alb[b0:b1].reshape(-1), err[b0:b1].reshape(-1) if want_err else no_err)
+        kernels.finalise_runs(obs["chunks"], obs["run_start"], obs["run_pixel"], obs["run_image"], obs["image"], texp, r, w,
+                              per_pixel.get("wblend_sum", per_pixel["weights_sum"]).ravel(),  # eq. 7's sum of blending weights
+                              alb[b0:b1].reshape(-1), err[b0:b1].reshape(-1) if want_err else no_err)
     write = partial(write_geotiff, transform=tile.transform, crs=scene.crs, threads=write_threads)
     write(out_dir / "albedo" / name, alb, **OUTPUT_OPTIONS["albedo"])
     valid = int(np.count_nonzero(np.isfinite(alb)))

@@ -1,0 +1,142 @@
+"""A block's compact observations in runs: chunks of pixels, each image's observations of a chunk in runs of consecutive pixels.
+
+The prepare step gathers observations image by image (:mod:`.observations`): image ``k``
+owns ``start[k]:start[k+1]``, in increasing pixel order (``pix``, the flat index in the
+block).  The iterations (:func:`.kernels.iterate_runs`) and finalise
+(:func:`.kernels.finalise_runs`) take them chunk by chunk: the block's pixels are cut into
+chunks of ``chunk_px`` consecutive pixels, and within a chunk the observations stay image by
+image in tile order, then pixel by pixel.  Each image's observations of a chunk fall into
+**runs** of consecutive pixels (a row of its footprint, or several rows where it covers the
+whole width), so that
+
+* a run has one image: its exposure is one number (no gather), its exposure sums are
+  contiguous sums (no scatter);
+* a run's pixels are consecutive: its terms add into the chunk's per-pixel sums, and its
+  pixels' albedo is read back, as contiguous slices (vectorised), in tile order of the
+  images for every pixel (the order of :func:`lunaralbedo.model.updates.albedo`).
+
+:func:`chunk_runs` reorders a block once, before it is cached (a stable counting sort by
+chunk), so the cache holds the iterations' order: ~16 bytes per observation (value, weight,
+two layers) and 12 bytes per run.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+#: Observations a chunk holds on average (:func:`chunk_pixels`): the kernels' float32 work
+#: rows of a chunk (~8 of them) then stay in the core's L1/L2 caches.
+CHUNK_OBSERVATIONS = 2048
+#: Bounds of a chunk's length in pixels (its per-pixel float64 sums: 16 bytes a pixel).
+MIN_CHUNK_PX, MAX_CHUNK_PX = 64, 4096
+
+
+def chunk_pixels(n_obs: int, npix: int) -> int:
+    """The chunk length of a block of ``npix`` pixels and ``n_obs`` observations: a power of two
+    near :data:`CHUNK_OBSERVATIONS` observations a chunk at the block's mean density."""
+    density = max(n_obs, 1) / max(npix, 1)
+    px = 1 << max(0, int(np.round(np.log2(CHUNK_OBSERVATIONS / density))))
+    return int(min(MAX_CHUNK_PX, max(MIN_CHUNK_PX, px)))
+
+
+@njit(cache=True, nogil=True)
+def _order(pix, start, npix, chunk_px, src, dst):
+    """Chunk-major order of image-major observations (stable counting sort by ``pix // chunk_px``)
+    and the runs of the result; ``src`` ``(n_arrays, m)`` rows moved into ``dst``.
+
+    Returns ``(chunks, run_start, run_pixel, run_image)``: chunk ``c`` (non-empty ones only)
+    owns runs ``chunks[c]:chunks[c+1]``; run ``r`` owns observations
+    ``run_start[r]:run_start[r+1]``, of local image ``run_image[r]`` at consecutive pixels from
+    ``run_pixel[r]``.
+    """
+    m = pix.shape[0]
+    nch = (npix + chunk_px - 1) // chunk_px
+    nxt = np.zeros(nch + 1, np.int64)
+    for o in range(m):
+        nxt[pix[o] // chunk_px + 1] += 1
+    for c in range(nch):
+        nxt[c + 1] += nxt[c]
+    pix_d = np.empty(m, np.int32)
+    img_d = np.empty(m, np.int32)
+    for k in range(start.shape[0] - 1):
+        for o in range(start[k], start[k + 1]):
+            c = pix[o] // chunk_px
+            q = nxt[c]
+            nxt[c] = q + 1
+            pix_d[q] = pix[o]
+            img_d[q] = k
+            for a in range(src.shape[0]):
+                dst[a, q] = src[a, o]
+    n_runs, n_chunks = 0, 0
+    for q in range(m):  # count first: runs start where the chunk, the image or the pixel sequence breaks
+        new_chunk = q == 0 or pix_d[q] // chunk_px != pix_d[q - 1] // chunk_px
+        n_chunks += new_chunk
+        n_runs += new_chunk or img_d[q] != img_d[q - 1] or pix_d[q] != pix_d[q - 1] + 1
+    chunks = np.empty(n_chunks + 1, np.int32)
+    run_start = np.empty(n_runs + 1, np.int32)
+    run_pixel = np.empty(n_runs, np.int32)
+    run_image = np.empty(n_runs, np.int32)
+    r, c = -1, -1
+    for q in range(m):
+        new_chunk = q == 0 or pix_d[q] // chunk_px != pix_d[q - 1] // chunk_px
+        if new_chunk or img_d[q] != img_d[q - 1] or pix_d[q] != pix_d[q - 1] + 1:
+            r += 1
+            run_start[r] = q
+            run_pixel[r] = pix_d[q]
+            run_image[r] = img_d[q]
+            if new_chunk:
+                c += 1
+                chunks[c] = r
+    run_start[n_runs] = m
+    chunks[n_chunks] = n_runs
+    return chunks, run_start, run_pixel, run_image
+
+
+def _rows_of(obs, names):
+    """The arrays ``names`` as the rows of one array: the array they are consecutive rows of (no copy), else stacked."""
+    base = getattr(obs[names[0]], "base", None) if names else None
+    if (isinstance(base, np.ndarray) and base.ndim == 2 and base.shape[0] == len(names) and base.flags.c_contiguous
+            and all(obs[n].base is base and obs[n].shape == base[i].shape and obs[n].ctypes.data == base[i].ctypes.data
+                    for i, n in enumerate(names))):
+        return base
+    return np.stack([np.asarray(obs[n]) for n in names]) if names else np.zeros((0, len(obs["pix"])), np.float32)
+
+
+def chunk_runs(obs, npix: int, names, chunk_px: int | None = None) -> dict:
+    """A block's compact observations (image-major, :mod:`.observations`) in chunk-major runs.
+
+    Returns ``chunks``, ``run_start``, ``run_pixel`` (int32, pixels of the block) and
+    ``run_image`` (uint16, or int32 beyond 65535 images: the local image of each run), the
+    arrays ``names`` reordered (rows of one array of their common type are moved in one
+    pass), and ``index``.  ``chunk_px`` defaults to :func:`chunk_pixels`.
+    """
+    index = np.asarray(obs["index"])
+    pix = np.asarray(obs["pix"])
+    m = len(pix)
+    if m >= 2**31:
+        raise ValueError(f"{m} observations in one block: more than int32 offsets hold")
+    src = _rows_of(obs, list(names))
+    dst = np.empty_like(src)
+    chunk_px = chunk_pixels(m, npix) if chunk_px is None else int(chunk_px)
+    chunks, run_start, run_pixel, run_image = _order(pix, np.asarray(obs["start"]), npix, chunk_px, src, dst)
+    run_image = run_image.astype(np.uint16) if len(index) < 2**16 else run_image
+    return {"chunks": chunks, "run_start": run_start, "run_pixel": run_pixel, "run_image": run_image, "index": index,
+            **dict(zip(names, dst))}
+
+
+def observation_pixels(runs) -> np.ndarray:
+    """The block pixel of each observation of ``runs`` (int64)."""
+    start = np.asarray(runs["run_start"], np.int64)
+    lengths = np.diff(start)
+    return np.repeat(np.asarray(runs["run_pixel"], np.int64) - start[:-1], lengths) + np.arange(start[-1])
+
+
+def pixel_extent(runs) -> int:
+    """One past the last pixel of the block that has an observation (0: none)."""
+    start, pixel = np.asarray(runs["run_start"], np.int64), np.asarray(runs["run_pixel"], np.int64)
+    return int((pixel + np.diff(start)).max()) if len(pixel) else 0
+
+
+def observation_images(runs) -> np.ndarray:
+    """The local image of each observation of ``runs``."""
+    return np.repeat(np.asarray(runs["run_image"]), np.diff(np.asarray(runs["run_start"], np.int64)))
