@@ -40,54 +40,95 @@ def chunk_pixels(n_obs: int, npix: int) -> int:
 
 
 @njit(cache=True, nogil=True)
+def _segments(pix, start, chunk_px):
+    """Each image's observations cut at the chunks' borders: ``(chunk, image, first, end)`` of every
+    piece, image by image, chunks ascending (an image's pixels ascend: binary searches, no pass over them)."""
+    n = 0
+    for k in range(start.shape[0] - 1):
+        o, e = start[k], start[k + 1]
+        while o < e:
+            n += 1
+            o = o + np.searchsorted(pix[o:e], (pix[o] // chunk_px + 1) * chunk_px)
+    seg = np.empty((n, 4), np.int64)
+    n = 0
+    for k in range(start.shape[0] - 1):
+        o, e = start[k], start[k + 1]
+        while o < e:
+            c = pix[o] // chunk_px
+            end = o + np.searchsorted(pix[o:e], (c + 1) * chunk_px)
+            seg[n, 0], seg[n, 1], seg[n, 2], seg[n, 3] = c, k, o, end
+            n += 1
+            o = end
+    return seg
+
+
+@njit(cache=True, nogil=True)
+def _copy(src, dst):
+    """``dst[:] = src`` as a plain loop (numba's slice assignment checks and broadcasts)."""
+    for i in range(src.shape[0]):
+        dst[i] = src[i]
+
+
+@njit(cache=True, nogil=True)
+def _breaks(pix, o, e):
+    """Runs in ``pix[o:e]``: 1 + the places where the pixels stop being consecutive (vectorised count)."""
+    n = 1
+    for i in range(o + 1, e):
+        n += pix[i] != pix[i - 1] + 1
+    return n
+
+
+@njit(cache=True, nogil=True)
 def _order(pix, start, npix, chunk_px, src, dst):
-    """Chunk-major order of image-major observations (stable counting sort by ``pix // chunk_px``)
-    and the runs of the result; ``src`` ``(n_arrays, m)`` rows moved into ``dst``.
+    """Chunk-major order of image-major observations, and the runs of the result; ``src`` ``(n_arrays, m)``
+    rows moved into ``dst``.  An image's observations of a chunk are consecutive already (its pixels
+    ascend): the pieces (:func:`_segments`) are put in chunk order, images staying in tile order
+    within a chunk (a stable counting sort of the pieces), and copied whole.
 
     Returns ``(chunks, run_start, run_pixel, run_image)``: chunk ``c`` (non-empty ones only)
     owns runs ``chunks[c]:chunks[c+1]``; run ``r`` owns observations
     ``run_start[r]:run_start[r+1]``, of local image ``run_image[r]`` at consecutive pixels from
     ``run_pixel[r]``.
     """
-    m = pix.shape[0]
+    seg = _segments(pix, start, chunk_px)
+    ns = seg.shape[0]
     nch = (npix + chunk_px - 1) // chunk_px
-    nxt = np.zeros(nch + 1, np.int64)
-    for o in range(m):
-        nxt[pix[o] // chunk_px + 1] += 1
+    first = np.zeros(nch + 1, np.int64)  # pieces per chunk, then each chunk's first place in the sorted pieces
+    for i in range(ns):
+        first[seg[i, 0] + 1] += 1
     for c in range(nch):
-        nxt[c + 1] += nxt[c]
-    pix_d = np.empty(m, np.int32)
-    img_d = np.empty(m, np.int32)
-    for k in range(start.shape[0] - 1):
-        for o in range(start[k], start[k + 1]):
-            c = pix[o] // chunk_px
-            q = nxt[c]
-            nxt[c] = q + 1
-            pix_d[q] = pix[o]
-            img_d[q] = k
-            for a in range(src.shape[0]):
-                dst[a, q] = src[a, o]
+        first[c + 1] += first[c]
+    order = np.empty(ns, np.int64)
+    for i in range(ns):
+        c = seg[i, 0]
+        order[first[c]] = i
+        first[c] += 1
     n_runs, n_chunks = 0, 0
-    for q in range(m):  # count first: runs start where the chunk, the image or the pixel sequence breaks
-        new_chunk = q == 0 or pix_d[q] // chunk_px != pix_d[q - 1] // chunk_px
-        n_chunks += new_chunk
-        n_runs += new_chunk or img_d[q] != img_d[q - 1] or pix_d[q] != pix_d[q - 1] + 1
+    for j in range(ns):
+        i = order[j]
+        n_runs += _breaks(pix, seg[i, 2], seg[i, 3])
+        n_chunks += j == 0 or seg[i, 0] != seg[order[j - 1], 0]
     chunks = np.empty(n_chunks + 1, np.int32)
     run_start = np.empty(n_runs + 1, np.int32)
     run_pixel = np.empty(n_runs, np.int32)
     run_image = np.empty(n_runs, np.int32)
-    r, c = -1, -1
-    for q in range(m):
-        new_chunk = q == 0 or pix_d[q] // chunk_px != pix_d[q - 1] // chunk_px
-        if new_chunk or img_d[q] != img_d[q - 1] or pix_d[q] != pix_d[q - 1] + 1:
-            r += 1
-            run_start[r] = q
-            run_pixel[r] = pix_d[q]
-            run_image[r] = img_d[q]
-            if new_chunk:
-                c += 1
-                chunks[c] = r
-    run_start[n_runs] = m
+    q, r, c = 0, 0, 0
+    for j in range(ns):
+        i = order[j]
+        o, e, k = seg[i, 2], seg[i, 3], seg[i, 1]
+        if j == 0 or seg[i, 0] != seg[order[j - 1], 0]:
+            chunks[c] = r
+            c += 1
+        for a in range(src.shape[0]):
+            _copy(src[a, o:e], dst[a, q:q + e - o])
+        run_start[r], run_pixel[r], run_image[r] = q, pix[o], k
+        r += 1
+        for x in range(o + 1, e):
+            if pix[x] != pix[x - 1] + 1:
+                run_start[r], run_pixel[r], run_image[r] = q + x - o, pix[x], k
+                r += 1
+        q += e - o
+    run_start[n_runs] = q
     chunks[n_chunks] = n_runs
     return chunks, run_start, run_pixel, run_image
 
