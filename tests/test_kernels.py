@@ -334,7 +334,7 @@ def test_a_pixel_seen_by_more_images_than_uint16_numbers():
 
 def test_cached_arrays_are_read_only_file_mappings_equal_to_numpys(tmp_path):
     """load_stack maps each array of an entry (no np.memmap set-up); the values, types and shapes are np.load's,
-    MemoryCache copies an entry it keeps into memory, and a cut-short file fails as np.load fails."""
+    MemoryCache(copy=True) copies an entry it keeps into memory, and a cut-short file fails as np.load fails."""
     rng = np.random.default_rng(3)
     arrays = {"f32": rng.random(1001, dtype=np.float32), "f64": rng.random((7, 9)), "u16": np.arange(50, dtype=np.uint16),
               "i32": -np.arange(13, dtype=np.int32), "fortran": np.asfortranarray(rng.random((4, 6))),
@@ -352,7 +352,7 @@ def test_cached_arrays_are_read_only_file_mappings_equal_to_numpys(tmp_path):
         assert mapped(got[k]) == (a.size > 0), k  # an empty array has nothing to map
     assert got["fortran"].flags.f_contiguous
     assert not mapped(np.array(got["f32"])) and not mapped(np.zeros(3)) and mapped(np.load(folder / "f32.npy", mmap_mode="r"))
-    kept = MemoryCache(budget=10**6).get(folder, lambda arrays, meta: arrays)
+    kept = MemoryCache(budget=10**6, copy=True).get(folder, lambda arrays, meta: arrays)
     assert all(not mapped(v) for v in kept.values()) and np.array_equal(kept["f32"], arrays["f32"])  # read into memory
     over = MemoryCache(budget=0).get(folder, lambda arrays, meta: arrays)
     assert mapped(over["f32"])  # over the budget: served mapped, as built
@@ -360,6 +360,25 @@ def test_cached_arrays_are_read_only_file_mappings_equal_to_numpys(tmp_path):
     (folder / "f32.npy").write_bytes(raw[:-8])
     with pytest.raises(ValueError):
         load_stack(folder)
+
+
+def test_memory_cache_keeps_local_entries_mapped_and_copies_the_others(tmp_path, monkeypatch):
+    """On a local file system a kept entry is served as mapped (its pages in the page cache, no copy);
+    on a network one (or unknown) it is copied into memory; both count against the budget."""
+    from lunaralbedo.io import cache as cache_mod
+
+    assert cache_mod.filesystem_type(tmp_path) in cache_mod.LOCAL_FILESYSTEMS  # the test's own disk
+    assert cache_mod.filesystem_type("/proc/self") == "proc"  # the longest mount point wins over "/"
+    folder = tmp_path / "run" / "cache" / "tile"
+    folder.parent.mkdir(parents=True)
+    save_stack(folder, {"x": np.arange(1000, dtype=np.float32)}, {})
+    local = MemoryCache(budget=10**6)
+    got = local.get(folder, lambda arrays, meta: arrays)
+    assert mapped(got["x"]) and local.nbytes == 4000 and local.get(folder, lambda a, m: 1 / 0) is got  # kept, mapped
+    monkeypatch.setattr(cache_mod, "filesystem_type", lambda path: "nfs4")
+    remote = MemoryCache(budget=10**6)
+    got = remote.get(folder, lambda arrays, meta: arrays)
+    assert not mapped(got["x"]) and remote.nbytes == 4000 and np.array_equal(got["x"], np.arange(1000))
 
 
 def test_memory_cache_keeps_within_budget_and_never_serves_a_replaced_entry(tmp_path):

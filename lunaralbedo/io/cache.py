@@ -170,6 +170,34 @@ def _stamp(folder: Path):
     return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, sf.st_ino, sf.st_ctime_ns
 
 
+#: File systems whose pages :class:`MemoryCache` keeps as they are mapped (local disks and memory):
+#: a kept entry's pages stay in the page cache, where the prepare step has just written them.
+#: On any other (NFS, Lustre, GPFS, ...) a kept entry is copied into the process's memory, so that
+#: the iterations never wait for the network.
+LOCAL_FILESYSTEMS = frozenset({"ext2", "ext3", "ext4", "xfs", "btrfs", "zfs", "f2fs", "bcachefs", "tmpfs", "ramfs",
+                               "overlay", "apfs", "hfs"})
+
+
+def filesystem_type(path: str | Path) -> str | None:
+    """The type of the file system that holds ``path`` (``/proc/self/mountinfo``: the mount with the
+    longest matching mount point), or None where that is not known (no such file: not Linux)."""
+    target = os.path.realpath(path)
+    best, kind = -1, None
+    try:
+        with open("/proc/self/mountinfo") as f:
+            for line in f:
+                fields = line.split()
+                if " - " not in line or len(fields) < 5:
+                    continue
+                point = fields[4].replace("\\040", " ").replace("\\011", "\t").replace("\\134", "\\")
+                inside = target == point or target.startswith(point.rstrip("/") + "/")
+                if inside and len(point) > best:
+                    best, kind = len(point), line.split(" - ", 1)[1].split()[0]
+    except OSError:
+        return None
+    return kind
+
+
 class MemoryCache:
     """Arrays derived from cache entries (``build(arrays, meta) -> dict of arrays``), kept in memory
     within ``budget`` bytes, per process.
@@ -178,16 +206,29 @@ class MemoryCache:
     or resumed run's entry is rebuilt, never served stale).  A new entry that does not fit
     first drops entries of other cache roots and entries no longer on disk, least recently
     used first; if it still does not fit it is not kept: the tiles of one solve come back in
-    a cycle, where evicting the oldest would drop every entry just before its reuse.  Kept
-    entries are read into memory (memory-mapped arrays ``build`` returns are copied); an entry
-    that is not kept is returned as built.  The returned arrays are shared: callers must not
-    modify them.
+    a cycle, where evicting the oldest would drop every entry just before its reuse.  An entry
+    that is not kept is returned as built.  A kept entry's memory-mapped arrays stay mapped on a
+    local file system (:data:`LOCAL_FILESYSTEMS`): their pages are in the page cache (the
+    prepare step has just written them, or the first pass reads them), counted in the process's
+    resident memory like copies, and serving them needs no copy (the strip of ``make bench``
+    item 6: the first pass of the iterations 14-35 -> 6.4 ns per observation, the steady passes
+    unchanged; docs/performance.md); elsewhere, or with ``copy=True``, they are copied into
+    memory.  The returned arrays are shared: callers must not modify them.
     """
 
-    def __init__(self, budget: int):
+    def __init__(self, budget: int, copy: bool | None = None):
         self.budget = int(budget)
+        self.copy = copy  # None: copy unless the entry is on a local file system
         self._entries: OrderedDict[str, tuple] = OrderedDict()  # folder -> (stamp, arrays, nbytes)
         self._lock = threading.Lock()
+        self._local: dict[Path, bool] = {}  # cache root -> on a local file system
+
+    def _copies(self, root: Path) -> bool:
+        if self.copy is not None:
+            return self.copy
+        if root not in self._local:
+            self._local[root] = filesystem_type(root) in LOCAL_FILESYSTEMS
+        return not self._local[root]
 
     @property
     def nbytes(self) -> int:
@@ -218,9 +259,11 @@ class MemoryCache:
             keep = self.nbytes + size <= self.budget and _stamp(folder) == stamp
         if not keep:
             return arrays
-        arrays = {k: np.array(v) if mapped(v) else v for k, v in arrays.items()}  # read into memory
+        root = Path(os.path.abspath(group)) if group is not None else folder.parent
+        if self._copies(root):
+            arrays = {k: np.array(v) if mapped(v) else v for k, v in arrays.items()}  # read into memory
         with self._lock:
-            self._make_room(size, Path(os.path.abspath(group)) if group is not None else folder.parent)
+            self._make_room(size, root)
             if self.nbytes + size <= self.budget:
                 self._entries[key] = (stamp, arrays, size)
         return arrays
