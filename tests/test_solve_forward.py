@@ -77,6 +77,33 @@ def test_outputs_are_float32_with_nan_nodata_and_documented_files(scene, tmp_pat
     assert not (out / "checkpoint").exists()
 
 
+def test_report_counts_the_observations_and_their_cost_per_stage(scene, tmp_path):
+    """report.json's ``observations``: the pixel-observations cached over all tiles (counted here from the
+    cache itself) and each stage's wall time per observation (per observation and pass to iterate)."""
+    import json
+
+    from lunaralbedo.engine import tilework
+    from lunaralbedo.engine.scene import build_scene
+    from lunaralbedo.io.cache import load_stack
+
+    res = solve(scene / "settings.txt", out=tmp_path / "out", workers=1, plots=False, max_iter=3, tolerance=0.0)
+    rep = json.loads((tmp_path / "out" / "report.json").read_text())
+    sc = build_scene(load_settings(scene / "settings.txt"))
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    cached = 0
+    for t in range(len(sc.tiles)):
+        meta = tilework.prepare_tile(t, scene=sc, cache_root=cache)
+        cached += sum(len(load_stack(cache / sc.tiles[t].name / f"block_{i:04d}")[0]["image"]) for i in range(len(meta["blocks"])))
+    obs = rep["observations"]
+    assert obs["count"] == cached > 1000
+    timings = rep["timings_s"]
+    assert res.iterations == 3
+    for key, stage, n in (("iterate_ns_per_pass", "iterate", cached * 3), ("prepare_ns", "prepare", cached),
+                          ("finalise_ns", "finalise", cached)):  # timings_s is rounded to the millisecond
+        assert obs[key] == pytest.approx(1e9 * timings[stage] / n, abs=1e9 * 0.0005 / n + 0.01), key
+
+
 def test_mosaic_mode_removes_seams(tmp_path):
     d = tmp_path / "mosaic"
     render_scene(d, SceneSpec(reflectance_type=0, seed=31))

@@ -251,6 +251,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
         outputs.write_json(out / STATE_FILE, ck)
     state = SolveState(np.array(ck["exposure"]), np.array(ck["params"], dtype=np.float64))
     resume_info = {"tiles_prepared_before": sum(bool(m.get("reused")) for m in metas), "iterations_done_before": ck["iteration"]}
+    n_obs = sum(int(m.get("observations", 0)) for m in metas)
     t2 = time.perf_counter()
     want_phase = bool(s.model.parameters)
     while not ck["done"] and ck["iteration"] < max_iter:
@@ -278,7 +279,20 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
                             write_threads=max(1, executor.cpus_per_task // at_once), threads=at_once)
     resume_info["tiles_written_before"] = sum(bool(r.pop("reused")) for r in tile_reports)
     timings["finalise"] = time.perf_counter() - t3
-    return _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info)
+    costs = stage_costs(timings, n_obs, ck["iteration"] - resume_info["iterations_done_before"])
+    return _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info,
+                              costs)
+
+
+def stage_costs(timings: dict, n_obs: int, passes: int) -> dict:
+    """The run's size and the cost of its stages per pixel-observation (``report.json``'s ``observations``):
+    ``count`` (observations cached over all tiles), nanoseconds of wall time per observation to
+    prepare, per observation and pass to iterate (the passes this process ran), per observation
+    to finalise.  A stage that found its work done before (a resumed run) counts what it did."""
+    per = lambda seconds, n: round(1e9 * seconds / n, 2) if n else None  # noqa: E731
+    return {"count": n_obs, "prepare_ns": per(timings.get("prepare", 0.0), n_obs),
+            "iterate_ns_per_pass": per(timings.get("iterate", 0.0), n_obs * passes),
+            "finalise_ns": per(timings.get("finalise", 0.0), n_obs)}
 
 
 #: Most threads a one-process run gives its tiles (iterations, finalise) and a block's image windows
@@ -312,7 +326,7 @@ def _prepare(on_tiles, executor, lut) -> list:
     return metas
 
 
-def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info):
+def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info, costs):
     keys = scene.keys
     outputs.write_exposure_csv(out / "exposure.csv", keys, state.exposure, t_init)
     names = scene.settings.model.parameters
@@ -340,6 +354,7 @@ def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timi
         **report_parts(ck.get("response")),
         "exposure_fixed": bool(ck.get("exposure_fixed")),
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
+        "observations": costs,
     }
     _move_tiles_into_place(out)
     move_outputs(out / RESPONSE_DIR, out)

@@ -13,7 +13,7 @@ block's observations in chunk-major runs (:func:`.runs.chunk_runs`: ``chunks``,
 ``weight`` and the model's layers) and ``tile_*`` per-pixel arrays), the tile's outputs known once it is
 prepared (``DEM.tif``, ``weightsSum.tif``: :data:`KNOWN_OUTPUTS`), then ``meta.json`` (written last: the
 tile is complete) with the initialisation sums, ``blocks``, the ``[b0, b1]`` rows of each
-block, and ``layout`` (:data:`CACHE_LAYOUT`; a cache of another layout is prepared again).
+block, ``observations`` (how many the blocks hold), and ``layout`` (:data:`CACHE_LAYOUT`; a cache of another layout is prepared again).
 Iterate and finalise read one block at a time (:func:`iterate_block` is one block's work),
 so memory is bounded by a block.  The order is the iteration's, so a block that does not
 fit the memory budget is read as it is, memory-mapped, and never reordered again.
@@ -153,6 +153,7 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
     tile = scene.tiles[t]
     known = {}  # the tile's outputs that do not depend on the solve (DEM, weight sums), assembled block by block
     width = tile.width
+    n_obs = 0
 
     def reduce(block):  # the initialisation sums and the chunk-major runs of a block
         b0, b1, obs, per_pixel = block
@@ -171,6 +172,7 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
             acc[0] += rs
             acc[1] += n
         exposure_init.merge_pair_sums(pairs, part["pairs"])
+        n_obs += len(pm["image"])
         entry.save(f"block_{len(blocks):04d}", {**pm, **{f"tile_{k}": v for k, v in per_pixel.items()}}, {"rows": [b0, b1]})
         del pm, per_pixel
         blocks.append([b0, b1])
@@ -186,6 +188,7 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
         "pairs": [[j, k, n_, d] for (j, k), (n_, d) in sorted(pairs.items())],
         "tile": scene.tiles[t].name,
         "blocks": blocks,
+        "observations": n_obs,
         "layout": CACHE_LAYOUT,
     }
     entry.complete(meta)
