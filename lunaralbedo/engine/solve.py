@@ -251,7 +251,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
         outputs.write_json(out / STATE_FILE, ck)
     state = SolveState(np.array(ck["exposure"]), np.array(ck["params"], dtype=np.float64))
     resume_info = {"tiles_prepared_before": sum(bool(m.get("reused")) for m in metas), "iterations_done_before": ck["iteration"]}
-    n_obs = sum(int(m.get("observations", 0)) for m in metas)
+    n_obs = sum(int(m["observations"]) for m in metas) if all("observations" in m for m in metas) else None
     t2 = time.perf_counter()
     want_phase = bool(s.model.parameters)
     while not ck["done"] and ck["iteration"] < max_iter:
@@ -284,14 +284,15 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
                               costs)
 
 
-def stage_costs(timings: dict, n_obs: int, passes: int) -> dict:
+def stage_costs(timings: dict, n_obs: int | None, passes: int) -> dict:
     """The run's size and the cost of its stages per pixel-observation (``report.json``'s ``observations``):
     ``count`` (observations cached over all tiles), nanoseconds of wall time per observation to
     prepare, per observation and pass to iterate (the passes this process ran), per observation
-    to finalise.  A stage that found its work done before (a resumed run) counts what it did."""
-    per = lambda seconds, n: round(1e9 * seconds / n, 2) if n else None  # noqa: E731
+    to finalise (None where not known: a cache resumed from a version that did not count).  A
+    stage that found its work done before (a resumed run) counts what it did."""
+    per = lambda seconds, n: round(1e9 * seconds / n, 2) if n else None  # noqa: E731  (n None: not counted)
     return {"count": n_obs, "prepare_ns": per(timings.get("prepare", 0.0), n_obs),
-            "iterate_ns_per_pass": per(timings.get("iterate", 0.0), n_obs * passes),
+            "iterate_ns_per_pass": per(timings.get("iterate", 0.0), (n_obs or 0) * passes),
             "finalise_ns": per(timings.get("finalise", 0.0), n_obs)}
 
 
