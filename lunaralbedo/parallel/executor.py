@@ -23,7 +23,7 @@ from tqdm.auto import tqdm
 from ..errors import ClusterError, LunarAlbedoError, typed_error
 from . import clusters
 from .nodefile import nodefile_client, pbs_nodes
-from .workers import available_cpus, tune_malloc
+from .workers import available_cpus, tune_malloc, tune_numpy
 
 
 #: Tasks per worker of a map whose items have homes (see :meth:`DaskExecutor._submit`).
@@ -354,6 +354,7 @@ def make_executor(
         client, owned = nodefile_client(hosts, max(1, workers))
         return DaskExecutor(client, f"PBS_NODEFILE ({len(hosts)} nodes x {max(1, workers)} processes)", progress, owned=owned)
     tune_malloc()  # for tasks run in this process (one worker, threads); Dask workers get WORKER_ENV
+    tune_numpy()
     if workers <= 1:
         return SerialExecutor(progress)
     if local == "processes":

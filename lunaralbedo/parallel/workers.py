@@ -39,10 +39,18 @@ def _env_name(key: str) -> str:
 #: kernel time in 2 workers, 88 000 and 5.8 s with one arena; docs/performance-history.md, section 0e).
 MALLOC_ENV = {"MALLOC_MMAP_THRESHOLD_": 64 * 2**20, "MALLOC_TRIM_THRESHOLD_": 256 * 2**20, "MALLOC_ARENA_MAX": 1}
 
+#: NumPy settings of the processes that run tile tasks: no ``madvise(MADV_HUGEPAGE)`` on NumPy's
+#: large arrays.  With the kernel's usual transparent-huge-page setting (``defrag`` = madvise) a
+#: page fault in such an array compacts and zeroes a 2 MiB page synchronously: measured on the
+#: strip of ``make bench`` item 6, the prepare stage of a fresh one-CPU solve took 2.80-3.38 s with
+#: NumPy's default and 2.45-2.47 s without (system time 0.90-1.34 -> 0.55-0.59 s), the iterations
+#: and finalise unchanged (docs/performance-history.md, section 0j).
+NUMPY_ENV = {"NUMPY_MADVISE_HUGEPAGE": "0"}
+
 #: Environment of worker processes: :data:`MALLOC_ENV` (it overrides the nanny's own
-#: MALLOC_TRIM_THRESHOLD_), and the :data:`DASK_CONFIG` settings as Dask's environment
+#: MALLOC_TRIM_THRESHOLD_), :data:`NUMPY_ENV` and the :data:`DASK_CONFIG` settings as Dask's environment
 #: variables, for workers started by batch jobs or ``dask worker`` on PBS_NODEFILE nodes.
-WORKER_ENV = {**MALLOC_ENV, **{_env_name(k): v for k, v in DASK_CONFIG.items()}}
+WORKER_ENV = {**MALLOC_ENV, **NUMPY_ENV, **{_env_name(k): v for k, v in DASK_CONFIG.items()}}
 
 #: mallopt(3) parameter numbers of glibc's <malloc.h>.
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD, _M_ARENA_MAX = -1, -3, -8
@@ -70,6 +78,22 @@ def tune_malloc() -> bool:
     mapped = mallopt(_M_MMAP_THRESHOLD, MALLOC_ENV["MALLOC_MMAP_THRESHOLD_"]) or mallopt(_M_MMAP_THRESHOLD, 32 * 2**20)
     arenas = mallopt(_M_ARENA_MAX, MALLOC_ENV["MALLOC_ARENA_MAX"])  # threads started from now on share the main arena
     return bool(trimmed and mapped and arenas)  # 32 MiB: the most older glibc versions accept
+
+
+def tune_numpy() -> bool:
+    """Apply :data:`NUMPY_ENV` to this process for tile tasks run in it (NumPy reads the variable only
+    when imported); False where the user set ``NUMPY_MADVISE_HUGEPAGE`` (theirs stays in force) or
+    this NumPy has no such switch.  Process-wide, like :func:`tune_malloc`."""
+    if any(k in os.environ for k in NUMPY_ENV):
+        return False
+    import numpy as np
+
+    core = getattr(np, "_core", None) or getattr(np, "core", None)  # NumPy 2 / 1
+    switch = getattr(getattr(core, "multiarray", None), "_set_madvise_hugepage", None)
+    if switch is None:
+        return False
+    switch(NUMPY_ENV["NUMPY_MADVISE_HUGEPAGE"] != "0")
+    return True
 
 
 def trim_malloc() -> bool:
