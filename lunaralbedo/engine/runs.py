@@ -15,8 +15,8 @@ whole width), so that
   pixels' albedo is read back, as contiguous slices (vectorised), in tile order of the
   images for every pixel (the order of :func:`lunaralbedo.model.updates.albedo`).
 
-:func:`chunk_runs` reorders a block once, before it is cached (a stable counting sort by
-chunk), so the cache holds the iterations' order: ~16 bytes per observation (value, weight,
+:func:`chunk_runs` reorders a block once, before it is cached (each image's pieces of the
+chunks, sorted by chunk, images staying in tile order), so the cache holds the iterations' order: ~16 bytes per observation (value, weight,
 two layers) and 12 bytes per run.
 """
 from __future__ import annotations
