@@ -395,7 +395,7 @@ def finalise_runs(chunks, run_start, run_pixel, run_image, image, texp, r, w, bl
     most_obs, most_px, most_runs = _chunk_extent(chunks, run_start, run_pixel)
     SN, SD = np.empty(most_px), np.empty(most_px)
     order, spans = np.empty(most_runs, np.int32), np.empty((most_runs, 2), np.int32)
-    for c in range(chunks.shape[0] - 1):
+    for c in range(chunks.shape[0] - 1):  # eq. 3 as iterate_runs does it: a shared njit helper cost it 3 % (0.15 ns)
         r0, r1 = chunks[c], chunks[c + 1]
         lo = run_pixel[r0]
         for rr in range(r0, r1):

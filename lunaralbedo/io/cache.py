@@ -254,12 +254,12 @@ class MemoryCache:
             return None
         arrays = build(*loaded)
         size = sum(a.nbytes for a in arrays.values() if isinstance(a, np.ndarray))
+        root = Path(os.path.abspath(group)) if group is not None else folder.parent
         with self._lock:
-            self._make_room(size, Path(os.path.abspath(group)) if group is not None else folder.parent)
+            self._make_room(size, root)
             keep = self.nbytes + size <= self.budget and _stamp(folder) == stamp
         if not keep:
             return arrays
-        root = Path(os.path.abspath(group)) if group is not None else folder.parent
         if self._copies(root):
             arrays = {k: np.array(v) if mapped(v) else v for k, v in arrays.items()}  # read into memory
         with self._lock:
