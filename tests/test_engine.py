@@ -79,6 +79,8 @@ def test_blocks_are_cached_in_runs_and_read_as_they_are_over_the_memory_budget(s
     for c in range(len(arrays["chunks"]) - 1):  # each chunk image by image in tile order, then by pixel
         o = slice(start[arrays["chunks"][c]], start[arrays["chunks"][c + 1]])
         assert np.all(np.diff(img[o] * (pix.max() + 1) + pix[o]) > 0)
+    angles = np.asarray(arrays["alpha"])[np.asarray(arrays["weight"]) > 0]  # the block's phase-angle range, stored
+    assert tuple(arrays["alpha_range"]) == (np.nanmin(angles), np.nanmax(angles))
     meta = json.loads((folder / "meta.json").read_text())
     assert tilework.prepare_tile(t, scene=sc, cache_root=cache)["reused"] is True
     (folder / "meta.json").write_text(json.dumps({k: v for k, v in meta.items() if k != "layout"}))

@@ -160,6 +160,42 @@ def test_dynamic_shadow_test_is_dynamic_lit():
         np.testing.assert_allclose(got["q"], updates.cost(updates.residuals(image, alb, t[:, None, None] * r, wl), wl), rtol=1e-12)
 
 
+def test_a_blocks_phase_angle_range_is_the_kernels_and_stands_in_for_it_without_a_dynamic_shadow_test():
+    """``alpha_range`` gives what the kernel gives over the same observations (weight > 0, NaN left out);
+    ``iterate_block`` takes a block's stored range instead of asking the kernel for it, unless a dynamic
+    shadow test changes the weights from pass to pass."""
+    image, _, _, wt, t = _stacks(seed=9)
+    k, h, w = image.shape
+    rng = np.random.default_rng(9)
+    g = rng.uniform(0.2, 1.0, image.shape).astype(np.float32)
+    alpha = rng.uniform(0.1, 1.2, image.shape).astype(np.float32)
+    obs = _compact(wt, image=image, weight=wt, geometric=g, alpha=alpha)
+    pm = {**runs.chunk_runs(obs, h * w, ["image", "weight", "geometric", "alpha"]), "npix": h * w}
+    lo, hi = np.argmin(pm["alpha"]), np.argmax(pm["alpha"])
+    pm["weight"][lo] = 0  # the smallest angle unused: the range is over the used observations only
+    pm["alpha"][hi] = np.nan  # and a NaN angle is left out
+    got = kernels.alpha_range(pm["alpha"], pm["weight"])
+    used = pm["alpha"][(pm["weight"] > 0) & np.isfinite(pm["alpha"])]
+    assert got == (used.min(), used.max()) and got[0] > pm["alpha"][lo]
+    ran = _run(pm, 1, (pm["geometric"], pm["alpha"], pm["alpha"]), (1.4, 0.5), t, 2, alpha=pm["alpha"])
+    assert (ran["amin"], ran["amax"]) == got
+    assert kernels.alpha_range(pm["alpha"][:0], pm["weight"][:0]) == (np.inf, -np.inf)
+
+    model = REGISTRY["lunar-lambert"]
+    stored = {**pm, "alpha_range": np.array([0.25, 0.5], np.float32)}  # not the data's: shows which one is used
+    for shadow_type, expect in ((shadows.NONE, (0.25, 0.5)), (shadows.LUNAR_LAMBERT_RATIO, got)):
+        s = SimpleNamespace(model=model, shadow_type=shadow_type, shadow_thresh=0.0)
+        state = tilework.SolveState(t.astype(np.float64), np.array([1.4, 0.5]))
+        out = tilework.TileSums(index=pm["index"], n_params=2, exp_num=np.zeros(k), exp_den=np.zeros(k))
+        tilework.iterate_block(stored, s, state, True, out)
+        assert (out.alpha_min, out.alpha_max) == expect
+        plain = tilework.TileSums(index=pm["index"], n_params=2, exp_num=np.zeros(k), exp_den=np.zeros(k))
+        tilework.iterate_block(pm, s, state, True, plain)  # a block cached without the range (older caches)
+        assert (plain.alpha_min, plain.alpha_max) == got
+        for a, b in ((plain.q, out.q), (plain.jtj, out.jtj), (plain.exp_num, out.exp_num)):  # the NaN angle: NaN sums
+            assert np.array_equal(a, b, equal_nan=True)
+
+
 def _point_models():
     return [m for m in REGISTRY.values() if m.point is not None]
 

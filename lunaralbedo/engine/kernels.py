@@ -355,11 +355,29 @@ def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1
             jtr[m] = sums[1 + m]
             for i in range(n_cols):
                 jtj[m, i] = nrm[m, i]
-    amin, amax = np.inf, -np.inf
-    if kmin <= kmax:
-        ends = np.array([kmin ^ ((kmin >> 31) & _MAG), kmax ^ ((kmax >> 31) & _MAG)], np.int32).view(np.float32)
-        amin, amax = float(ends[0]), float(ends[1])
+    amin, amax = _key_range(kmin, kmax)
     return sums[0], n_obs, amin, amax
+
+
+@njit(cache=True)
+def _key_range(kmin, kmax):
+    """The float32 phase angles of the int32 keys ``kmin``, ``kmax`` (``(inf, -inf)``: none)."""
+    if kmin > kmax:
+        return np.inf, -np.inf
+    ends = np.array([kmin ^ ((kmin >> 31) & _MAG), kmax ^ ((kmax >> 31) & _MAG)], np.int32).view(np.float32)
+    return float(ends[0]), float(ends[1])
+
+
+@njit(cache=True, nogil=True)
+def alpha_range(alpha, w):
+    """The range of the phase angles ``alpha`` (float32) of the observations with ``w > 0`` (NaN left out;
+    ``(inf, -inf)``: none): what :func:`iterate_runs` gives over the same observations, once.
+
+    Without a dynamic shadow test the weights, hence this range, are the same in every pass:
+    the prepare step stores it with the block (``alpha_range``) and the kernel is not asked for it.
+    """
+    kmin, kmax = _alpha_keys(alpha.view(np.int32), w, alpha.shape[0], _MAX32, _MIN32)
+    return _key_range(kmin, kmax)
 
 
 @njit(cache=True)
