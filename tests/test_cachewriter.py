@@ -132,6 +132,41 @@ def test_a_failed_write_is_raised_naming_the_entry_and_nothing_half_written_is_l
     assert load_stack(tmp_path / "tile_2")[1] == {"ok": 1}
 
 
+def test_a_meta_file_that_cannot_be_written_is_raised_naming_the_entry(tmp_path, monkeypatch):
+    """A full disk may first show when ``meta.json`` is written or closed, where Python's error names no
+    file (found by ``test_faults.test_disk_full_on_a_small_filesystem``): the error still names the entry."""
+    from lunaralbedo.io import cache
+
+    real_fdopen = os.fdopen
+
+    class Full:
+        def __init__(self, f):
+            self.f = f
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.f.close()
+
+        def write(self, text):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))  # as a short write reports it: no file name
+
+    monkeypatch.setattr(cache.os, "fdopen", lambda fd, mode: Full(real_fdopen(fd, mode)))
+    with pytest.raises(OSError) as err:
+        cache.save_meta(tmp_path / "alone", {"a": 1})
+    assert err.value.errno == errno.ENOSPC and err.value.filename == str(tmp_path / "alone" / "meta.json")
+    assert list((tmp_path / "alone").iterdir()) == []  # its temporary file removed
+    w = CacheWriter()
+    entry = w.entry(tmp_path / "tile_1")
+    entry.save("block_0000", {"x": np.zeros(10, np.float32)}, {})
+    entry.complete({})
+    with pytest.raises(OSError) as err:
+        w.flush()
+    assert err.value.errno == errno.ENOSPC and err.value.filename == str(tmp_path / "tile_1")
+    assert not (tmp_path / "tile_1").exists() and _leftovers(tmp_path) == []
+
+
 def test_queued_entries_after_a_failure_are_dropped_and_the_next_call_raises(tmp_path, monkeypatch):
     gate = threading.Event()
     real = cachewriter.save_stack

@@ -129,6 +129,25 @@ def test_disk_full_while_writing_tiles(scene, reference, tmp_path, monkeypatch, 
     same_results(reference, out)
 
 
+def test_an_atomic_write_that_fails_without_a_file_name_names_its_target(tmp_path, monkeypatch):
+    """Python's error for a short write (a full disk) names no file: the atomic writer names the target, so
+    the user is told which file could not be written, and leaves no temporary behind."""
+    from lunaralbedo.errors import DiskFullError, typed_error
+    from lunaralbedo.io import atomic
+
+    def full(self, text, *args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(atomic.Path, "write_text", full)
+    target = tmp_path / "checkpoint" / "state.json"
+    with pytest.raises(OSError) as err:
+        atomic.atomic_write_text(target, "{}")
+    assert err.value.errno == errno.ENOSPC and err.value.filename == str(target)
+    assert list(target.parent.iterdir()) == []
+    typed = typed_error(err.value)
+    assert isinstance(typed, DiskFullError) and str(typed).startswith(f"{target}: no space left")
+
+
 def _unshare_works() -> bool:
     if not shutil.which("unshare"):
         return False
@@ -146,11 +165,14 @@ cp -a {mnt}/out {copy} 2>/dev/null || true
 
 
 @pytest.mark.skipif(not _unshare_works(), reason="needs `unshare -rm` (user + mount namespaces) for a small tmpfs")
-def test_disk_full_on_a_small_filesystem(scene, reference, tmp_path):
-    """A real full file system: a 600 KiB tmpfs (in a private mount namespace) as OUTDIR's disk."""
+@pytest.mark.parametrize("size_kb", [150, 600, 1400])
+def test_disk_full_on_a_small_filesystem(scene, reference, tmp_path, size_kb):
+    """A real full file system: a small tmpfs (in a private mount namespace) as OUTDIR's disk.  The sizes
+    fill it in different writes of the cache (blocks, GeoTIFFs, ``meta.json``: at 600 KiB a ``meta.json``
+    whose write error named no file was once reported without one); the scene needs ~2.2 MB."""
     mnt, copy = tmp_path / "mnt", tmp_path / "copy"
     mnt.mkdir()
-    script = FULL_DISK.format(size=600, mnt=mnt, python=sys.executable, settings=scene / "settings.txt",
+    script = FULL_DISK.format(size=size_kb, mnt=mnt, python=sys.executable, settings=scene / "settings.txt",
                               log=tmp_path / "log", rc=tmp_path / "rc", copy=copy)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).parents[1]), os.environ.get("PYTHONPATH", "")])}
     subprocess.run(["unshare", "-rm", "sh", "-c", script], check=True, env=env)

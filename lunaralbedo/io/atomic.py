@@ -35,9 +35,11 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         yield tmp_path
         make_readable(tmp_path)
         os.replace(tmp_path, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
+        if isinstance(exc, OSError) and exc.filename is None:  # a failed write names no file (a full disk): name it
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
         raise
 
 

@@ -113,8 +113,10 @@ def save_meta(folder: str | Path, meta: dict) -> None:
         with os.fdopen(fd, "w") as f:
             f.write(json.dumps(meta))
         os.replace(tmp, folder / "meta.json")
-    except BaseException:
+    except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError) and exc.filename is None:  # a failed write or close of the file names no file
+            raise OSError(exc.errno, exc.strerror or str(exc), str(folder / "meta.json")) from exc
         raise
 
 
