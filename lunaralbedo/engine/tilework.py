@@ -329,7 +329,7 @@ def iterate_block(arrays: dict, s, state: SolveState, phase: bool, out: TileSums
         jtj, jtr = _normal_equations(arrays, alb, texp, layers[0], dr, ratio if shadow == kernels.SHADOW_ON_LAYER else None,
                                      s.shadow_thresh if shadow != kernels.NO_SHADOW_TEST else None)
     if n_par:
-        if known_range and "alpha" in arrays:
+        if known_range:
             amin, amax = (float(a) for a in arrays["alpha_range"])
         out.jtj += jtj
         out.jtr += jtr
