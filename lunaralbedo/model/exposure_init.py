@@ -102,6 +102,24 @@ def pair_sums(pix, start, image, r, index, width=None):
     return out
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _first_at_least(pix, lo, hi, value):
+    """The first index in ``lo:hi`` of the ascending ``pix`` whose pixel is at least ``value`` (``hi``: none):
+    a galloping search from ``lo`` (steps 1, 2, 4, ... then a binary search), so that a merge skips a run of
+    pixels the other image does not have (the rest of a row beside an overlap) in log steps."""
+    step = 1
+    while lo + step < hi and pix[lo + step - 1] < value:
+        step *= 2
+    a, b = lo, min(lo + step, hi)  # pix[a - 1] < value; the answer is in a..b
+    while a < b:
+        m = (a + b) // 2
+        if pix[m] < value:
+            a = m + 1
+        else:
+            b = m
+    return a
+
+
 @njit(cache=True, nogil=True)
 def _pair_sums(pix, start, logq, width):
     """Shared pixels of every pair of images by a merge of their sorted pixel lists: ``(a, b, n, sum d)``."""
@@ -113,10 +131,13 @@ def _pair_sums(pix, start, logq, width):
     for a in range(k_count):
         if start[a + 1] > start[a]:
             lo[a], hi[a] = pix[start[a]], pix[start[a + 1] - 1]
-            if width > 0:
+            if width > 0:  # the image's column range: its pixels ascend, so a row's first pixel moves forward (no division per pixel)
                 cmin, cmax = width, -1
+                row0 = (pix[start[a]] // width) * width
                 for o in range(start[a], start[a + 1]):
-                    c = pix[o] % width
+                    while pix[o] >= row0 + width:
+                        row0 += width
+                    c = pix[o] - row0
                     cmin = min(cmin, c)
                     cmax = max(cmax, c)
                 clo[a], chi[a] = cmin, cmax
@@ -138,9 +159,9 @@ def _pair_sums(pix, start, logq, width):
             d = 0.0
             while i < ie and j < je:
                 if pix[i] < pix[j]:
-                    i += 1
+                    i = _first_at_least(pix, i + 1, ie, pix[j])
                 elif pix[j] < pix[i]:
-                    j += 1
+                    j = _first_at_least(pix, j + 1, je, pix[i])
                 else:
                     d += logq[i] - logq[j]
                     n += 1
