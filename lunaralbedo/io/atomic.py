@@ -38,9 +38,20 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
-        if isinstance(exc, OSError) and exc.filename is None:  # a failed write names no file (a full disk): name it
-            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
-        raise
+        raise naming_file(exc, path)
+
+
+def naming_file(exc: BaseException, path: str | Path) -> BaseException:
+    """``exc`` as an ``OSError`` naming ``path`` when it names no file, else ``exc`` itself.
+
+    Python's (and NumPy's) error for a failed write or close, such as a full disk, names no file:
+    a writer re-raises it through this so that the user is told which file could not be written.
+    """
+    if isinstance(exc, OSError) and exc.filename is None:
+        named = OSError(exc.errno, exc.strerror or str(exc), str(path))
+        named.__cause__ = exc
+        return named
+    return exc
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:

@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from .atomic import move_aside
+from .atomic import move_aside, naming_file
 
 
 def _ensure_parent(folder: Path) -> None:
@@ -55,9 +55,7 @@ def save_stack(folder: str | Path, arrays: dict[str, np.ndarray], meta: dict) ->
         move_into_place(tmp, folder)
     except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
-        if isinstance(exc, OSError) and exc.filename is None:  # np.save's write errors name no file
-            raise OSError(exc.errno, exc.strerror or str(exc), str(folder)) from exc
-        raise
+        raise naming_file(exc, folder)  # np.save's write errors name no file
 
 
 def load_stack(folder: str | Path, mmap: bool = True) -> tuple[dict[str, np.ndarray], dict] | None:
@@ -115,9 +113,7 @@ def save_meta(folder: str | Path, meta: dict) -> None:
         os.replace(tmp, folder / "meta.json")
     except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
-        if isinstance(exc, OSError) and exc.filename is None:  # a failed write or close of the file names no file
-            raise OSError(exc.errno, exc.strerror or str(exc), str(folder / "meta.json")) from exc
-        raise
+        raise naming_file(exc, folder / "meta.json")
 
 
 _DELETER = None
