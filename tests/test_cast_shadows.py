@@ -267,3 +267,36 @@ def test_sine_floor_bounds_the_sun_elevation_of_every_pixel_of_a_block(lat, ligh
         assert floor <= sin_e.min()
         # a bound, not a blanket no: within twice its own margins of the lowest pixel
         assert sin_e.min() - floor <= 2 * (theta + 2 * d / (np.linalg.norm(sun - p, axis=-1).min() - d)) + 1e-3
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 9), (9, 1), (8, 8), (9, 17), (33, 20), (64, 65)])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_block_extremes_equal_their_definition(shape, dtype):
+    """The pyramid's finest level (highest height, largest neighbour differences, lowest height, per 8 x 8 block)
+    equals its definition taken block by block with NumPy, NaN heights and ragged edges included."""
+    from lunaralbedo.model.cast_shadows import CELL_PX, _blocks
+
+    rng = np.random.default_rng(shape[0] * 100 + shape[1])
+    dem = rng.normal(0.0, 300.0, shape).astype(dtype)
+    dem[rng.random(shape) < 0.05] = np.nan
+    h, w = shape
+    ni, nj = -(-h // CELL_PX), -(-w // CELL_PX)
+    top, gx, gy, low = np.full((ni, nj), -np.inf), np.zeros((ni, nj)), np.zeros((ni, nj)), np.full((ni, nj), np.inf)
+    d = dem.astype(np.float64)
+    for bi in range(ni):
+        for bj in range(nj):
+            i0, j0 = bi * CELL_PX, bj * CELL_PX
+            box = d[i0:min(i0 + CELL_PX, h - 1) + 1, j0:min(j0 + CELL_PX, w - 1) + 1]  # with the next row and column
+            own = d[i0:i0 + CELL_PX, j0:j0 + CELL_PX]
+            if np.isfinite(box).any():
+                top[bi, bj] = np.nanmax(box)
+            if np.isfinite(own).any():
+                low[bi, bj] = np.nanmin(own)
+            if np.isnan(box).any():
+                gx[bi, bj] = gy[bi, bj] = np.inf
+                continue
+            gx[bi, bj] = np.abs(np.diff(box, axis=1)).max(initial=0.0)
+            gy[bi, bj] = np.abs(np.diff(box, axis=0)).max(initial=0.0)
+    got = _blocks(dem, CELL_PX)
+    for name, a, b in zip(("top", "gx", "gy", "low"), got, (top, gx, gy, low)):
+        assert np.array_equal(a, b), name

@@ -75,32 +75,47 @@ LOW_RADIUS_KM = MOON_RADIUS_KM - 20.0
 def _blocks(dem, cell):
     """Per ``cell`` x ``cell`` block, with its next row and column (the bilinear neighbours of its samples):
     the highest height (-inf: none) and the largest |dh| between x-, y-neighbours (inf if a height is NaN);
-    and the lowest finite height of the block's own pixels (inf: none)."""
+    and the lowest finite height of the block's own pixels (inf: none).
+
+    Each row of blocks is reduced first down its rows, column by column (loops over whole rows
+    that LLVM vectorises), then across each block's columns: the same maxima and minima, which
+    are exact whatever their order.
+    """
     h_, w_ = dem.shape
     ni, nj = (h_ + cell - 1) // cell, (w_ + cell - 1) // cell
     top, low = np.full((ni, nj), -np.inf), np.full((ni, nj), np.inf)
     gx, gy = np.zeros((ni, nj)), np.zeros((ni, nj))
+    ctop, clow, cax, cay, cnan = np.empty(w_), np.empty(w_), np.empty(w_), np.empty(w_), np.empty(w_, np.uint8)
     for bi in range(ni):
-        i0, i1 = bi * cell, min(bi * cell + cell, h_ - 1)  # rows i0..i1 (inclusive)
+        i0, i1 = bi * cell, min(bi * cell + cell, h_ - 1)  # rows i0..i1 (inclusive); own rows below i0 + cell
+        ctop[:], clow[:], cax[:], cay[:], cnan[:] = -np.inf, np.inf, 0.0, 0.0, 0
+        for i in range(i0, i1 + 1):
+            own = i < i0 + cell
+            below = i < i1
+            row, nxt = dem[i], dem[i + 1 if below else i]
+            for j in range(w_):  # column-wise over the block row (one vectorised loop): maxima, minima, NaN flags
+                v = np.float64(row[j])
+                cnan[j] |= np.uint8(v != v)
+                ctop[j] = v if v > ctop[j] else ctop[j]
+                clow[j] = v if (own and v < clow[j]) else clow[j]
+                d = abs(np.float64(nxt[j]) - v)  # the y-pair (i, j)-(i + 1, j); 0 on the last row, which has none
+                cay[j] = d if d > cay[j] else cay[j]
+            for j in range(w_ - 1):  # the x-pairs (i, j)-(i, j + 1)
+                d = abs(np.float64(row[j + 1]) - np.float64(row[j]))
+                cax[j] = d if d > cax[j] else cax[j]
         for bj in range(nj):
-            j0, j1 = bj * cell, min(bj * cell + cell, w_ - 1)
+            j0, j1 = bj * cell, min(bj * cell + cell, w_ - 1)  # columns j0..j1; own columns below j0 + cell
             t, lo, ax, ay, nan = -np.inf, np.inf, 0.0, 0.0, False
-            for i in range(i0, i1 + 1):
-                for j in range(j0, j1 + 1):
-                    v = np.float64(dem[i, j])
-                    nan |= v != v
-                    if v > t:
-                        t = v
-                    if v < lo and i < i0 + cell and j < j0 + cell:
-                        lo = v
-                    if j < j1:  # the x-pairs (i, j)-(i, j + 1) that start in the block's columns
-                        d = abs(np.float64(dem[i, j + 1]) - v)
-                        if d > ax:
-                            ax = d
-                    if i < i1:
-                        d = abs(np.float64(dem[i + 1, j]) - v)
-                        if d > ay:
-                            ay = d
+            for j in range(j0, j1 + 1):
+                nan |= cnan[j] != 0
+                if ctop[j] > t:
+                    t = ctop[j]
+                if j < j0 + cell and clow[j] < lo:
+                    lo = clow[j]
+                if j < j1 and cax[j] > ax:
+                    ax = cax[j]
+                if cay[j] > ay:
+                    ay = cay[j]
             top[bi, bj], low[bi, bj] = t, lo
             gx[bi, bj], gy[bi, bj] = (np.inf, np.inf) if nan else (ax, ay)
     return top, gx, gy, low
