@@ -119,7 +119,7 @@ def test_fused_kernel_equals_the_numpy_formulas(chunk_px):
     blend = np.where(np.arange(h * w) % 7 == 0, 0.0, 2.5).astype(np.float32)
     alb2, err = np.empty(h * w, np.float32), np.empty(h * w, np.float32)
     kernels.finalise_runs(pm["chunks"], pm["run_start"], pm["run_pixel"], pm["run_image"], pm["image"], t, pm["r"],
-                          pm["weight"], blend, alb2, err)
+                          pm["weight"], blend.reshape(h, w), 0, alb2, err)
     np.testing.assert_array_equal(alb2, got["alb"])
     num = updates._f64sum(updates.error_terms(image, alb[None], tr.astype(np.float32), wt), axis=0).ravel()
     assert np.count_nonzero(num) > 0.5 * h * w
@@ -352,6 +352,34 @@ def test_the_fused_kernel_is_vectorised():
     assert len(packed) >= kernels.N_SUMS
 
 
+@pytest.mark.parametrize("chunk_px", [None, 16])
+def test_finalise_takes_the_blending_sums_of_the_windows_columns_only(chunk_px):
+    """The cache keeps a block's blending sums only over the columns its images' windows span: finalise given
+    those columns (and where they start) writes the albedo and error of the whole-row sums, bit for bit, with
+    NaN in the columns no window reaches and 0 where a pixel has a blending weight but no observation."""
+    image, r, _, wt, t = _stacks()
+    k, h, w = image.shape
+    wt[:, :, :4], wt[:, :, 25:] = 0, 0  # observed columns 4..24
+    obs = _compact(wt, image=image, weight=wt, r=r)
+    pm = runs.chunk_runs(obs, h * w, ["image", "weight", "r"], chunk_px)
+    blend = np.zeros((h, w), np.float32)
+    blend[:, 2:27] = np.where(np.arange(25) % 6 == 0, 0.0, 2.5)  # the windows' columns 2..26
+    blend[(wt.max(axis=0) == 0) & (np.arange(h)[:, None] % 2 == 0)] = 0  # unobserved, in every other row: 0
+
+    def finalise(sums, c0):
+        alb, err = np.empty(h * w, np.float32), np.empty(h * w, np.float32)
+        kernels.finalise_runs(pm["chunks"], pm["run_start"], pm["run_pixel"], pm["run_image"], pm["image"], t,
+                              pm["r"], pm["weight"], np.ascontiguousarray(sums), c0, alb, err)
+        return alb.reshape(h, w), err.reshape(h, w)
+
+    alb, err = finalise(blend, 0)
+    alb_cut, err_cut = finalise(blend[:, 2:27], 2)
+    np.testing.assert_array_equal(alb_cut, alb)
+    np.testing.assert_array_equal(err_cut, err)
+    assert np.isnan(err[:, :2]).all() and np.isnan(err[:, 27:]).all()
+    assert np.count_nonzero(err[:, 2:4] == 0) > 0 and np.count_nonzero(err[:, 4:25] > 0) > 0.5 * h * 21
+
+
 def test_a_pixel_seen_by_more_images_than_uint16_numbers():
     """70 000 images over one pixel: the runs number their images in int32, and the kernels take them."""
     m = 70_000
@@ -364,7 +392,7 @@ def test_a_pixel_seen_by_more_images_than_uint16_numbers():
     assert got["alb"][0] == 2 and got["n_obs"] == m and got["q"] == 0 and np.all(got["en"] == 6) and np.all(got["ed"] == 4)
     alb, err = np.empty(1, np.float32), np.empty(1, np.float32)
     kernels.finalise_runs(pm["chunks"], pm["run_start"], pm["run_pixel"], pm["run_image"], pm["image"], t, pm["r"],
-                          pm["weight"], np.full(1, 2.0, np.float32), alb, err)
+                          pm["weight"], np.full((1, 1), 2.0, np.float32), 0, alb, err)
     assert alb[0] == 2 and err[0] == 0
 
 

@@ -390,12 +390,13 @@ def _error_run(img, r, w, t, a, E, n):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")  # IEEE division, as the NumPy formulas (model/updates.albedo, error_terms)
-def finalise_runs(chunks, run_start, run_pixel, run_image, image, texp, r, w, blend, alb, err):
+def finalise_runs(chunks, run_start, run_pixel, run_image, image, texp, r, w, blend, c0, alb, err):
     r"""Eq. 3's albedo and eq. 7's error of a block's observations in chunk-major runs, into ``alb`` and ``err``.
 
     ``texp`` (float32) are the exposures of the local images ``run_image``, ``r`` the model's R
-    and ``w`` the weights of the observations (float32); ``blend`` (per pixel) eq. 7's
-    denominator, the sum of blending weights.  ``alb`` (float32 per pixel of the block) gets
+    and ``w`` the weights of the observations (float32); ``blend`` (float32, rows x columns
+    ``c0:`` of the block: those its images' windows span; 0 in the others) eq. 7's denominator,
+    the sum of blending weights.  ``alb`` (float32 per pixel of the block) gets
     :math:`A = \sum I\,TR\,w / \sum (TR)^2 w` (NaN where no weight), each pixel's float64
     sums over its images in tile order, as :func:`iterate_runs` sums them (the same bits);
     ``err`` (float32 per pixel, or size 0: not wanted) gets
@@ -407,9 +408,15 @@ def finalise_runs(chunks, run_start, run_pixel, run_image, image, texp, r, w, bl
     want_err = err.shape[0] > 0
     for p in range(alb.shape[0]):
         alb[p] = nan
+    n_rows, n_cols = blend.shape
+    width = alb.shape[0] // n_rows
     if want_err:
         for p in range(err.shape[0]):
-            err[p] = np.float32(0.0 / blend[p]) if blend[p] > 0 else nan
+            err[p] = nan
+        for i in range(n_rows):
+            for j in range(n_cols):
+                if blend[i, j] > 0:
+                    err[i * width + c0 + j] = np.float32(0.0 / blend[i, j])
     most_obs, most_px, most_runs = _chunk_extent(chunks, run_start, run_pixel)
     SN, SD = np.empty(most_px), np.empty(most_px)
     order, spans = np.empty(most_runs, np.int32), np.empty((most_runs, 2), np.int32)
@@ -434,7 +441,12 @@ def finalise_runs(chunks, run_start, run_pixel, run_image, image, texp, r, w, bl
         for rr in range(r0, r1):
             a, b, p = run_start[rr], run_start[rr + 1], run_pixel[rr] - lo
             _error_run(image[a:b], r[a:b], w[a:b], texp[run_image[rr]], alb[lo + p:lo + p + b - a], SN[p:p + b - a], b - a)
-        for q in range(nsp):
+        for q in range(nsp):  # pixel lo + j is in row i, column c of the block: found once per span
+            i = (lo + spans[q, 0]) // width
+            c = lo + spans[q, 0] - i * width - c0
             for j in range(spans[q, 0], spans[q, 1]):
-                if blend[lo + j] > 0:
-                    err[lo + j] = SN[j] / blend[lo + j]
+                if 0 <= c < n_cols and blend[i, c] > 0:  # observed pixels lie in the columns of blend
+                    err[lo + j] = SN[j] / blend[i, c]
+                c += 1
+                if c == width - c0:
+                    i, c = i + 1, -c0

@@ -12,12 +12,15 @@ by image and then by pixel:
 * ``index`` (global image ids) and ``start`` (offsets: image ``k`` owns
   ``start[k]:start[k+1]``).
 
-Per block pixel: ``dem`` (float32) and ``weights_sum`` (the sum of the blending weights,
-added in float64 and kept in float32, the type of the ``weightsSum`` output; without
+Per block pixel: ``dem`` (float32, every column of the tile) and, over the columns
+``cols = (c0, c1)`` that the block's image windows span (none in a block no image meets),
+``weights_sum`` (the sum of the blending weights, added in float64 and kept in float32, the
+type of the ``weightsSum`` output, which is 0 in the other columns; without
 NORMALIZED_COST_FUN also the denominator of eq. 7, whose error tiles are float32), and with
 it ``wblend_sum`` (eq. 7's denominator of the normalised weights, likewise).  Memory is
 ~20-28 bytes per observation plus ~8 bytes per pixel of the block; per-pixel arrays were
-half the cache of the strip of docs/performance-history.md with float64 sums (section 0f).
+half the cache of the strip of docs/performance-history.md with float64 sums (section 0f),
+and a third of it over whole rows (the strip's windows span half of its tiles' columns).
 
 **Blocks of rows** bound the memory of a worker whatever TILE_SIZE and the number of
 images: a tile is processed in blocks of :func:`block_rows` rows, each with the one-row
@@ -149,7 +152,8 @@ def saturation_of(dtype: str) -> float | None:
 
 
 def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None, helpers: int = 0):
-    """Read and reduce every image over tile ``t``, block by block: yields ``(b0, b1, observations, per-pixel arrays)``.
+    """Read and reduce every image over tile ``t``, block by block: yields ``(b0, b1, observations, per-pixel arrays,
+    cols)``, ``cols = (c0, c1)`` the columns of the per-pixel sums (module docstring).
 
     See the module docstring for the arrays.  The ``usable`` flag (valid, lit, not
     saturated, not in a cast shadow, DEM, incidence <= 85 degrees and cos e > 0) and the
@@ -172,7 +176,7 @@ def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None, helpers: 
         cols = [(w[2], w[3]) for _, w in windows if w is not None and w[0] < b1 and w[1] > b0]
         span = (min(c for c, _ in cols), max(c for _, c in cols)) if cols else (0, 0)
         geo = BlockGeometry(scene, tile, b0, b1, *span, shadows=cast) if geometry_needed else None
-        yield (b0, b1, *_gather_block(scene, tile, b0, b1, windows, geo, cast, model, lut, pool, depth))
+        yield (b0, b1, *_gather_block(scene, tile, b0, b1, windows, geo, cast, model, lut, pool, depth, span), span)
 
 
 @njit(cache=True, nogil=True)
@@ -211,13 +215,14 @@ def _compact(rows, cols, keep, val, wb, ci, ce, al, row_off, col_off, width):
     return out_r, out_c, pix, value, weight, out_i, out_e, out_a
 
 
-def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut, pool=None, depth=0):
+def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut, pool=None, depth=0, span=None):
     s = scene.settings
     h, w = b1 - b0, tile.width
+    s0, s1 = (0, w) if span is None else span  # the columns the block's windows cover: its per-pixel sums' columns
     thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
     with_cos_i = geo is not None and s.shadow_type == shadows.LAMBERT_RATIO
     kept = []  # (k, window in block rows, window blending weights, then the observations: pix, value, weight, layers)
-    weights_sum = np.zeros((h, w))
+    weights_sum = np.zeros((h, s1 - s0))
     todo = [(k, (max(win[0], b0), min(win[1], b1), win[2], win[3])) for k, win in windows
             if win is not None and win[1] > b0 and win[0] < b1]
 
@@ -255,12 +260,12 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut, po
         if got is None:
             continue
         wb, pix, value, weight, layers = got
-        weights_sum[r0 - b0:r1 - b0, c0:c1] += wb  # float64, images in tile order
+        weights_sum[r0 - b0:r1 - b0, c0 - s0:c1 - s0] += wb  # float64, images in tile order
         # compact at once: only the window's blending weights stay (for eq. 7's denominator)
-        kept.append((k, (r0 - b0, r1 - b0, c0, c1), wb if s.use_normalized_cost_fun else None, pix, value, weight, layers))
+        kept.append((k, (r0 - b0, r1 - b0, c0 - s0, c1 - s0), wb if s.use_normalized_cost_fun else None, pix, value, weight, layers))
         del got, wb
     if s.use_normalized_cost_fun:  # the weights are divided by their float32 sums; eq. 7 then has its own denominator
-        weights_sum32, wblend_sum = weights_sum.astype(np.float32), np.zeros((h, w))
+        weights_sum32, wblend_sum = weights_sum.astype(np.float32), np.zeros((h, s1 - s0))
     else:
         wblend_sum = None  # eq. 7's denominator is weights_sum itself
     names = model.layer_names + (("cos_i",) if with_cos_i else ())
@@ -276,7 +281,7 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut, po
         if s.use_normalized_cost_fun:
             with np.errstate(invalid="ignore", divide="ignore"):
                 wb = np.where(wb > 0, wb / weights_sum32[r0:r1, c0:c1], 0.0).astype(np.float32)
-                weight = (weight / weights_sum32.ravel()[pix]).astype(np.float32)
+                weight = (weight / weights_sum32[pix // w, pix % w - s0]).astype(np.float32)
             wblend_sum[r0:r1, c0:c1] += wb
         part = slice(start[i], start[i + 1])
         obs["pix"][part], obs["image"][part], obs["weight"][part] = pix, val, weight

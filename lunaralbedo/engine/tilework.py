@@ -12,7 +12,7 @@ block's observations in chunk-major runs (:func:`.runs.chunk_runs`: ``chunks``,
 ``run_start``, ``run_pixel`` relative to the block, ``run_image``, ``index``, then ``image``,
 ``weight`` and the model's layers; with a phase-angle layer, ``alpha_range``: the range of the block's
 angles, which the iterations take as it is when no dynamic shadow test changes the weights) and ``tile_*``
-per-pixel arrays), the tile's outputs known once it is
+per-pixel arrays over the columns ``cols`` of the entry's meta, those its images' windows span), the tile's outputs known once it is
 prepared (``DEM.tif``, ``weightsSum.tif``: :data:`KNOWN_OUTPUTS`), then ``meta.json`` (written last: the
 tile is complete) with the initialisation sums, ``blocks``, the ``[b0, b1]`` rows of each
 block, ``observations`` (how many the blocks hold), and ``layout`` (:data:`CACHE_LAYOUT`; a cache of another layout is prepared again).
@@ -158,27 +158,29 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
     n_obs = 0
 
     def reduce(block):  # the initialisation sums and the chunk-major runs of a block
-        b0, b1, obs, per_pixel = block
+        b0, b1, obs, per_pixel, cols = block
         names = [n for n in obs if n not in ("pix", "start", "index")]
         pm = runs.chunk_runs(obs, (b1 - b0) * width, names)
         if "alpha" in pm:  # the phase-angle range of the block's observations (iterate_block): computed once
             pm["alpha_range"] = np.array(kernels.alpha_range(pm["alpha"], pm["weight"]), np.float32)
-        return b0, b1, per_pixel, _init_sums(scene, obs, width), pm
+        return b0, b1, cols, per_pixel, _init_sums(scene, obs, width), pm
 
     big = lambda block: sum(a.nbytes for a in block[2].values()) > AHEAD_BYTES  # noqa: E731
-    for b0, b1, per_pixel, part, pm in ahead(reduce, observations.gather_blocks(scene, t, lut, helpers),
+    for b0, b1, cols, per_pixel, part, pm in ahead(reduce, observations.gather_blocks(scene, t, lut, helpers),
                                              helper("reduce") if helpers > 1 else None, here=big):
-        for kind, name in KNOWN_OUTPUTS.items():
-            if name in per_pixel:
-                known.setdefault(kind, np.empty((tile.height, tile.width), np.float32))[b0:b1] = per_pixel[name]
-        per_pixel.pop("dem", None)  # the DEM is not cached: it is a tile output alone
+        if "dem" in per_pixel:  # every column
+            known.setdefault("DEM", np.empty((tile.height, tile.width), np.float32))[b0:b1] = per_pixel.pop("dem")
+        sums = known.setdefault("weightsSum", np.empty((tile.height, tile.width), np.float32))
+        sums[b0:b1, :cols[0]], sums[b0:b1, cols[1]:] = 0.0, 0.0  # no image's window there
+        sums[b0:b1, cols[0]:cols[1]] = per_pixel["weights_sum"]
         for k, rs, n in zip(part["index"], part["r_sum"], part["r_count"]):
             acc = r_sums.setdefault(k, [0.0, 0.0])
             acc[0] += rs
             acc[1] += n
         exposure_init.merge_pair_sums(pairs, part["pairs"])
         n_obs += len(pm["image"])
-        entry.save(f"block_{len(blocks):04d}", {**pm, **{f"tile_{k}": v for k, v in per_pixel.items()}}, {"rows": [b0, b1]})
+        entry.save(f"block_{len(blocks):04d}", {**pm, **{f"tile_{k}": v for k, v in per_pixel.items()}},
+                   {"rows": [b0, b1], "cols": [int(cols[0]), int(cols[1])]})
         del pm, per_pixel
         blocks.append([b0, b1])
     for kind, arr in known.items():  # written behind the computation too, into the entry (finalise moves them)
@@ -207,9 +209,11 @@ def _split(arrays) -> tuple[dict, dict]:
 
 
 def _blocks(folder: Path, meta: dict):
-    """``(b0, b1, observations, per-pixel arrays)`` of every cached block of a tile, in order (one in memory at a time)."""
+    """``(b0, b1, observations, per-pixel arrays, their first column)`` of every cached block of a tile, in order (one
+    in memory at a time; a block cached before the per-pixel arrays were cut to its windows' columns has them all)."""
     for i, (b0, b1) in enumerate(meta["blocks"]):
-        yield (b0, b1, *_split(load_stack(folder / f"block_{i:04d}")[0]))
+        arrays, block_meta = load_stack(folder / f"block_{i:04d}")
+        yield (b0, b1, *_split(arrays), block_meta.get("cols", [0])[0])
 
 
 def _init_sums(scene: Scene, obs, width: int) -> dict:
@@ -397,7 +401,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     want_err = s.compute_errors and len(idx)
     err = np.empty((h, w_), np.float32) if want_err else None
     no_err = np.empty(0, np.float32)
-    for b0, b1, obs, per_pixel in _blocks(folder, meta):
+    for b0, b1, obs, per_pixel, c0 in _blocks(folder, meta):
         if not len(obs["index"]):
             alb[b0:b1] = np.nan
             if want_err:
@@ -405,7 +409,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
             continue
         r, w, texp = tile_model(scene, obs, state)
         kernels.finalise_runs(obs["chunks"], obs["run_start"], obs["run_pixel"], obs["run_image"], obs["image"], texp, r, w,
-                              per_pixel.get("wblend_sum", per_pixel["weights_sum"]).ravel(),  # eq. 7's sum of blending weights
+                              per_pixel.get("wblend_sum", per_pixel["weights_sum"]), c0,  # eq. 7's sum of blending weights
                               alb[b0:b1].reshape(-1), err[b0:b1].reshape(-1) if want_err else no_err)
     write = partial(write_geotiff, transform=tile.transform, crs=scene.crs, threads=write_threads)
     write(out_dir / "albedo" / name, alb, **OUTPUT_OPTIONS["albedo"])
