@@ -143,6 +143,31 @@ def test_aligned_drg_is_copied_with_the_warper_values(tmp_path, monkeypatch):
     assert got[1][5:45, 5:33].all() and not got[1][5:45, 3:5].any() and not got[1][:5].any()
 
 
+def test_pixels_on_grid_are_the_only_ones_the_reader_makes_valid(tmp_path):
+    """The box a DRG on the tile grid covers is exact: the reader gives no valid pixel outside it, and reading just
+    the box gives the same bands as reading the padded window; off the grid (warped) there is no such box."""
+    from lunaralbedo.io import drgs, rasters
+    from lunaralbedo.model.weights import WeightProfile
+
+    rng = np.random.default_rng(6)
+    h, w = 40, 30
+    dn = rng.integers(1, 255, (h, w)).astype(np.uint8)
+    tr = Affine(0.002, 0, 10.0 + 3 * 0.002, 0, -0.002, -1.0 - 5 * 0.002)
+    path = tmp_path / "B_drg.tif"
+    rasters.write_geotiff(path, np.stack([dn, np.full((h, w), 255, np.uint8)]), tr, rasters.MOON_CRS)
+    info, profile = rasters.raster_info(path), WeightProfile.full(h, w)
+    dst = Affine(0.002, 0, 10.0, 0, -0.002, -1.0)
+    assert drgs.pixels_on_grid(info, dst, (60, 50), rasters.MOON_CRS) == (5, 45, 3, 33)
+    assert drgs.pixels_on_grid(info, dst, (20, 20), rasters.MOON_CRS) == (5, 20, 3, 20)  # cut by the grid too
+    padded = drgs.read_drg_onto_grid(info, profile, dst, (60, 50), rasters.MOON_CRS, 10.0)
+    assert padded[1][5:45, 3:33].all() and padded[1].sum() == h * w  # valid exactly inside the box
+    box = drgs.read_drg_onto_grid(info, profile, dst * Affine.translation(3, 5), (40, 30), rasters.MOON_CRS, 10.0)
+    for a, b in zip(box, padded):
+        assert np.array_equal(a, b[5:45, 3:33])
+    half = Affine(0.002, 0, 10.0 + 0.001, 0, -0.002, -1.0)  # half a pixel off: warped, may reach a pixel more
+    assert drgs.pixels_on_grid(info, half, (60, 50), rasters.MOON_CRS) is None
+
+
 @pytest.mark.parametrize("sun_deg, lat, nan", [((80.0, 4.7), 5.0, True), ((20.3, -60.0), 5.0, True),
                                                ((40.0, 30.0), 5.0, True), ((80.0, 4.7), 5.0, False),
                                                ((70.0, 15.0), 55.0, False), ((-70.0, -10.0), -40.0, True)])

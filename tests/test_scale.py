@@ -122,8 +122,7 @@ def test_blocks_bound_the_rows_held(tmp_path, monkeypatch):
     assert observations.block_rows(scene, t) == tile.height  # the default budget holds these tiles whole
     monkeypatch.setenv("LUNARALBEDO_BLOCK_MB", "1")
     rows = observations.block_rows(scene, t)
-    width = sum(c1 - c0 for _, _, c0, c1 in filter(None, (observations.image_window(tile, scene.images[k].lonlat_bounds)
-                                                           for k in scene.tile_images[t])))
+    width = sum(win[3] - win[2] for _, win in observations.tile_windows(scene, t) if win is not None)
     assert 1 <= rows < tile.height
     assert rows * ((tile.width + 2) * observations.ROW_PIXEL_BYTES + width * observations.WINDOW_PIXEL_BYTES) <= 2**20
     assert (rows + 1) * ((tile.width + 2) * observations.ROW_PIXEL_BYTES + width * observations.WINDOW_PIXEL_BYTES
@@ -134,10 +133,9 @@ def test_blocks_bound_the_rows_held(tmp_path, monkeypatch):
 
 
 def max_width(scene, tile, t):
-    from lunaralbedo.engine.observations import image_window
+    from lunaralbedo.engine.observations import tile_windows
 
-    return max(c1 - c0 for _, _, c0, c1 in filter(None, (image_window(tile, scene.images[k].lonlat_bounds)
-                                                         for k in scene.tile_images[t])))
+    return max(win[3] - win[2] for _, win in tile_windows(scene, t) if win is not None)
 
 
 def rasterio_read(path):
@@ -173,3 +171,48 @@ def test_reading_and_reducing_ahead_caches_the_same_bytes(tmp_path, monkeypatch)
         assert files == sorted(p.relative_to(tmp_path / name) for p in (tmp_path / name).rglob("*") if p.is_file())
         for p in files:
             assert filecmp.cmp(tmp_path / "plain" / p, tmp_path / name / p, shallow=False), f"{name}: {p}"
+
+
+def test_windows_cut_to_the_drgs_pixels_cache_what_padded_windows_do(tmp_path, monkeypatch):
+    """Windows cut to a DRG's own pixels (DRGs on the tile grid, as ingest writes them) give the observations,
+    initialisation sums, DEM and weight-sum tiles of the windows padded by a pixel, which the reader filled with
+    empty pixels; only the per-pixel sums' columns may be fewer."""
+    import json
+
+    from lunaralbedo.engine import observations, tilework
+    from lunaralbedo.engine.scene import build_scene
+    from lunaralbedo.settings import load_settings
+    from lunaralbedo.simulate import SceneSpec, render_scene
+
+    render_scene(tmp_path / "s", SceneSpec(n_images=5, image_px=80, seed=7, cast_shadows=True))
+    scene = build_scene(load_settings(tmp_path / "s" / "settings.txt"), False, map_fn=lambda f, xs: list(map(f, xs)))
+    area = {}
+    for name in ("cut", "padded"):
+        if name == "padded":
+            monkeypatch.setattr(observations, "pixels_on_grid", lambda *a: None)
+        area[name] = sum((w[1] - w[0]) * (w[3] - w[2]) for t in range(len(scene.tiles))
+                         for _, w in observations.tile_windows(scene, t) if w is not None)
+        for t in range(len(scene.tiles)):
+            tilework.prepare_tile(t, scene=scene, cache_root=tmp_path / name)
+    assert area["cut"] < area["padded"]
+    cut = sorted(p.relative_to(tmp_path / "cut") for p in (tmp_path / "cut").rglob("*") if p.is_file())
+    padded = sorted(p.relative_to(tmp_path / "padded") for p in (tmp_path / "padded").rglob("*") if p.is_file())
+    assert cut == padded and sum(p.name == "image.npy" for p in cut) >= len(scene.tiles)
+    for p in cut:
+        a, b = tmp_path / "cut" / p, tmp_path / "padded" / p
+        if p.suffix == ".tif":
+            assert np.array_equal(rasterio_read(a), rasterio_read(b), equal_nan=True), p
+        elif p.name == "meta.json":
+            ma, mb = json.loads(a.read_text()), json.loads(b.read_text())
+            assert {k: v for k, v in ma.items() if k != "cols"} == {k: v for k, v in mb.items() if k != "cols"}, p
+        elif not p.name.startswith("tile_"):
+            assert a.read_bytes() == b.read_bytes(), p
+        else:  # the same sums in the tile's columns, 0 outside the windows'
+            full = []
+            for root in (tmp_path / "cut", tmp_path / "padded"):
+                sums = np.load(root / p)
+                c0 = json.loads((root / p.parent / "meta.json").read_text()).get("cols", [0])[0]
+                grid = np.zeros((sums.shape[0], scene.tiles[0].width), sums.dtype)
+                grid[:, c0:c0 + sums.shape[1]] = sums
+                full.append(grid)
+            assert np.array_equal(*full), p

@@ -42,7 +42,7 @@ import numpy as np
 from numba import njit
 
 from ..constants import MIN_COS_INCIDENCE_MODEL, MOON_RADIUS_KM
-from ..io.drgs import read_drg_onto_grid
+from ..io.drgs import pixels_on_grid, read_drg_onto_grid
 from ..io.rasters import read_dem_onto_grid
 from ..model import geometry, shadows
 from ..model.longitude import overlap_shifts
@@ -83,6 +83,22 @@ def image_window(tile, bounds) -> tuple[int, int, int, int] | None:
     return tile.grid.pixel_box((west + min(shifts), south, east + max(shifts), north), margin=1)
 
 
+def tile_windows(scene: Scene, t: int) -> list[tuple[int, tuple[int, int, int, int] | None]]:
+    """``(k, window)`` of every image of tile ``t``: :func:`image_window`, cut to the DRG's own pixels when it lies
+    on the tile's grid (:func:`~lunaralbedo.io.drgs.pixels_on_grid`; read pixel for pixel, no pixel beyond them is
+    valid, so the reads need not pad the window with empty pixels); None where nothing is left."""
+    tile = scene.tiles[t]
+    out = []
+    for k in map(int, scene.tile_images[t]):
+        win = image_window(tile, scene.images[k].lonlat_bounds)
+        box = pixels_on_grid(scene.images[k], tile.transform, (tile.height, tile.width), scene.crs) if win else None
+        if box is not None:
+            win = (max(win[0], box[0]), min(win[1], box[1]), max(win[2], box[2]), min(win[3], box[3]))
+            win = win if win[1] > win[0] and win[3] > win[2] else None
+        out.append((k, win))
+    return out
+
+
 def block_rows(scene: Scene, t: int, ahead: int = 0) -> int:
     """Rows per block of tile ``t``: the most that fit :data:`BLOCK_BYTES` (see module docstring), with
     ``ahead`` more windows of the largest width being read and reduced at once (helper threads)."""
@@ -91,8 +107,7 @@ def block_rows(scene: Scene, t: int, ahead: int = 0) -> int:
     if forced:
         return max(1, min(tile.height, int(forced)))
     budget = float(os.environ.get("LUNARALBEDO_BLOCK_MB", BLOCK_BYTES / 2**20)) * 2**20
-    widths = [c1 - c0 for _, _, c0, c1 in filter(None, (image_window(tile, scene.images[k].lonlat_bounds)
-                                                         for k in scene.tile_images[t]))]
+    widths = [win[3] - win[2] for _, win in tile_windows(scene, t) if win is not None]
     per_row = ((tile.width + 2) * ROW_PIXEL_BYTES + sum(widths) * WINDOW_PIXEL_BYTES
                + max(widths, default=0) * (READ_PIXEL_BYTES + AHEAD_PIXEL_BYTES * ahead))
     return max(1, min(tile.height, int(budget // per_row)))
@@ -169,7 +184,7 @@ def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None, helpers: 
     tile = scene.tiles[t]
     geometry_needed = model.needs_geometry
     cast = TileShadows(scene, tile, scene.tile_images[t]) if geometry_needed and s.uses_cast_shadows else None
-    windows = [(int(k), image_window(tile, scene.images[int(k)].lonlat_bounds)) for k in scene.tile_images[t]]
+    windows = tile_windows(scene, t)
     depth = helpers if helpers > 1 else 0
     pool = helper("windows", depth) if depth else None
     for b0, b1 in row_blocks(tile.height, block_rows(scene, t, depth)):

@@ -60,6 +60,23 @@ def read_drg_onto_grid(
     return got
 
 
+def pixels_on_grid(info: RasterInfo, dst_transform: Affine, dst_shape: tuple[int, int],
+                   dst_crs: CRS | None) -> tuple[int, int, int, int] | None:
+    """``(r0, r1, c0, c1)``: the pixels of a target grid that a DRG on that grid covers, or None when it is not on
+    it (or meets it on both sides of the antimeridian): then it is warped and may reach a pixel more.
+
+    On the grid (:func:`aligned_offset`, the same test as :func:`read_drg_onto_grid`'s), the DRG is read pixel
+    for pixel, so no target pixel outside this box gets a valid value; ``r1 <= r0`` or ``c1 <= c0``: none.
+    """
+    same_crs = dst_crs is None or info.crs is None or info.crs == dst_crs
+    shifts = _grid_shifts(info, dst_transform, dst_shape, dst_crs) if same_crs else []
+    off = aligned_offset(info.transform, shifts[0], dst_shape) if len(shifts) == 1 else None
+    if off is None:
+        return None
+    r, c = -off[0], -off[1]  # the DRG's first pixel on the target grid
+    return max(r, 0), min(r + info.height, dst_shape[0]), max(c, 0), min(c + info.width, dst_shape[1])
+
+
 def _drg_bands(ds, info, profile, win, lit_threshold, saturation, lut):
     """The four source bands of a DRG window: value (0 where invalid), valid, blending weight, usable (or None)."""
     from ..model import shadows
