@@ -4,6 +4,7 @@ from __future__ import annotations
 import filecmp
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -103,6 +104,32 @@ def test_blocks_are_cached_in_runs_and_read_as_they_are_over_the_memory_budget(s
     assert not list(folder.glob("block_*")) and (folder / "meta.json").is_file()
     again = tilework.finalize_tile(t, scene=sc, cache_root=cache, out_dir=tmp_path / "tiles", state=state)
     assert again == {**first, "reused": True}
+
+
+def test_a_tile_prepared_again_is_iterated_with_its_new_meta(scene, tmp_path, monkeypatch):
+    """The iterations read a tile's meta once per process; a tile prepared again (other blocks, a new
+    ``meta.json``) in the same process is iterated with its new blocks, not the ones remembered."""
+    import numpy as np
+
+    from lunaralbedo.engine import tilework
+    from lunaralbedo.engine.scene import build_scene
+    from lunaralbedo.settings import load_settings
+
+    sc = build_scene(load_settings(scene / "settings.txt"), False, map_fn=lambda f, xs: list(map(f, xs)))
+    t = max(range(len(sc.tiles)), key=lambda i: len(sc.tile_images[i]))
+    state = tilework.SolveState(np.ones(len(sc.images)), sc.settings.initial_params.copy())
+    sums = {}
+    for rows in ("1000", "7"):
+        monkeypatch.setenv("LUNARALBEDO_BLOCK_ROWS", rows)
+        shutil.rmtree(tmp_path / "cache", ignore_errors=True)
+        meta = tilework.prepare_tile(t, scene=sc, cache_root=tmp_path / "cache")
+        sums[rows] = (len(meta["blocks"]), tilework.iterate_tile(t, scene=sc, cache_root=tmp_path / "cache", state=state,
+                                                                 want_phase=True))
+    (one, whole), (many, blocks) = sums["1000"], sums["7"]
+    assert one == 1 and many > 3
+    assert blocks.n_obs == whole.n_obs > 0
+    np.testing.assert_allclose(blocks.q, whole.q, rtol=1e-9)
+    np.testing.assert_allclose(blocks.exp_num, whole.exp_num, rtol=1e-9)
 
 
 def _start(scene: Path, out: Path, *extra: str) -> subprocess.Popen:
