@@ -20,7 +20,7 @@ NORMALIZED_COST_FUN also the denominator of eq. 7, whose error tiles are float32
 it ``wblend_sum`` (eq. 7's denominator of the normalised weights, likewise).  Memory is
 ~20-28 bytes per observation plus ~8 bytes per pixel of the block; per-pixel arrays were
 half the cache of the strip of docs/performance-history.md with float64 sums (section 0f),
-and a third of it over whole rows (the strip's windows span half of its tiles' columns).
+and over whole rows 96 of its 361 MB (its windows span half of its tiles' columns: now 48 of 313).
 
 **Blocks of rows** bound the memory of a worker whatever TILE_SIZE and the number of
 images: a tile is processed in blocks of :func:`block_rows` rows, each with the one-row
