@@ -258,12 +258,6 @@ def pixel_stack(folder: Path, cache_root: Path) -> dict:
     return STACKS.get(folder, lambda arrays, meta: _split(arrays)[0], group=cache_root)
 
 
-def _tile_meta(folder: Path, cache_root: Path) -> dict:
-    """The meta of a prepared tile (its ``meta.json``), from :data:`STACKS` after the first pass: read and parsed once,
-    as long as it is the same file (the first pass of the strip's 6 tiles read it at ~0.25 ms per tile and pass)."""
-    return STACKS.get(folder, lambda arrays, meta: {"meta": meta}, group=cache_root)["meta"]
-
-
 def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> TileSums:
     """Partial sums of one iteration over tile ``t`` (eqs. 1, 3, 4, 5): its blocks' sums added in block order.
 
@@ -271,7 +265,7 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
     across iterations within its budget) and run through one fused kernel (:func:`iterate_block`).
     """
     folder = _cache_dir(cache_root, scene, t)
-    meta = _tile_meta(folder, cache_root)
+    meta = load_stack(folder)[1]
     idx = np.asarray(meta["index"], np.int32)
     model = scene.settings.model
     phase = want_phase and bool(model.parameters)
