@@ -389,6 +389,22 @@ def _error_run(img, r, w, t, a, E, n):
             E[i] += dev * dev * w[i]
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _error_default(blend, err, n):
+    """Eq. 7's error where a pixel has a blending weight (``0.0 / blend``: 0 until an observation adds to it), one row."""
+    for j in range(n):
+        if blend[j] > 0:
+            err[j] = np.float32(0.0 / blend[j])
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _error_quotient(num, blend, err, n):
+    """Eq. 7's quotient over a row's consecutive pixels: the float64 numerator over the float32 blending sum."""
+    for j in range(n):
+        if blend[j] > 0:
+            err[j] = num[j] / blend[j]
+
+
 @njit(cache=True, nogil=True, error_model="numpy")  # IEEE division, as the NumPy formulas (model/updates.albedo, error_terms)
 def finalise_runs(chunks, run_start, run_pixel, run_image, image, texp, r, w, blend, c0, alb, err):
     r"""Eq. 3's albedo and eq. 7's error of a block's observations in chunk-major runs, into ``alb`` and ``err``.
@@ -414,9 +430,7 @@ def finalise_runs(chunks, run_start, run_pixel, run_image, image, texp, r, w, bl
         for p in range(err.shape[0]):
             err[p] = nan
         for i in range(n_rows):
-            for j in range(n_cols):
-                if blend[i, j] > 0:
-                    err[i * width + c0 + j] = np.float32(0.0 / blend[i, j])
+            _error_default(blend[i], err[i * width + c0:i * width + c0 + n_cols], n_cols)
     most_obs, most_px, most_runs = _chunk_extent(chunks, run_start, run_pixel)
     SN, SD = np.empty(most_px), np.empty(most_px)
     order, spans = np.empty(most_runs, np.int32), np.empty((most_runs, 2), np.int32)
@@ -441,12 +455,11 @@ def finalise_runs(chunks, run_start, run_pixel, run_image, image, texp, r, w, bl
         for rr in range(r0, r1):
             a, b, p = run_start[rr], run_start[rr + 1], run_pixel[rr] - lo
             _error_run(image[a:b], r[a:b], w[a:b], texp[run_image[rr]], alb[lo + p:lo + p + b - a], SN[p:p + b - a], b - a)
-        for q in range(nsp):  # pixel lo + j is in row i, column c of the block: found once per span
-            i = (lo + spans[q, 0]) // width
-            c = lo + spans[q, 0] - i * width - c0
-            for j in range(spans[q, 0], spans[q, 1]):
-                if 0 <= c < n_cols and blend[i, c] > 0:  # observed pixels lie in the columns of blend
-                    err[lo + j] = SN[j] / blend[i, c]
-                c += 1
-                if c == width - c0:
-                    i, c = i + 1, -c0
+        for q in range(nsp):  # the span's pixels row by row: pixel p is column p - i * width - c0 of blend's row i
+            p, end = lo + spans[q, 0], lo + spans[q, 1]
+            while p < end:
+                i = p // width
+                a, b = max(p, i * width + c0), min(end, i * width + c0 + n_cols)  # observed pixels lie in blend's columns
+                if b > a:
+                    _error_quotient(SN[a - lo:b - lo], blend[i, a - i * width - c0:b - i * width - c0], err[a:b], b - a)
+                p = (i + 1) * width
