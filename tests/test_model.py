@@ -25,6 +25,18 @@ def test_lunar_lambert_reflectance_matches_eq2_and_limits():
     assert photometry.get(0).reflectance(0.7, 0.2, al, ()) == pytest.approx(1.0)
 
 
+def test_lunar_lambert_caches_the_bracket_rounded_once_to_float32():
+    """The cached layer ``geometric`` is float32: the float64 bracket rounded once (no float64 array in between),
+    zero where cos i or cos e is not positive; the phase angle is handed on as it came."""
+    rng = np.random.default_rng(4)
+    ci, ce, al = rng.uniform(-0.2, 1.0, 5000), rng.uniform(-0.2, 1.0, 5000), rng.uniform(0.0, 2.0, 5000)
+    got = lunar_lambert.layers(ci, ce, al)
+    assert got["geometric"].dtype == np.float32 and got["alpha"] is al
+    full = lunar_lambert.geometric(ci, ce, al)
+    assert full.dtype == np.float64 and np.array_equal(got["geometric"], full.astype(np.float32))
+    assert np.all(got["geometric"][(ci <= 0) | (ce <= 0)] == 0) and np.count_nonzero(got["geometric"]) > 2500
+
+
 def test_phase_derivatives_match_finite_differences():
     al = np.radians(np.array([10.0, 40.0, 80.0]))
     d1, d2 = lunar_lambert.phase_factor_derivatives(al, 1.4)

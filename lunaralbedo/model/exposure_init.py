@@ -90,7 +90,7 @@ def pair_sums(pix, start, image, r, index, width=None):
     ``pix`` is ``row * width + col``) lets pairs whose column ranges do not meet be skipped.
     """
     with np.errstate(divide="ignore", invalid="ignore"):
-        logq = (np.log(image) - np.log(r)).astype(np.float32)
+        logq = (np.log(image) - np.log(r)).astype(np.float32, copy=False)  # float32 already when both are
     pix = np.ascontiguousarray(pix)
     if pix.dtype not in (np.int32, np.int64):
         pix = pix.astype(np.int64)

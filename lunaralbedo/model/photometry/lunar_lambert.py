@@ -61,10 +61,13 @@ def _geometric_over(cos_i, cos_e, alpha_rad, out):
         out[o] = _bracket_nb(ci, ce, _polynomial_nb(alpha_rad[o] * _DEGREES)) if (ci > 0 and ce > 0) else 0.0
 
 
-def geometric(cos_i, cos_e, alpha_rad):
-    r"""The bracket of eq. 2 with :math:`L(\alpha)` (float64); zero where :math:`\cos i \le 0` or :math:`\cos e \le 0`."""
+def geometric(cos_i, cos_e, alpha_rad, dtype=np.float64):
+    r"""The bracket of eq. 2 with :math:`L(\alpha)`; zero where :math:`\cos i \le 0` or :math:`\cos e \le 0`.
+
+    Computed in float64; ``dtype=np.float32`` stores each value rounded once (what the cache keeps), with
+    no float64 array in between."""
     arrays = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (cos_i, cos_e, alpha_rad)))
-    out = np.empty(arrays[0].size)
+    out = np.empty(arrays[0].size, dtype)
     _geometric_over(*(np.ascontiguousarray(a).ravel() for a in arrays), out)
     return out.reshape(arrays[0].shape)
 
@@ -112,8 +115,9 @@ def phase_factor_derivatives(alpha_rad, c1):
 
 
 def layers(cos_i, cos_e, alpha, lon=None, lat=None):
-    """Cached per observation: the bracket of eq. 2 (``geometric``) and the phase angle (``alpha``, radians)."""
-    return {"geometric": geometric(cos_i, cos_e, alpha), "alpha": alpha}
+    """Cached per observation: the bracket of eq. 2 (``geometric``, float32 as cached) and the phase angle (``alpha``,
+    radians)."""
+    return {"geometric": geometric(cos_i, cos_e, alpha, np.float32), "alpha": alpha}
 
 
 def reflectance_from(arrays, params):
