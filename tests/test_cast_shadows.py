@@ -231,7 +231,8 @@ def test_blocks_known_lit_give_the_answers_of_the_march(lat, incidence, azimuth,
     assert np.array_equal(fast, each), f"{np.count_nonzero(fast != each)} pixels differ"
     full = cast_shadow_mask(dem, transform, sun, (20, n - 20, 20, n - 20), skip=False, exact=True).ravel()
     assert np.array_equal(fast, full)
-    left = grid._undecided(np.asarray(sun, float), rows, cols, 0).size / rows.size
+    flags, bi0, bj0, shift = grid._lit_flags(np.asarray(sun, float), rows, cols, 0)
+    left = np.mean(flags[(rows >> shift) - bi0, (cols >> shift) - bj0] == 0)  # the share of pixels marched
     assert left <= most_left, left
     if incidence > 80:
         assert full.mean() > 0.2  # the low Sun casts shadows, and their pixels are marched
@@ -300,3 +301,28 @@ def test_block_extremes_equal_their_definition(shape, dtype):
     got = _blocks(dem, CELL_PX)
     for name, a, b in zip(("top", "gx", "gy", "low"), got, (top, gx, gy, low)):
         assert np.array_equal(a, b), name
+
+
+def test_the_march_skips_exactly_the_pixels_of_blocks_flagged_lit(monkeypatch):
+    """The march takes the per-block flags as they are: given a checkerboard of 8 x 8 blocks flagged lit (whatever
+    the terrain says), the pixels of flagged blocks come out lit and every other pixel gets its own march's answer."""
+    from lunaralbedo.model.cast_shadows import CELL_PX, MarchGrid
+
+    n, res = 160, 0.002
+    transform = Affine(res, 0, 20.0 - n * res / 2, 0, -res, 5.0 + n * res / 2)
+    lon, lat = geometry.lonlat_grid(transform, (n, n))
+    dem = truth_dem(lon, lat, (lon.min(), lon.max(), lat.min(), lat.max()), 900.0, fresh_per_square_degree=0)
+    grid = MarchGrid(dem, transform)
+    sun = _sun(20.0, 5.0, 84.0, 250.0)  # a low Sun: long shadows
+    rows, cols = (a.ravel() for a in np.mgrid[3:n - 5, 6:n - 2])
+    each = grid.march(sun, rows, cols, cells=False)
+    assert 0.1 < each.mean() < 0.9
+    bi0, bj0 = 3 // CELL_PX, 6 // CELL_PX
+    nb = n // CELL_PX + 1
+    checker = ((np.arange(nb)[:, None] + np.arange(nb)[None, :]) % 2).astype(np.int8)
+    monkeypatch.setattr(grid, "_lit_flags", lambda *a: (checker, bi0, bj0, 3))
+    got = grid.march(sun, rows, cols)
+    flagged = checker[(rows >> 3) - bi0, (cols >> 3) - bj0] == 1
+    assert 0.4 < flagged.mean() < 0.6
+    assert not got[flagged].any() and each[flagged].any()
+    assert np.array_equal(got[~flagged], each[~flagged])

@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 from ..constants import MOON_RADIUS_KM
-from .march import _march_pixels, _trig_tables, extent, lit_cells, undecided
+from .march import _march_pixels, _trig_tables, extent, lit_cells
 
 #: March step, in pixels of the DEM grid (half a pixel: no ridge of the bilinear DEM is stepped over
 #: by more than half a pixel).
@@ -250,10 +250,11 @@ class MarchGrid:
         return (cat(tops), cat(slopes), np.array(offs[:-1], np.int64), np.array(widths, np.int64),
                 np.array(cells, np.int64), np.array(skips, np.int64))
 
-    def _undecided(self, sun, rows, cols, offset):
-        """Positions of the pixels not in a block :func:`.march.lit_cells` finds lit; None when it cannot tell any
-        (no ground-distance bounds near a pole).  With a global slope bound, that alone first; the pyramid (built
-        then, as the march would) for the blocks it leaves."""
+    def _lit_flags(self, sun, rows, cols, offset):
+        """``(flags, bi0, bj0, shift)``: 1 for every block of :data:`CELL_PX` pixels around the pixels that
+        :func:`.march.lit_cells` finds lit (its first block row and column ``bi0, bj0``; a pixel's block is its
+        coordinates shifted right by ``shift``); None when it cannot tell any (no ground-distance bounds near a pole).
+        With a global slope bound, that alone first; the pyramid (built then, as the march would) if it leaves a block."""
         px = _ground_px_km(self.transform, self.dem.shape)
         if px is None:
             return None
@@ -267,9 +268,9 @@ class MarchGrid:
             flags = lit_cells(self.blocks[3], self.blocks[0], prm, sun, bi0, bi1, bj0, bj1, CELL_PX,
                               np.zeros(0), np.zeros(0), *(np.zeros(0, np.int64),) * 4)
             if flags.all():
-                return np.zeros(0, np.int64)
+                return flags, bi0, bj0, shift
         flags = lit_cells(self.blocks[3], self.blocks[0], prm, sun, bi0, bi1, bj0, bj1, CELL_PX, *self.pyramid())
-        return undecided(rows, cols, roff, coff, flags, bi0, bj0, shift)
+        return flags, bi0, bj0, shift
 
     def march(self, sun_km, rows, cols, *, offset: int | tuple[int, int] = 0, skip: bool = True,
               exact: bool = False, cells: bool = True) -> np.ndarray:
@@ -287,29 +288,26 @@ class MarchGrid:
         out = np.zeros(rows.shape, np.int8)
         if self.empty or rows.size == 0:
             return out.astype(bool)
-        if cells and skip and not exact:
-            todo = self._undecided(np.asarray(sun_km, dtype=np.float64), rows, cols, offset)
-            if todo is not None and todo.size < rows.size:
-                res = np.zeros(rows.shape, bool)
-                if todo.size:
-                    res[todo] = self.march(sun_km, rows[todo], cols[todo], offset=offset, cells=False)
-                return res
+        lit = self._lit_flags(np.asarray(sun_km, dtype=np.float64), rows, cols, offset) if (cells and skip and not exact) else None
+        if lit is not None and lit[0].all():
+            return out.astype(bool)
+        lit = lit if lit is not None else (np.zeros((0, 0), np.int8), 0, 0, 0)  # the march skips the pixels of lit blocks
         tr = self.transform
         prm = np.array([tr.c, tr.a, tr.f, tr.e, self.step_km, self.hmax, self.tolerance_m, MOON_RADIUS_KM,
                         self.slope if skip else 0.0, *(offset if isinstance(offset, tuple) else (offset, offset))])
         sun = np.asarray(sun_km, dtype=np.float64)
         none = (np.zeros(0), np.zeros(0), *(np.zeros(0, np.int64),) * 4)
         if skip and self.slope > 0.0:  # first the rays the global slope bound answers; the pyramid if some ray needs it
-            _march_pixels(self.dem, prm, self.max_steps, exact, True, *self.tables, sun, rows, cols, *none, out)
+            _march_pixels(self.dem, prm, self.max_steps, exact, True, *self.tables, sun, rows, cols, *none, *lit, out)
             todo = np.flatnonzero(out == 2)
             if todo.size:
                 part = np.zeros(todo.size, np.int8)
                 _march_pixels(self.dem, prm, self.max_steps, exact, False, *self.tables, sun, rows[todo],
-                              cols[todo], *self.pyramid(), part)
+                              cols[todo], *self.pyramid(), *lit, part)
                 out[todo] = part
         else:
             _march_pixels(self.dem, prm, self.max_steps, exact, False, *self.tables, sun, rows, cols,
-                          *(self.pyramid() if skip else none), out)
+                          *(self.pyramid() if skip else none), *lit, out)
         return out == 1
 
 

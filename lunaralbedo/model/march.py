@@ -76,9 +76,11 @@ def _trig_tables(lon0, dlon, w, lat0, dlat, h):
 
 @njit(cache=True, nogil=True)
 def _march_pixels(dem, prm, max_steps, exact, decide, cos_lon, sin_lon, cos_lat, sin_lat, sun, rows, cols,
-                  lev_top, lev_slope, lev_off, lev_width, lev_shift, lev_skip, out):
+                  lev_top, lev_slope, lev_off, lev_width, lev_shift, lev_skip, lit, bi0, bj0, shift, out):
     """The march of every pixel ``(rows[o], cols[o])`` into ``out[o]``: 1 shadowed, 0 lit, 2 (``decide``) not
-    answered by the global slope bound (``prm[8]``; 0: none); ``prm[9]``, ``prm[10]``: offsets of rows, columns."""
+    answered by the global slope bound (``prm[8]``; 0: none); ``prm[9]``, ``prm[10]``: offsets of rows, columns.
+    A pixel whose block is flagged in ``lit`` (:func:`lit_cells` from block ``bi0, bj0``; blocks of ``1 << shift``
+    pixels; empty: none) is lit without a march (its ``out`` is left as it is)."""
     lon0, dlon, lat0, dlat, step_km, hmax_m, tol_m, radius, slope = prm[0], prm[1], prm[2], prm[3], prm[4], \
         prm[5], prm[6], prm[7], prm[8]
     roff, coff = int(prm[9]), int(prm[10])
@@ -87,8 +89,11 @@ def _march_pixels(dem, prm, max_steps, exact, decide, cos_lon, sin_lon, cos_lat,
     d2r = math.pi / 180.0
     kx, ky = 1.0 / (d2r * dlon), 1.0 / (d2r * dlat)
     n_lev = lev_shift.shape[0]
+    flagged = lit.shape[0] > 0
     for o in range(rows.shape[0]):
         i, j = roff + np.int64(rows[o]), coff + np.int64(cols[o])
+        if flagged and lit[(i >> shift) - bi0, (j >> shift) - bj0]:
+            continue  # a block known lit: every pixel of it is
         h = dem[i, j]
         if not np.isfinite(h):
             continue  # no ground point: lit
@@ -234,18 +239,6 @@ def lit_cells(low, top, prm, sun, bi0, bi1, bj0, bj1, cell, lev_top, lev_slope, 
             if lev > 0 and lo + 1000.0 * (lev_skip[lev - 1] + 1) * step_km * sin_m > hmax_m + 1e-3:
                 out[bi - bi0, bj - bj0] = 1
     return out
-
-
-@njit(cache=True, nogil=True)
-def undecided(rows, cols, roff, coff, flags, bi0, bj0, shift):
-    """Positions ``o`` whose pixel ``(roff + rows[o], coff + cols[o])`` lies in a block with flag 0 (:func:`lit_cells`)."""
-    idx = np.empty(rows.shape[0], np.int64)
-    n = 0
-    for o in range(rows.shape[0]):
-        if flags[((roff + np.int64(rows[o])) >> shift) - bi0, ((coff + np.int64(cols[o])) >> shift) - bj0] == 0:
-            idx[n] = o
-            n += 1
-    return idx[:n]
 
 
 @njit(cache=True, nogil=True)
