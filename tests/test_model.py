@@ -35,6 +35,11 @@ def test_lunar_lambert_caches_the_bracket_rounded_once_to_float32():
     full = lunar_lambert.geometric(ci, ce, al)
     assert full.dtype == np.float64 and np.array_equal(got["geometric"], full.astype(np.float32))
     assert np.all(got["geometric"][(ci <= 0) | (ce <= 0)] == 0) and np.count_nonzero(got["geometric"]) > 2500
+    # eq. 2 in float64 (the forward model renders with it) takes the bracket as computed, not as cached
+    r = lunar_lambert.reflectance(ci, ce, al)
+    assert r.dtype == np.float64
+    assert np.array_equal(r, lunar_lambert.reflectance_from({"geometric": full, "alpha": al}, (1.4, 0.5)))
+    assert not np.array_equal(r, lunar_lambert.reflectance_from(got, (1.4, 0.5)))
 
 
 def test_phase_derivatives_match_finite_differences():

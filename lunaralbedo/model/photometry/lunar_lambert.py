@@ -132,8 +132,9 @@ def derivatives_from(arrays, params):
 
 
 def reflectance(cos_i, cos_e, alpha, params=(1.4, 0.5)):
-    """Eq. 2 (float64); 0 where unlit or unseen."""
-    return reflectance_from(layers(cos_i, cos_e, np.asarray(alpha, dtype=np.float64)), params)
+    """Eq. 2 (float64: the bracket as computed, not rounded as the cache keeps it); 0 where unlit or unseen."""
+    alpha = np.asarray(alpha, dtype=np.float64)
+    return reflectance_from({"geometric": geometric(cos_i, cos_e, alpha), "alpha": alpha}, params)
 
 
 MODEL = PhotometricModel(
