@@ -502,3 +502,22 @@ def test_discarded_entries_go_at_once_and_are_deleted_in_the_background(tmp_path
     assert list((root / ".discarded").iterdir()) == []
     discard([blocks[2]], tmp_path / "gone" / ".discarded")  # no parent for the trash: deleted here and now
     assert not blocks[2].exists() and not (tmp_path / "gone").exists()
+
+
+def test_an_entrys_meta_is_parsed_once_while_it_is_the_same_file(tmp_path):
+    """load_meta hands out the parsed meta again while the entry's meta.json is the same file, reads an entry
+    saved again (atomically, as the prepare step does) anew, and says None once the entry is gone."""
+    import shutil
+
+    from lunaralbedo.io.cache import load_meta
+
+    folder = tmp_path / "tile_A"
+    assert load_meta(folder) is None
+    save_stack(folder, {"a": np.arange(3)}, {"index": [1, 2], "blocks": [[0, 5]]})
+    first = load_meta(folder)
+    assert first == {"index": [1, 2], "blocks": [[0, 5]]} and load_meta(folder) is first
+    save_stack(folder, {"a": np.arange(3)}, {"index": [7], "blocks": [[0, 2], [2, 5]]})
+    again = load_meta(folder)
+    assert again == {"index": [7], "blocks": [[0, 2], [2, 5]]} and load_meta(folder) is again
+    shutil.rmtree(folder)
+    assert load_meta(folder) is None

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.cache import MemoryCache, discard, load_stack
+from ..io.cache import MemoryCache, discard, load_meta, load_stack
 from ..io.cachewriter import CacheWriter
 from ..io.rasters import write_geotiff
 from ..model import exposure_init, shadows, updates
@@ -265,7 +265,9 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
     across iterations within its budget) and run through one fused kernel (:func:`iterate_block`).
     """
     folder = _cache_dir(cache_root, scene, t)
-    meta = load_stack(folder)[1]
+    meta = load_meta(folder)  # parsed once per process (every pass asks)
+    if meta is None:
+        raise FileNotFoundError(f"{folder}: the prepared tile's meta.json is missing")
     idx = np.asarray(meta["index"], np.int32)
     model = scene.settings.model
     phase = want_phase and bool(model.parameters)
