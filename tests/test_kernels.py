@@ -3,6 +3,7 @@ model's numba ``point`` gives what its NumPy functions give."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import platform
 from types import SimpleNamespace
 
@@ -472,6 +473,36 @@ def test_memory_cache_keeps_within_budget_and_never_serves_a_replaced_entry(tmp_
     cache.get(other / "a", build)
     assert built.count(5) == 1 and cache.nbytes <= cache.budget  # kept: served from memory the second time
     assert cache.get(tmp_path / "missing", build) is None
+
+
+def test_a_full_memory_cache_does_not_search_for_room_again_until_an_entry_comes_or_goes(tmp_path, monkeypatch):
+    """Blocks over the budget ask for room in every pass: once a search found none, the cache does not look at its
+    entries again (no stat of them) until one comes or goes; an entry whose files went away goes when it is asked
+    for, and the next block then finds its room."""
+    import shutil
+
+    from lunaralbedo.io import cache as cache_mod
+
+    run = tmp_path / "run" / "cache"
+    run.mkdir(parents=True)
+    for name in "abcde":
+        save_stack(run / name, {"x": np.full(1000, ord(name), np.float32)}, {})
+    cache = MemoryCache(budget=10_000)  # two entries of 4000 bytes fit, not three
+    stats = []
+    real = cache_mod._stamp
+    monkeypatch.setattr(cache_mod, "_stamp", lambda folder: stats.append(os.path.basename(folder)) or real(folder))
+    build = lambda arrays, meta: {"x": np.array(arrays["x"])}  # noqa: E731
+    for name in "abc":
+        cache.get(run / name, build)
+    assert cache.nbytes == 8000 and {"a", "b"} <= set(stats)  # c searched for room among a and b: none
+    stats.clear()
+    for name in "dc":
+        assert cache.get(run / name, build)["x"][0] == ord(name)  # served, not kept
+    assert sorted(stats) == ["c", "d"]  # their own stamps only: a and b not looked at again
+    shutil.rmtree(run / "b")
+    assert cache.get(run / "b", build) is None and cache.nbytes == 4000  # gone when asked for
+    cache.get(run / "e", build)
+    assert cache.nbytes == 8000 and cache.get(run / "e", lambda a, m: 1 / 0)["x"][0] == ord("e")  # e kept now
 
 
 def test_a_cache_entry_does_not_bring_back_a_removed_run_folder(tmp_path):

@@ -194,10 +194,10 @@ def wait_for_discarded() -> None:
     _deleter().submit(lambda: None).result()
 
 
-def _stamp(folder: Path):
+def _stamp(folder: str | Path):
     """Identity of a cache entry on disk (a re-saved entry is a new folder and ``meta.json``), or None."""
     try:
-        st, sf = os.stat(folder / "meta.json"), os.stat(folder)
+        st, sf = os.stat(os.path.join(folder, "meta.json")), os.stat(folder)
     except FileNotFoundError:
         return None
     return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, sf.st_ino, sf.st_ctime_ns
@@ -253,6 +253,9 @@ class MemoryCache:
         self.budget = int(budget)
         self.copy = copy  # None: copy unless the entry is on a local file system
         self._entries: OrderedDict[str, tuple] = OrderedDict()  # folder -> (stamp, arrays, nbytes)
+        self._bytes = 0  # the entries' nbytes, kept as they come and go
+        self._changes = 0  # how many times an entry came or went
+        self._no_room = None  # (root, _changes) of the last search for room that ended without enough
         self._lock = threading.Lock()
         self._local: dict[Path, bool] = {}  # cache root -> on a local file system
 
@@ -265,7 +268,13 @@ class MemoryCache:
 
     @property
     def nbytes(self) -> int:
-        return sum(e[2] for e in self._entries.values())
+        return self._bytes
+
+    def _drop(self, key: str) -> None:
+        old = self._entries.pop(key, None)
+        if old is not None:
+            self._bytes -= old[2]
+            self._changes += 1
 
     def get(self, folder: str | Path, build: Callable[[dict, dict], dict], group: str | Path | None = None) -> dict | None:
         """The arrays built from the entry at ``folder`` (None when it does not exist).
@@ -281,7 +290,7 @@ class MemoryCache:
             if hit is not None and hit[0] == stamp:
                 self._entries.move_to_end(key)
                 return hit[1]
-            self._entries.pop(key, None)
+            self._drop(key)
         loaded = load_stack(folder)
         if loaded is None or stamp is None:
             return None
@@ -298,22 +307,38 @@ class MemoryCache:
         with self._lock:
             self._make_room(size, root)
             if self.nbytes + size <= self.budget:
+                self._drop(key)
                 self._entries[key] = (stamp, arrays, size)
+                self._bytes += size
+                self._changes += 1
         return arrays
 
     def _make_room(self, size: int, root: Path) -> None:
+        """Drop entries of other roots and entries no longer on disk, least recently used first, until ``size`` more
+        bytes fit (or none is left to drop).  Every block over the budget asks, so the test of each entry is a
+        string prefix and, for the entries of ``root``, its stamp; and a search that ended without enough room is
+        not run again for the same root until an entry comes or goes (an entry whose files went away meanwhile
+        goes when it is asked for, which a pass over the tiles does).  Each block over the budget asks: a path's
+        parents, a sum over the entries and two ``stat`` calls for each entry had cost the 50-image scene's
+        iterations ~0.6 ms per block (docs/performance-history.md, 0l)."""
+        if self._bytes + size <= self.budget or self._no_room == (root, self._changes):
+            return
+        prefix = os.path.join(str(root), "")  # keys are absolute, normalised paths
         for key in list(self._entries):
-            if self.nbytes + size <= self.budget:
+            if self._bytes + size <= self.budget:
                 return
-            stamp = self._entries[key][0]
-            if root not in Path(key).parents or _stamp(Path(key)) != stamp:
-                del self._entries[key]
+            if not key.startswith(prefix) or _stamp(key) != self._entries[key][0]:
+                self._drop(key)
+        if self._bytes + size > self.budget:
+            self._no_room = (root, self._changes)
 
     def discard(self, folder: str | Path) -> None:
         """Forget the entry of ``folder`` (its last use in a run)."""
         with self._lock:
-            self._entries.pop(os.path.abspath(folder), None)
+            self._drop(os.path.abspath(folder))
 
     def clear(self) -> None:
         with self._lock:
             self._entries.clear()
+            self._bytes = 0
+            self._changes += 1
