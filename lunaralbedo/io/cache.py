@@ -315,12 +315,13 @@ class MemoryCache:
 
     def _make_room(self, size: int, root: Path) -> None:
         """Drop entries of other roots and entries no longer on disk, least recently used first, until ``size`` more
-        bytes fit (or none is left to drop).  Every block over the budget asks, so the test of each entry is a
-        string prefix and, for the entries of ``root``, its stamp; and a search that ended without enough room is
-        not run again for the same root until an entry comes or goes (an entry whose files went away meanwhile
-        goes when it is asked for, which a pass over the tiles does).  Each block over the budget asks: a path's
-        parents, a sum over the entries and two ``stat`` calls for each entry had cost the 50-image scene's
-        iterations ~0.6 ms per block (docs/performance-history.md, 0l)."""
+        bytes fit (or none is left to drop).
+
+        Every block over the budget asks, in every pass, so each entry is tested by a string prefix and, for the
+        entries of ``root``, its stamp; and a search that ended without enough room is not run again for the same
+        root until an entry comes or goes (an entry whose files went away meanwhile goes when it is asked for,
+        which each pass over the tiles does).  A path's parents, a sum over the entries and two ``stat`` calls for
+        every entry had cost the 50-image scene's iterations ~0.6 ms per block (docs/performance-history.md, 0l)."""
         if self._bytes + size <= self.budget or self._no_room == (root, self._changes):
             return
         prefix = os.path.join(str(root), "")  # keys are absolute, normalised paths
