@@ -230,10 +230,10 @@ def _compact(rows, cols, keep, val, wb, ci, ce, al, row_off, col_off, width):
     return out_r, out_c, pix, value, weight, out_i, out_e, out_a
 
 
-def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut, pool=None, depth=0, span=None):
+def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut, pool, depth, span):
     s = scene.settings
     h, w = b1 - b0, tile.width
-    s0, s1 = (0, w) if span is None else span  # the columns the block's windows cover: its per-pixel sums' columns
+    s0, s1 = span  # the columns the block's windows cover: its per-pixel sums' columns
     thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
     with_cos_i = geo is not None and s.shadow_type == shadows.LAMBERT_RATIO
     kept = []  # (k, window in block rows, window blending weights, then the observations: pix, value, weight, layers)

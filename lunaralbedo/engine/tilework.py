@@ -91,11 +91,11 @@ WEIGHTS_SUM_PREDICTOR = 2
 #: step has helpers; bigger ones in the task's thread (a block less held at once: make bench
 #: item 10's blocks of a 4000 x 4000 px tile raised its peak by 120 MB when reduced ahead).
 AHEAD_BYTES = 64 * 2**20
-#: The tile outputs known once a tile is prepared, by output folder: the per-pixel array of the
-#: prepare step each is made of.  They are written into the tile's cache entry by the cache writer
+#: The tile outputs known once a tile is prepared (their output folders: the block's DEM and its blending
+#: sums, assembled by :func:`_prepare_blocks`).  They are written into the tile's cache entry by the cache writer
 #: (behind the computation of the next tiles in a one-process run) and moved into place by
 #: finalise, ``weightsSum`` last.
-KNOWN_OUTPUTS = {"DEM": "dem", "weightsSum": "weights_sum"}
+KNOWN_OUTPUTS = ("DEM", "weightsSum")
 #: :func:`write_geotiff` options of each tile output.
 OUTPUT_OPTIONS = {"albedo": {"nodata": float("nan")}, "error": {"nodata": float("nan"), "predictor": ERROR_PREDICTOR},
                   "DEM": {"nodata": float("nan")}, "weightsSum": {"predictor": WEIGHTS_SUM_PREDICTOR}}
