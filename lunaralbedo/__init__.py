@@ -12,6 +12,15 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
+from . import simd  # noqa: E402  (before any module imports numba: full-width vectors, see simd.py)
+
+try:
+    simd.apply()
+except ValueError as exc:  # a bad LUNARALBEDO_VECTOR_BITS: say so, and leave numba's defaults
+    import warnings
+
+    warnings.warn(str(exc), stacklevel=2)
+
 from .errors import LunarAlbedoError  # noqa: E402
 from .settings import Settings, load_settings  # noqa: E402
 

@@ -1,0 +1,124 @@
+"""Full-width vectors on AVX-512 CPUs (lunaralbedo.simd): when numba is told, what it compiles, and that
+no result changes with the width."""
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from lunaralbedo import simd
+
+HOST = "+sse2,+avx2,+avx512f,-amx-tile"
+
+
+def _host(called):
+    def features():
+        called.append(True)
+        return HOST
+    return features
+
+
+def test_wide_features_only_where_the_user_left_numba_alone_and_the_cpu_has_avx512():
+    called = []
+    assert simd.wide_features({}, _host(called)) == HOST + ",-prefer-256-bit"
+    assert simd.wide_features({simd.SWITCH: "512"}, _host(called)) == HOST + ",-prefer-256-bit"
+    assert called == [True, True]
+    called.clear()
+    for env in ({simd.SWITCH: "256"}, {"NUMBA_CPU_FEATURES": "+avx2"}, {"NUMBA_CPU_NAME": "generic"}):
+        assert simd.wide_features(env, _host(called)) is None, env
+    assert called == []  # the host is not even asked
+    assert simd.wide_features({}, lambda: "+sse2,+avx2,-avx512f") is None  # no AVX-512F: LLVM's choice stands
+    assert simd.wide_features({}, lambda: "+sse2,+avx512fp16,-avx512f") is None  # another avx512 feature is not F
+    with pytest.raises(ValueError, match="LUNARALBEDO_VECTOR_BITS='128'"):
+        simd.wide_features({simd.SWITCH: "128"}, _host(called))
+
+
+def test_apply_does_nothing_once_numba_has_made_its_target():
+    import lunaralbedo.engine.kernels  # noqa: F401  (numba's target is made by now)
+
+    env = {}
+    assert simd.apply(env) is None and env == {}
+
+
+def _avx512() -> bool:
+    import llvmlite.binding as llvm
+
+    return "+avx512f" in llvm.get_host_cpu_features().flatten().split(",")
+
+
+needs_avx512 = pytest.mark.skipif(not _avx512(), reason="the CPU has no AVX-512F: numba keeps its own vector width")
+
+
+@needs_avx512
+def test_this_process_compiles_the_lanes_of_the_sums_eight_to_a_register():
+    """Importing lunaralbedo told numba (the suite sets no switch), in this process only, and the normal
+    equations' lanes use zmm registers."""
+    from numba import njit
+    from numba.core import config
+
+    from lunaralbedo.engine import kernels
+
+    if os.environ.get(simd.SWITCH) == "256" or any(os.environ.get(v) for v in simd.NUMBA_VARIABLES):
+        pytest.skip("the user chose the vector width")
+    assert config.CPU_FEATURES.endswith(",-prefer-256-bit")
+    # this process only: nothing in the environment a batch job could carry to a node with another CPU
+    assert "NUMBA_CPU_FEATURES" not in os.environ
+    lanes = njit(kernels._normal_lanes.py_func)
+    rows = [np.linspace(0.5, 1.5, 300, dtype=np.float32)] * 7
+    lanes(*rows, np.zeros(kernels.N_SUMS * kernels.LANES), 300, 2)
+    asm = lanes.inspect_asm(lanes.signatures[0])
+    assert len(re.findall(r"\bvaddpd\s[^\n]*%zmm", asm)) >= kernels.N_SUMS
+
+
+_CHILD = """
+import sys
+import numba, numba.core.config as config, numpy as np
+import lunaralbedo
+from lunaralbedo.engine.solve import solve
+
+print(str(config.CPU_FEATURES).endswith("-prefer-256-bit"))
+solve(sys.argv[1], out=sys.argv[2], workers=1, plots=False)
+
+@numba.njit(fastmath={"reassoc"})
+def reassociated_sum(x):
+    t = 0.0
+    for i in range(x.size):
+        t += x[i]
+    return t
+
+print(repr(reassociated_sum(np.random.default_rng(1).standard_normal(100_000) * 1e6)))
+"""
+
+
+@needs_avx512
+def test_a_solve_gives_the_same_bytes_at_either_vector_width(tmp_path):
+    """The same scene solved in two processes, one with full-width vectors and one with
+    LUNARALBEDO_VECTOR_BITS=256: every tile and table the same bytes, Q and the parameters the
+    same float64 (each kernel compiled at both widths: the prepare step's geometry and shadows,
+    the iterations, finalise)."""
+    from lunaralbedo.simulate import SceneSpec, render_scene
+
+    from test_engine import same_results
+
+    render_scene(tmp_path / "scene", SceneSpec(n_images=6, image_px=90, tile_size=0.25, max_num_iter=4, seed=21))
+    base = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CPU_FEATURES", simd.SWITCH)}
+    outs, controls = {}, {}
+    for bits in ("512", "256"):
+        outs[bits] = tmp_path / f"out{bits}"
+        res = subprocess.run([sys.executable, "-c", _CHILD, str(tmp_path / "scene" / "settings.txt"), str(outs[bits])],
+                             env={**base, simd.SWITCH: bits}, capture_output=True, text=True)
+        assert res.returncode == 0, res.stderr[-2000:]
+        wide, controls[bits] = res.stdout.split()
+        assert wide == str(bits == "512")  # the features each process compiled for
+    # the control: a sum compiled with fast-math (which no kernel of the package uses) differs, so the two
+    # processes' code does differ in width and the kernels' equal bits below are not a tautology
+    assert controls["512"] != controls["256"]
+    same_results(outs["512"], outs["256"])
+    reports = [json.loads((outs[b] / "report.json").read_text()) for b in ("512", "256")]
+    for key in ("cost_q", "parameters"):  # float64 in full: the global sums' lanes at either width
+        assert reports[0][key] == reports[1][key], key
