@@ -4,17 +4,17 @@ LLVM tunes its code for Intel's AVX-512 cores (Skylake-X to Sapphire Rapids; it 
 project's machine ``rocketlake``) with the ``prefer-256-bit`` setting: it vectorises with 256-bit
 registers although 512-bit ones are there, because on the first of those cores wide vectors
 lowered the clock.  The iterate kernel's lanes of Q and the normal equations are float64 sums
-four to a 256-bit register; eight to a register, the strip's iterate kernel took 4.31-4.47 ns per
-observation and pass against 4.72-4.84 (``make bench`` item 6, back to back, one CPU), and the
-solve's iterate stage 4.86-4.93 ns against 5.06-5.34 (docs/performance-history.md, section 0m).
+four to a 256-bit register; eight to a register, the iterate stage of a one-CPU solve of
+``make bench``'s strip took 4.80-4.92 ns per observation and pass against 5.12-5.13, back to back
+(docs/performance-history.md, section 0m).
 
 numba compiles for the CPU features of its configuration (``NUMBA_CPU_FEATURES`` when set, else
 the host's), read once, when it makes its CPU target (at the first ``@njit(cache=True)`` a module
 defines).  :func:`apply` sets them to the host's features with ``-prefer-256-bit`` in this
 process; :mod:`lunaralbedo` calls it before any of its modules defines a kernel, so every process
-that imports the package (Dask workers too) decides for its own CPU.  It changes no result: there is no fast-math,
-no contraction into fused multiply-adds and no reassociation, so each lane does the same IEEE
-operations at either width (``tests/test_simd.py`` compares the kernels' bits at both widths).
+that imports the package (Dask workers too) decides for its own CPU.  It changes no result: there
+is no fast-math, no contraction into fused multiply-adds and no reassociation, so each lane does
+the same IEEE operations at either width (``tests/test_simd.py`` compares a solve's bytes at both).
 
 Left alone, with nothing set, where the user chose: ``NUMBA_CPU_NAME`` or ``NUMBA_CPU_FEATURES``
 set, ``LUNARALBEDO_VECTOR_BITS=256`` (this module's switch), a CPU without AVX-512F, or numba's CPU
@@ -73,7 +73,10 @@ def _cpu_has_avx512() -> bool:
 def _host_features() -> str:
     import llvmlite.binding as llvm  # numba's own dependency; imported here only on AVX-512 CPUs
 
-    return llvm.get_host_cpu_features().flatten()
+    try:
+        return llvm.get_host_cpu_features().flatten()
+    except RuntimeError:  # LLVM cannot tell on this platform (numba then uses none either)
+        return ""
 
 
 def apply(environ: Mapping[str, str] = os.environ) -> str | None:

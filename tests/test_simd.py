@@ -34,6 +34,7 @@ def test_wide_features_only_where_the_user_left_numba_alone_and_the_cpu_has_avx5
     assert called == []  # the host is not even asked
     assert simd.wide_features({}, lambda: "+sse2,+avx2,-avx512f") is None  # no AVX-512F: LLVM's choice stands
     assert simd.wide_features({}, lambda: "+sse2,+avx512fp16,-avx512f") is None  # another avx512 feature is not F
+    assert simd.wide_features({}, lambda: "") is None  # LLVM could not tell the host's features
     with pytest.raises(ValueError, match="LUNARALBEDO_VECTOR_BITS='128'"):
         simd.wide_features({simd.SWITCH: "128"}, _host(called))
 
