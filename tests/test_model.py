@@ -85,6 +85,32 @@ def test_tent_weights_are_one_at_centre_zero_at_boundary_and_follow_the_mask():
     np.testing.assert_array_equal(weights.window_weights(prof, 3, 4, 4, 5), w[3:7, 4:9])
 
 
+def test_source_weights_are_the_tents_product_bit_for_bit_at_edges_and_zero_widths():
+    """The per-pixel blending weight is eq. 1's row tent times column tent of ``tent_about`` (the one
+    implementation), rounded once to float32, 0 where not valid: the same bits for ragged profiles,
+    rows and columns of zero half-width, and a window that hangs over the image (the edge profiles)."""
+    rng = np.random.default_rng(5)
+    h, w = 300, 90
+    rf = rng.integers(0, 15, h).astype(np.int32)
+    rl = (w - 1 - rng.integers(0, 15, h)).astype(np.int32)
+    cf = rng.integers(0, 40, w).astype(np.int32)
+    cl = (h - 1 - rng.integers(0, 40, w)).astype(np.int32)
+    rf[17] = rl[17] = 30  # a row of zero half-width
+    cf[11] = cl[11] = 150  # a column of zero half-width
+    prof = weights.WeightProfile(rf, rl, cf, cl)
+    r0, c0, wh, ww = -5, -7, 320, 110  # beyond every edge
+    valid = rng.random((wh, ww)) > 0.2
+    got = weights.source_weights(prof, r0, c0, valid)
+    rows = np.arange(r0, r0 + wh)[:, None]
+    cols = np.arange(c0, c0 + ww)[None, :]
+    rc, cc = np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)
+    row_tent = weights.tent(cols.astype(float), rf[rc], rl[rc])
+    col_tent = weights.tent(rows.astype(float), cf[cc], cl[cc])
+    want = np.where(valid, (row_tent * col_tent).astype(np.float32), np.float32(0))
+    assert got.dtype == np.float32 and 0.3 < (got > 0).mean() < 0.9
+    assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
+
+
 def _stack(seed=0, k=3, shape=(6, 7)):
     rng = np.random.default_rng(seed)
     a = rng.uniform(0.5, 1.5, shape)

@@ -114,23 +114,33 @@ def tent(x: np.ndarray, first: np.ndarray, last: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
+def _row_weights(x, y, c_row, h_row, centre, half, valid, out, n):
+    """One row of :func:`_window_weights`: pixel ``j`` (column ``x[j]``) gets the row's tent times its column's
+    (``centre[j]``, ``half[j]``) at row ``y``, 0 where not ``valid`` (a loop without branches: vectorised)."""
+    zero = np.float32(0.0)
+    for j in range(n):
+        t = np.float32(_tent(x[j], c_row, h_row) * _tent(y, centre[j], half[j]))
+        out[j] = t if valid[j] else zero
+
+
+@njit(cache=True, nogil=True)
 def _window_weights(row_first, row_last, col_first, col_last, row_off, col_off, valid, out):
     """``out[i, j]``: the row tent times the column tent of pixel ``(row_off + i, col_off + j)`` (float64,
-    rounded once to float32), 0 where not ``valid``; profiles of rows/columns outside the image are the edge ones."""
+    rounded once to float32), 0 where not ``valid``; profiles of rows/columns outside the image are the edge ones.
+    The columns' centres and half-widths are taken once per window, then each row in one vectorised loop."""
     n_r, n_c = row_first.shape[0], col_first.shape[0]
+    width = out.shape[1]
+    x, centre, half = np.empty(width), np.empty(width), np.empty(width)
+    for j in range(width):
+        c = col_off + j
+        cc = min(max(c, 0), n_c - 1)
+        a2, b2 = float(col_first[cc]), float(col_last[cc])
+        x[j], centre[j], half[j] = float(c), (a2 + b2) / 2.0, (b2 - a2) / 2.0
     for i in range(out.shape[0]):
         r = row_off + i
         rc = min(max(r, 0), n_r - 1)
         a, b = float(row_first[rc]), float(row_last[rc])
-        c_row, h_row = (a + b) / 2.0, (b - a) / 2.0
-        for j in range(out.shape[1]):
-            if not valid[i, j]:
-                out[i, j] = 0.0
-                continue
-            c = col_off + j
-            cc = min(max(c, 0), n_c - 1)
-            a2, b2 = float(col_first[cc]), float(col_last[cc])
-            out[i, j] = np.float32(_tent(float(c), c_row, h_row) * _tent(float(r), (a2 + b2) / 2.0, (b2 - a2) / 2.0))
+        _row_weights(x, float(r), (a + b) / 2.0, (b - a) / 2.0, centre, half, valid[i], out[i], width)
 
 
 def window_weights(profile: WeightProfile, row_off: int, col_off: int, height: int, width: int) -> np.ndarray:
