@@ -72,3 +72,55 @@ def test_the_cast_shadow_dem_of_a_tile_opens_each_dem_file_once(tmp_path, monkey
     whole = read_dem_onto_grid(scene.dems, shadows.transform, shadows.dem.shape, scene.crs,
                                scene.settings.no_dem_data_val)
     assert np.array_equal(shadows.dem, whole, equal_nan=True)
+
+
+def test_inside_lasting_the_named_files_stay_open_across_kept_open_blocks_and_others_do_not(files):
+    with opened.lasting([files[0]]):
+        with opened.kept_open():
+            with opened.open_raster(files[0]) as a, opened.open_raster(files[1]) as b:
+                pass
+        assert not a.closed and b.closed  # the named file outlives the kept_open block, the other does not
+        with opened.kept_open(), opened.open_raster(files[0]) as a2:
+            assert a2 is a
+        with opened.open_raster(files[0]) as a3:  # outside any kept_open block too
+            assert a3 is a
+        with opened.open_raster(files[2]) as c:
+            pass
+        assert c.closed
+    assert a.closed  # closed at the end of the lasting block
+
+
+def test_a_one_process_solve_opens_each_dem_file_once_for_all_its_tiles(tmp_path, monkeypatch):
+    """The prepare step of a one-process run reads every tile's terrain from DEM files opened once (the blocks
+    that neighbouring tiles share are decoded once), closes them at its end, and writes the same bytes."""
+    import filecmp
+    from contextlib import nullcontext
+    from types import SimpleNamespace
+
+    import rasterio
+
+    from lunaralbedo.engine.solve import solve
+    from lunaralbedo.simulate import SceneSpec, render_scene
+
+    render_scene(tmp_path / "s", SceneSpec(n_images=5, image_px=100, tile_size=0.25, max_num_iter=2, seed=4))
+    opens, real, handles = [], rasterio.open, []
+
+    def counted(p, *a, **k):
+        ds = real(p, *a, **k)
+        opens.append(str(p))
+        handles.append(ds)
+        return ds
+
+    monkeypatch.setattr(opened, "rasterio", SimpleNamespace(open=counted))  # the opens of open_raster (the reads)
+    res = solve(tmp_path / "s" / "settings.txt", out=tmp_path / "a", workers=1, plots=False)
+    dems = {str(p) for p in (tmp_path / "s" / "DEM").iterdir()}
+    assert len(res.report["tiles"]) > 10
+    assert dems and all(opens.count(d) == 1 for d in dems), {d: opens.count(d) for d in dems}
+    assert all(ds.closed for ds in handles)
+    monkeypatch.setattr("lunaralbedo.engine.solve.lasting", lambda paths: nullcontext())  # as before: per tile
+    opens.clear()
+    solve(tmp_path / "s" / "settings.txt", out=tmp_path / "b", workers=1, plots=False)
+    assert all(opens.count(d) > 1 for d in dems)
+    for sub in ("albedo", "DEM", "weightsSum"):
+        for p in sorted((tmp_path / "a" / sub).glob("*.tif")):
+            assert filecmp.cmp(p, tmp_path / "b" / sub / p.name, shallow=False), f"{sub}/{p.name}"
