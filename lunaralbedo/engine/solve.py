@@ -29,7 +29,6 @@ from ..errors import ResumeError, SettingsError, SolverError, typed_error
 from ..io import outputs
 from ..io.atomic import remove_stale_temporaries, remove_tree
 from ..io.guard import check_output_dir
-from ..io.opened import lasting
 from ..model import exposure_init, updates
 from ..settings import Settings, load_settings
 from ..parallel import local_workers, make_executor
@@ -232,7 +231,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
         return executor.map(fn, tiles, desc, shared=("scene",), home=home, threads=threads, scene=scene, cache_root=cache,
                             **kwargs)
 
-    metas = _prepare(on_tiles, executor, lut, [info.path for info in scene.dems])
+    metas = _prepare(on_tiles, executor, lut)
     executor.place("tiles", {t: TASK_OBSERVATIONS + sum(m["r_count"]) for t, m in zip(tiles, metas)})
     t_init = _reduce_init(scene, metas, method) if t_known is None else t_known
     timings["prepare"] = time.perf_counter() - t1
@@ -312,17 +311,14 @@ def _threads(executor) -> int:
     return max(1, min(executor.cpus_per_task, MAX_THREADS))
 
 
-def _prepare(on_tiles, executor, lut, dems) -> list:
+def _prepare(on_tiles, executor, lut) -> list:
     """The prepare step over every tile (first come, first served).  In one process the cache is written
-    behind the computation of the next tiles and waited for at the end (:mod:`lunaralbedo.io.cachewriter`),
-    and the DEM files ``dems`` stay open over the tiles (:func:`lunaralbedo.io.opened.lasting`: the blocks
-    neighbouring tiles share are decoded once); Dask workers finish writing each tile in its task, so any
-    worker can read it next."""
+    behind the computation of the next tiles and waited for at the end (:mod:`lunaralbedo.io.cachewriter`);
+    Dask workers finish writing each tile in its task, so any worker can read it next."""
     if not executor.in_process:
         return on_tiles(prepare_tile, "prepare", home=None, lut=lut)
     try:
-        with lasting(dems):
-            metas = on_tiles(prepare_tile, "prepare", home=None, lut=lut, wait=False, helpers=_threads(executor))
+        metas = on_tiles(prepare_tile, "prepare", home=None, lut=lut, wait=False, helpers=_threads(executor))
         WRITER.flush()
         trim_malloc()  # the prepare step's freed heap, not kept resident under the iterations' stacks
     except BaseException:

@@ -12,14 +12,6 @@ Keep such blocks short: an open file's decoded blocks stay in GDAL's cache (up t
 GDAL_CACHEMAX, 5 % of the RAM by default) until it is closed.  Keeping the DRGs open over a
 whole tile as well raised the peak memory of a 4000 x 4000 px tile under 16 images from 832 to
 931 MB (docs/performance-history.md, section 0f), so only the DEM reads use it.
-
-Neighbouring tiles read the same DEM blocks too (their shadow margins, and the blocks that
-straddle a tile edge).  Inside :func:`lasting`, the files it names (a run's DEMs) stay open
-over all the tiles a thread prepares, so each of their blocks is decoded once while GDAL's
-cache holds it: the strip of ``make bench`` item 6, whose DEM blocks of 256 x 256 px straddle
-its tiles' edges, read its tiles' terrain in 14.0-14.3 instead of 16.4-17.2 ns per
-observation (docs/performance-history.md, section 0m).  Its memory is GDAL's cache, which is
-bounded (64 MiB: ``io/rasters.GDAL_CACHE_BYTES``).
 """
 from __future__ import annotations
 
@@ -51,38 +43,14 @@ def kept_open():
 
 
 @contextmanager
-def lasting(paths):
-    """Files of ``paths`` opened by :func:`open_raster` in this thread stay open until the end of the block,
-    across :func:`kept_open` blocks too (nested: the outer one); other files are opened as before."""
-    if getattr(_LOCAL, "lasting", None) is not None:
-        yield
-        return
-    _LOCAL.lasting = dict.fromkeys(map(str, paths))
-    try:
-        yield
-    finally:
-        files, _LOCAL.lasting = _LOCAL.lasting, None
-        for ds in files.values():
-            if ds is not None:
-                ds.close()
-
-
-@contextmanager
 def open_raster(path):
-    """The raster ``path`` opened for reading, for the ``with`` block (kept open inside :func:`kept_open`,
-    and inside :func:`lasting` when it names the file)."""
-    key = str(path)
-    long_lived = getattr(_LOCAL, "lasting", None)
-    if long_lived is not None and key in long_lived:
-        if long_lived[key] is None:
-            long_lived[key] = rasterio.open(path)
-        yield long_lived[key]
-        return
+    """The raster ``path`` opened for reading, for the ``with`` block (kept open inside :func:`kept_open`)."""
     files = getattr(_LOCAL, "files", None)
     if files is None:
         with rasterio.open(path) as ds:
             yield ds
         return
+    key = str(path)
     if key in files:
         files.move_to_end(key)
     else:
