@@ -43,7 +43,7 @@ def wide_features(environ: Mapping[str, str], host_features: Callable[[], str]) 
     bits = environ.get(SWITCH, "").strip()
     if bits not in ("", "256", "512"):
         raise ValueError(f"{SWITCH}={bits!r}: expected 256 or 512")
-    if bits == "256" or any(environ.get(name) for name in NUMBA_VARIABLES):
+    if bits == "256" or any(name in environ for name in NUMBA_VARIABLES):  # set at all, even empty: the user's
         return None
     features = host_features()
     if "+avx512f" not in features.split(","):
