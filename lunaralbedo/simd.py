@@ -58,20 +58,8 @@ def _numba_target_made() -> bool:
     return target is not None and "_toplevel_target_context" in vars(target)
 
 
-def _cpu_has_avx512() -> bool:
-    """AVX-512F in ``/proc/cpuinfo``'s flags (True where there is no such file: LLVM then decides)."""
-    try:
-        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as f:
-            for line in f:
-                if line.startswith("flags"):
-                    return "avx512f" in line.split()
-    except OSError:
-        return True
-    return True
-
-
 def _host_features() -> str:
-    import llvmlite.binding as llvm  # numba's own dependency; imported here only on AVX-512 CPUs
+    import llvmlite.binding as llvm  # numba's own dependency (the package imports numba anyway)
 
     try:
         return llvm.get_host_cpu_features().flatten()
@@ -89,7 +77,7 @@ def apply(environ: Mapping[str, str] = os.environ) -> str | None:
     own CPU.  numba's CPU target is made at once, with these features, so that no later reload
     of numba's configuration (numba reads its environment variables again when they change)
     undoes them."""
-    if _numba_target_made() or not _cpu_has_avx512():
+    if _numba_target_made():
         return None
     features = wide_features(environ, _host_features)
     if features is not None:
