@@ -18,7 +18,8 @@ from lunaralbedo.cli import main
 from lunaralbedo.engine.tiles import make_tiles
 from lunaralbedo.ingest.dem import DemMosaic, load_dems
 from lunaralbedo.ingest.run import _box, union_box
-from lunaralbedo.io.rasters import MOON_CRS, write_geotiff
+from lunaralbedo.io.rasters import MOON_CRS
+from lunaralbedo.io.geotiff import write_geotiff
 from lunaralbedo.model.longitude import continuous_span, overlap_shifts, union_span
 from lunaralbedo.simulate import SceneSpec, render_scene, score
 

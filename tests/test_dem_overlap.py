@@ -6,7 +6,8 @@ import pytest
 from rasterio.transform import Affine
 
 from lunaralbedo.ingest.dem import DemMosaic, load_dems
-from lunaralbedo.io.rasters import MOON_CRS, raster_info, read_dem_onto_grid, write_geotiff
+from lunaralbedo.io.rasters import MOON_CRS, raster_info, read_dem_onto_grid
+from lunaralbedo.io.geotiff import write_geotiff
 from lunaralbedo.model.geometry import merge_dem_layers
 from lunaralbedo.model.grid import Grid
 

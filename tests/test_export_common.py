@@ -15,7 +15,8 @@ import rasterio
 from rasterio.transform import Affine
 
 from lunaralbedo.engine.tiles import tile_name
-from lunaralbedo.io.rasters import MOON_CRS, write_geotiff
+from lunaralbedo.io.rasters import MOON_CRS
+from lunaralbedo.io.geotiff import write_geotiff
 
 
 def albedo_fn(lon, lat):

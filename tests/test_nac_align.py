@@ -10,7 +10,8 @@ import rasterio
 from click.testing import CliRunner
 
 from lunaralbedo.cli import main
-from lunaralbedo.io.rasters import MOON_CRS, write_geotiff
+from lunaralbedo.io.rasters import MOON_CRS
+from lunaralbedo.io.geotiff import write_geotiff
 from lunaralbedo.nac.synthetic import Terrain
 
 SHIFT = (150.0, -110.0, 15.0)  # east, north, up (m): the DEM's displacement from the truth

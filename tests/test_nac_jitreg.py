@@ -9,7 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from lunaralbedo.cli import main
-from lunaralbedo.io.rasters import write_geotiff
+from lunaralbedo.io.geotiff import write_geotiff
 from lunaralbedo.isis.write import write_cube
 from lunaralbedo.nac.jitreg import register
 from lunaralbedo.nac.synthetic import WaveTexture, jitter_pair, sinusoid

@@ -6,6 +6,7 @@ import pytest
 from rasterio.transform import Affine
 
 from lunaralbedo.io import opened, rasters
+from lunaralbedo.io.geotiff import write_geotiff
 
 
 @pytest.fixture()
@@ -13,7 +14,7 @@ def files(tmp_path):
     paths = []
     for k in range(4):
         p = tmp_path / f"f{k}.tif"
-        rasters.write_geotiff(p, np.full((40, 30), k, np.float32), Affine(0.01, 0, k, 0, -0.01, 0), rasters.MOON_CRS)
+        write_geotiff(p, np.full((40, 30), k, np.float32), Affine(0.01, 0, k, 0, -0.01, 0), rasters.MOON_CRS)
         paths.append(p)
     return paths
 

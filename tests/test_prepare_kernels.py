@@ -120,6 +120,7 @@ def test_pair_sums_equal_a_pixel_by_pixel_count():
 def test_aligned_drg_is_copied_with_the_warper_values(tmp_path, monkeypatch):
     """A DRG on the tile grid: the direct copy gives GDAL's bilinear values; only weight-zero edges differ."""
     from lunaralbedo.io import drgs, rasters
+    from lunaralbedo.io.geotiff import write_geotiff
     from lunaralbedo.model.weights import WeightProfile
 
     rng = np.random.default_rng(5)
@@ -129,7 +130,7 @@ def test_aligned_drg_is_copied_with_the_warper_values(tmp_path, monkeypatch):
     alpha[:, :2] = 0  # an invalid margin, as orthoprojected DRGs have
     tr = Affine(0.002, 0, 10.0 + 3 * 0.002, 0, -0.002, -1.0 - 5 * 0.002)
     path = tmp_path / "A_drg.tif"
-    rasters.write_geotiff(path, np.stack([dn, alpha]), tr, rasters.MOON_CRS)
+    write_geotiff(path, np.stack([dn, alpha]), tr, rasters.MOON_CRS)
     info = rasters.raster_info(path)
     profile = WeightProfile.full(h, w)
     dst = Affine(0.002, 0, 10.0, 0, -0.002, -1.0)  # the tile grid: the DRG starts at column 3, row 5
@@ -147,6 +148,7 @@ def test_pixels_on_grid_are_the_only_ones_the_reader_makes_valid(tmp_path):
     """The box a DRG on the tile grid covers is exact: the reader gives no valid pixel outside it, and reading just
     the box gives the same bands as reading the padded window; off the grid (warped) there is no such box."""
     from lunaralbedo.io import drgs, rasters
+    from lunaralbedo.io.geotiff import write_geotiff
     from lunaralbedo.model.weights import WeightProfile
 
     rng = np.random.default_rng(6)
@@ -154,7 +156,7 @@ def test_pixels_on_grid_are_the_only_ones_the_reader_makes_valid(tmp_path):
     dn = rng.integers(1, 255, (h, w)).astype(np.uint8)
     tr = Affine(0.002, 0, 10.0 + 3 * 0.002, 0, -0.002, -1.0 - 5 * 0.002)
     path = tmp_path / "B_drg.tif"
-    rasters.write_geotiff(path, np.stack([dn, np.full((h, w), 255, np.uint8)]), tr, rasters.MOON_CRS)
+    write_geotiff(path, np.stack([dn, np.full((h, w), 255, np.uint8)]), tr, rasters.MOON_CRS)
     info, profile = rasters.raster_info(path), WeightProfile.full(h, w)
     dst = Affine(0.002, 0, 10.0, 0, -0.002, -1.0)
     assert drgs.pixels_on_grid(info, dst, (60, 50), rasters.MOON_CRS) == (5, 45, 3, 33)

@@ -7,7 +7,8 @@ from click.testing import CliRunner
 from rasterio.transform import Affine
 
 from lunaralbedo.cli import main
-from lunaralbedo.io.rasters import MOON_CRS, write_geotiff
+from lunaralbedo.io.rasters import MOON_CRS
+from lunaralbedo.io.geotiff import write_geotiff
 from lunaralbedo.io.response import read_response_csv
 from lunaralbedo.model import response as R
 from lunaralbedo.model.response_fit import fit_response

@@ -9,7 +9,8 @@ import rasterio
 from rasterio.transform import Affine
 
 from lunaralbedo.engine.solve import solve
-from lunaralbedo.io.rasters import MOON_CRS, raster_info, read_dem_onto_grid, write_geotiff
+from lunaralbedo.io.rasters import MOON_CRS, raster_info, read_dem_onto_grid
+from lunaralbedo.io.geotiff import write_geotiff
 from lunaralbedo.model import shadows
 from lunaralbedo.simulate import SceneSpec, render_scene, score
 

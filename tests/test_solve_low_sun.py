@@ -50,7 +50,8 @@ def test_without_cast_shadows_the_shadows_are_taken_as_dark_albedo(low_sun, tmp_
 
 def test_saturated_pixels_are_not_usable(tmp_path):
     from lunaralbedo.io.drgs import read_drg_onto_grid
-    from lunaralbedo.io.rasters import MOON_CRS, raster_info, write_geotiff
+    from lunaralbedo.io.rasters import MOON_CRS, raster_info
+    from lunaralbedo.io.geotiff import write_geotiff
     from lunaralbedo.model.weights import WeightProfile
     from rasterio.transform import Affine
 

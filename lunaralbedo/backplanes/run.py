@@ -11,7 +11,7 @@ from rasterio.transform import Affine
 from ..camera.build import build_camera
 from ..errors import IsisError
 from ..ingest.observation import open_observation
-from ..io.rasters import write_geotiff
+from ..io.geotiff import write_geotiff
 from ..isis.labels import IsisLabel, read_label
 from .angles import BAND_NAMES
 from .compute import Shape, image_backplanes

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..io.cache import MemoryCache, discard, load_meta, load_stack
 from ..io.cachewriter import CacheWriter
-from ..io.rasters import write_geotiff
+from ..io.geotiff import write_geotiff
 from ..model import exposure_init, shadows, updates
 from ..parallel.ahead import ahead, helper
 from . import kernels, observations, runs

@@ -33,7 +33,7 @@ from rio_cogeo.profiles import cog_profiles
 
 from ..io.atomic import TMP_PREFIX, atomic_path
 from ..io.guard import raster_errors
-from ..io.rasters import write_geotiff
+from ..io.geotiff import write_geotiff
 from ..model.grid import Grid
 from .sources import Source, read_masked, read_region
 

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from ..io.atomic import atomic_write_text
-from ..io.rasters import MOON_CRS, write_geotiff
+from ..io.rasters import MOON_CRS
+from ..io.geotiff import write_geotiff
 from ..settings import legacy_text, load_settings
 from ..model.grid import Grid
 

@@ -1,4 +1,4 @@
-"""Raster adapters (rasterio/GDAL): DRG catalogue, windowed reads onto a grid, atomic GeoTIFF writes.
+"""Raster adapters (rasterio/GDAL): DRG catalogue, windowed reads onto a grid (GeoTIFF writes: :mod:`.geotiff`).
 
 Grids are geographic (degrees of planetocentric longitude/latitude on the Moon's
 1737.4 km sphere) unless a DRG says otherwise; every read goes through a window so
@@ -25,7 +25,6 @@ from rasterio.windows import Window, from_bounds
 from ..constants import KEY_LENGTH
 from ..errors import DuplicateKeyError, InputError
 from ..model.longitude import overlap_shifts
-from .atomic import atomic_path
 from .guard import raster_errors
 from .opened import open_raster
 
@@ -302,62 +301,6 @@ def _source_window(ds, dst_transform: Affine, dst_shape: tuple[int, int], dst_cr
 
 def _overlaps(win: Window, ds) -> bool:
     return win.col_off < ds.width and win.row_off < ds.height and win.col_off + win.width > 0 and win.row_off + win.height > 0
-
-
-def write_geotiff(
-    path: str | Path,
-    bands: np.ndarray | Sequence[np.ndarray],
-    transform: Affine,
-    crs: CRS | None,
-    nodata: float | None = None,
-    dtype: str | None = None,
-    compress: str = "zstd",
-    descriptions: Sequence[str] | None = None,
-    tags: Sequence[dict] | None = None,
-    predictor: int | None = None,
-    threads: int = 1,
-) -> None:
-    """Write one or more bands as a GeoTIFF, atomically (temp file + rename).
-
-    ``descriptions`` and ``tags`` (one dict per band) are written with the pixels.
-
-    Default compression is ZSTD (level 1) with the floating-point or horizontal
-    predictor: about 4x faster to write than DEFLATE at the same size; GDAL >= 2.3,
-    QGIS and rasterio read it.  ``predictor`` (1: none, 2: horizontal, 3: floating point)
-    overrides that choice: data without smooth rows (the solver's error tiles) compress as
-    well without one, and ~30 % faster (docs/performance-history.md, section 0e).  ``threads`` > 1:
-    GDAL compresses that many blocks at once (creation option NUM_THREADS; the same file
-    contents): for a caller with idle CPUs, such as a one-worker solve (2000 x 2000 px
-    float32 tile on 2 CPUs: 60 -> 36 ms, docs/performance-history.md section 0f).
-    """
-    arr = np.asarray(bands)
-    if arr.ndim == 2:
-        arr = arr[None]
-    dtype = dtype or arr.dtype.name
-    profile = dict(
-        driver="GTiff",
-        width=arr.shape[2],
-        height=arr.shape[1],
-        count=arr.shape[0],
-        dtype=dtype,
-        transform=transform,
-        crs=crs,
-        nodata=nodata,
-        compress=compress,
-    )
-    if compress == "zstd":
-        profile.update(zstd_level=1, predictor=predictor or (3 if np.dtype(dtype).kind == "f" else 2))
-    if arr.shape[1] >= 16 and arr.shape[2] >= 16:
-        profile.update(tiled=arr.shape[1] > 256 or arr.shape[2] > 256)
-    if threads > 1 and compress:
-        profile.update(num_threads=int(threads))
-    with raster_errors(path, "write"), atomic_path(path) as tmp:
-        with rasterio.open(tmp, "w", **profile) as dst:
-            dst.write(arr.astype(dtype, copy=False))
-            for k, text in enumerate(descriptions or ()):
-                dst.set_band_description(k + 1, text)
-            for k, band_tags in enumerate(tags or ()):
-                dst.update_tags(k + 1, **band_tags)
 
 
 def read_dem_onto_grid(

@@ -17,7 +17,7 @@ from rasterio.transform import Affine
 
 from ..errors import InputError
 from ..io.atomic import atomic_write_text
-from ..io.rasters import write_geotiff
+from ..io.geotiff import write_geotiff
 from .vwgeo import Geo
 
 TIF_SUFFIX = ".tif"

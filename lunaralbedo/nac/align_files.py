@@ -23,7 +23,7 @@ from ..errors import InputError
 from ..ingest.dem import DemSource, load_dems
 from ..io.atomic import atomic_write_text
 from ..io.outputs import save_figure
-from ..io.rasters import write_geotiff
+from ..io.geotiff import write_geotiff
 from ..model.geometry import body_fixed, dem_normals, lonlat_height
 from .align import apply, ce90_le90, error_stats, icp
 

@@ -18,7 +18,7 @@ from rasterio.transform import Affine
 
 from ..backplanes.run import camera_geometry
 from ..errors import InputError, IsisError
-from ..io.rasters import write_geotiff
+from ..io.geotiff import write_geotiff
 from ..isis.labels import read_label
 from ..isis.pixels import read_band
 from ..isis.parameter_map import read_parameter_map

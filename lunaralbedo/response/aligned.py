@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import InputError
 from ..io import outputs
 from ..io import response as rio
-from ..io.rasters import write_geotiff
+from ..io.geotiff import write_geotiff
 from ..model.response import observations_from_stack, radiance_map
 from ..model.response_fit import ResponseFit, fit_response
 

@@ -23,7 +23,8 @@ from rasterio.transform import Affine
 from ..camera.intersect import ray_dem
 from ..model.grid import Grid, bilinear
 from ..ingest.observation import packaged_lsk
-from ..io.rasters import MOON_CRS, write_geotiff
+from ..io.rasters import MOON_CRS
+from ..io.geotiff import write_geotiff
 from ..isis.write import Quantity, write_cube
 from ..model import photometry
 from ..model.geometry import body_fixed, dem_normals, illumination, lonlat_height

@@ -20,7 +20,8 @@ import spiceypy
 
 from .mission import ET_BASE, FOCAL_MM, KERNEL_FILES, PITCH_MM, Shot, make_scene, render, write_kernels
 from ..io.atomic import atomic_write_text
-from ..io.rasters import MOON_CRS, write_geotiff
+from ..io.rasters import MOON_CRS
+from ..io.geotiff import write_geotiff
 from ..isis.write import Quantity, write_cube
 from ..spice.kernels import KernelPool
 from ..spice.writers import write_text_kernel

@@ -28,7 +28,8 @@ from ..engine.photometry import bind
 from ..errors import InputError
 from ..io.atomic import atomic_write_text
 from ..io.positions import write_positions
-from ..io.rasters import MOON_CRS, write_geotiff
+from ..io.rasters import MOON_CRS
+from ..io.geotiff import write_geotiff
 from ..model import geometry
 from ..model import photometry
 from ..model.cast_shadows import cast_shadow_mask, shadow_reach_km
