@@ -624,13 +624,17 @@ def test_a_one_worker_solve_runs_its_tiles_on_every_cpu_and_writes_the_same_file
     cpus = available_cpus()
     assert SerialExecutor().cpus_per_task == cpus == len(os.sched_getaffinity(0))
     assert LocalPoolExecutor(2).cpus_per_task == 1 and DaskExecutor.cpus_per_task == 1
-    seen, real = [], tilework.write_geotiff
+    from lunaralbedo.io import cachewriter
+    from lunaralbedo.io.geotiff import GeoTiffRows, write_geotiff
+
+    seen = []
     ran = {"iterate": set(), "finalise": set()}
 
-    def spy(path, *args, threads=1, **kwargs):
-        path = Path(path)  # a tile output (albedo/tile_*.tif) or one in a cache entry (DEM.tif)
-        seen.append((path.parent.name if path.name.startswith("tile_") else path.stem, threads))
-        return real(path, *args, threads=threads, **kwargs)
+    class Spy(GeoTiffRows):  # each tile output is one GeoTiffRows, written a block of rows at a time
+        def __init__(self, path, *args, threads=1, **kwargs):
+            path = Path(path)  # a tile output (albedo/tile_*.tif) or one in a cache entry (DEM.tif)
+            seen.append((path.parent.name if path.name.startswith("tile_") else path.stem, threads))
+            super().__init__(path, *args, threads=threads, **kwargs)
 
     def on_thread(stage, fn):
         def task(*args, **kwargs):
@@ -639,7 +643,8 @@ def test_a_one_worker_solve_runs_its_tiles_on_every_cpu_and_writes_the_same_file
             return fn(*args, **kwargs)
         return task
 
-    monkeypatch.setattr(tilework, "write_geotiff", spy)
+    monkeypatch.setattr(tilework, "GeoTiffRows", Spy)
+    monkeypatch.setattr(cachewriter, "GeoTiffRows", Spy)
     monkeypatch.setattr(solve_module, "iterate_tile", on_thread("iterate", solve_module.iterate_tile))
     monkeypatch.setattr(solve_module, "finalize_tile", on_thread("finalise", solve_module.finalize_tile))
     out = tmp_path / "out"
@@ -669,5 +674,5 @@ def test_a_one_worker_solve_runs_its_tiles_on_every_cpu_and_writes_the_same_file
     same_results(reference, tmp_path / "one_cpu")
     tile = np.random.default_rng(3).normal(size=(700, 900)).astype(np.float32).cumsum(1)  # 12 blocks of 256 px
     for threads in (1, 3):
-        real(tmp_path / f"t{threads}.tif", tile, Affine(0.01, 0, 0, 0, -0.01, 0), MOON_CRS, threads=threads)
+        write_geotiff(tmp_path / f"t{threads}.tif", tile, Affine(0.01, 0, 0, 0, -0.01, 0), MOON_CRS, threads=threads)
     assert (tmp_path / "t1.tif").read_bytes() == (tmp_path / "t3.tif").read_bytes()

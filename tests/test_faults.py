@@ -102,20 +102,21 @@ def test_disk_full_while_writing_tiles(scene, reference, tmp_path, monkeypatch, 
     """A tile writer that fails with ENOSPC on the second tile: exit 3, naming the file (finalise's albedo and
     error tiles) or the tile's cache entry (the DEM and weight-sum tiles, written with it), no result tiles,
     resumable."""
-    import lunaralbedo.engine.tilework as tw
+    from lunaralbedo.io.geotiff import GeoTiffRows
 
-    real, calls = tw.write_geotiff, []
+    real, calls = GeoTiffRows.write, []
     kind = {"finalise": "error", "prepare": "DEM"}[stage]
 
-    def failing(path, *args, **kwargs):
-        path = Path(path)
+    def failing(self, rows, row0):  # the tile outputs are written a block of rows at a time
+        path = Path(self.path)
         if kind in (path.parent.name, path.stem):  # error/tile_*.tif, or DEM.tif in a cache entry
-            calls.append(path)
+            if path not in calls:
+                calls.append(path)
             if len(calls) == 2:
                 raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
-        return real(path, *args, **kwargs)
+        return real(self, rows, row0)
 
-    monkeypatch.setattr(tw, "write_geotiff", failing)
+    monkeypatch.setattr(GeoTiffRows, "write", failing)
     out = tmp_path / "out"
     res = cli("solve", scene / "settings.txt", "-o", out, "--quiet", "--workers", "1")
     line = assert_clean_failure(res, 3, "no space left")

@@ -32,7 +32,8 @@ a height) and the measured bytes per pixel below: a tile that fits is one block.
 give the observations and per-pixel arrays of one whole-tile block; only sums that cross
 blocks are added in another order (float64 rounding, ``tests/test_scale.py``).  Besides
 the block, a worker holds per tile the cast-shadow DEM (4 bytes per pixel with its
-margin) and, while writing the outputs, 8 bytes per tile pixel (docs/performance.md).
+margin); the tile outputs are written a block of rows at a time
+(:class:`~lunaralbedo.io.geotiff.GeoTiffRows`), so no other whole-tile raster is held (docs/performance.md).
 """
 from __future__ import annotations
 
@@ -43,6 +44,7 @@ from numba import njit
 
 from ..constants import MIN_COS_INCIDENCE_MODEL, MOON_RADIUS_KM
 from ..io.drgs import pixels_on_grid, read_drg_onto_grid
+from ..io.geotiff import BLOCK as OUTPUT_BLOCK
 from ..io.rasters import read_dem_onto_grid
 from ..model import geometry, shadows
 from ..model.longitude import overlap_shifts
@@ -99,18 +101,28 @@ def tile_windows(scene: Scene, t: int) -> list[tuple[int, tuple[int, int, int, i
     return out
 
 
+def block_budget() -> float:
+    """Bytes of a block's working memory: :data:`BLOCK_BYTES`, or ``LUNARALBEDO_BLOCK_MB`` MiB."""
+    return float(os.environ.get("LUNARALBEDO_BLOCK_MB", BLOCK_BYTES / 2**20)) * 2**20
+
+
 def block_rows(scene: Scene, t: int, ahead: int = 0) -> int:
     """Rows per block of tile ``t``: the most that fit :data:`BLOCK_BYTES` (see module docstring), with
-    ``ahead`` more windows of the largest width being read and reduced at once (helper threads)."""
+    ``ahead`` more windows of the largest width being read and reduced at once (helper threads); a tile cut
+    into blocks gets a multiple of the tile outputs' 256-row blocks when that many fit (each block of the
+    GeoTIFFs is then compressed and written once: :mod:`lunaralbedo.io.geotiff`)."""
     forced = os.environ.get("LUNARALBEDO_BLOCK_ROWS")
     tile = scene.tiles[t]
     if forced:
         return max(1, min(tile.height, int(forced)))
-    budget = float(os.environ.get("LUNARALBEDO_BLOCK_MB", BLOCK_BYTES / 2**20)) * 2**20
+    budget = block_budget()
     widths = [win[3] - win[2] for _, win in tile_windows(scene, t) if win is not None]
     per_row = ((tile.width + 2) * ROW_PIXEL_BYTES + sum(widths) * WINDOW_PIXEL_BYTES
                + max(widths, default=0) * (READ_PIXEL_BYTES + AHEAD_PIXEL_BYTES * ahead))
-    return max(1, min(tile.height, int(budget // per_row)))
+    rows = max(1, min(tile.height, int(budget // per_row)))
+    if rows < tile.height and rows >= OUTPUT_BLOCK:  # whole rows of the tile outputs' blocks: each written once
+        rows -= rows % OUTPUT_BLOCK
+    return rows
 
 
 def row_blocks(height: int, rows: int) -> list[tuple[int, int]]:

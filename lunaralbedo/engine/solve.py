@@ -34,6 +34,7 @@ from ..settings import Settings, load_settings
 from ..parallel import local_workers, make_executor
 from ..parallel.workers import trim_malloc
 from .response import check_resume, known_exposures, lut_digest, move_outputs, report_parts, resolve_response
+from .observations import ROW_PIXEL_BYTES, block_budget
 from .scene import Scene, build_scene
 from .tilework import WRITER, SolveState, finalize_tile, iterate_tile, prepare_tile
 
@@ -272,8 +273,8 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     if not skip_done:
         ck["finalising"] = True  # from here on the state is fixed; finished tiles can be kept
         outputs.write_json(out / STATE_FILE, ck)
-    # one process: tiles on its CPUs, at most FINALISE_BYTES of their rasters at once; GDAL's threads on the CPUs left
-    tile_px = max((t.height * t.width for t in scene.tiles), default=1)
+    # one process: tiles on its CPUs, at most FINALISE_BYTES of their rows at once; GDAL's threads on the CPUs left
+    tile_px = max((min(t.height * t.width, int(block_budget() // ROW_PIXEL_BYTES)) for t in scene.tiles), default=1)
     at_once = max(1, min(_threads(executor), len(tiles), FINALISE_BYTES // (8 * tile_px)))
     tile_reports = on_tiles(finalize_tile, "write tiles", out_dir=out / TILES_DIR, state=state, skip_done=skip_done,
                             write_threads=max(1, executor.cpus_per_task // at_once), threads=at_once)
@@ -301,8 +302,8 @@ def stage_costs(timings: dict, n_obs: int | None, passes: int) -> dict:
 #: being finalised), the gains flatten beyond (the work is shared with the cache writer, GDAL and
 #: the memory bus); more CPUs are for more workers (``--workers N``).
 MAX_THREADS = 4
-#: Bytes of whole-tile rasters (albedo and error, 8 per pixel) finalise may hold at once over the tiles
-#: it writes on threads (a tile always: 4000 x 4000 px tiles go one at a time).
+#: Bytes of albedo and error rows (8 per pixel) finalise may hold at once over the tiles it writes on threads
+#: (a tile always); each tile holds one block of rows at a time, at most ``block_budget() / ROW_PIXEL_BYTES`` pixels.
 FINALISE_BYTES = 256 * 2**20
 
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..io.cache import MemoryCache, discard, load_meta, load_stack
 from ..io.cachewriter import CacheWriter
-from ..io.geotiff import write_geotiff
+from ..io.geotiff import GeoTiffRows
 from ..model import exposure_init, shadows, updates
 from ..parallel.ahead import ahead, helper
 from . import kernels, observations, runs
@@ -96,7 +96,7 @@ AHEAD_BYTES = 64 * 2**20
 #: (behind the computation of the next tiles in a one-process run) and moved into place by
 #: finalise, ``weightsSum`` last.
 KNOWN_OUTPUTS = ("DEM", "weightsSum")
-#: :func:`write_geotiff` options of each tile output.
+#: GeoTIFF options (:func:`lunaralbedo.io.geotiff.geotiff_profile`) of each tile output.
 OUTPUT_OPTIONS = {"albedo": {"nodata": float("nan")}, "error": {"nodata": float("nan"), "predictor": ERROR_PREDICTOR},
                   "DEM": {"nodata": float("nan")}, "weightsSum": {"predictor": WEIGHTS_SUM_PREDICTOR}}
 
@@ -153,9 +153,10 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
     pairs: dict = {}
     blocks = []
     tile = scene.tiles[t]
-    known = {}  # the tile's outputs that do not depend on the solve (DEM, weight sums), assembled block by block
     width = tile.width
     n_obs = 0
+    # the tile outputs known once it is prepared (its DEM and blending sums), written a block of rows at a time
+    known = partial(entry.save_rows, shape=(tile.height, width), transform=tile.transform, crs=scene.crs)
 
     def reduce(block):  # the initialisation sums and the chunk-major runs of a block
         b0, b1, obs, per_pixel, cols = block
@@ -168,11 +169,11 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
     big = lambda block: sum(a.nbytes for a in block[2].values()) > AHEAD_BYTES  # noqa: E731
     for b0, b1, cols, per_pixel, part, pm in ahead(reduce, observations.gather_blocks(scene, t, lut, helpers),
                                              helper("reduce") if helpers > 1 else None, here=big):
-        if "dem" in per_pixel:  # every column
-            known.setdefault("DEM", np.empty((tile.height, tile.width), np.float32))[b0:b1] = per_pixel.pop("dem")
-        sums = known.setdefault("weightsSum", np.empty((tile.height, tile.width), np.float32))
-        sums[b0:b1, :cols[0]], sums[b0:b1, cols[1]:] = 0.0, 0.0  # no image's window there
-        sums[b0:b1, cols[0]:cols[1]] = per_pixel["weights_sum"]
+        if "dem" in per_pixel:  # every column (a view of the tile's terrain: copied, the writer holds only these rows)
+            known("DEM.tif", np.array(per_pixel.pop("dem"), np.float32), b0, **OUTPUT_OPTIONS["DEM"])
+        sums = np.zeros((b1 - b0, width), np.float32)  # 0 in the columns no image's window reaches
+        sums[:, cols[0]:cols[1]] = per_pixel["weights_sum"]
+        known("weightsSum.tif", sums, b0, **OUTPUT_OPTIONS["weightsSum"])
         for k, rs, n in zip(part["index"], part["r_sum"], part["r_count"]):
             acc = r_sums.setdefault(k, [0.0, 0.0])
             acc[0] += rs
@@ -181,12 +182,8 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
         n_obs += len(pm["image"])
         entry.save(f"block_{len(blocks):04d}", {**pm, **{f"tile_{k}": v for k, v in per_pixel.items()}},
                    {"rows": [b0, b1], "cols": [int(cols[0]), int(cols[1])]})
-        del pm, per_pixel
+        del pm, per_pixel, sums
         blocks.append([b0, b1])
-    for kind, arr in known.items():  # written behind the computation too, into the entry (finalise moves them)
-        entry.save_file(f"{kind}.tif", partial(write_geotiff, bands=arr, transform=tile.transform, crs=scene.crs,
-                                               **OUTPUT_OPTIONS[kind]), arr.nbytes)
-    del known
     index = [int(k) for k in scene.tile_images[t] if int(k) in r_sums]  # tile order
     meta = {
         "index": index,
@@ -375,8 +372,9 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
 
     ``weightsSum`` is moved last, so with ``skip_done`` (a resumed run whose final
     state was already fixed) a tile that has it is complete and is not redone.  The
-    blocks are read one at a time; a whole-tile raster is held for each output while it
-    is written (4 bytes per pixel, 8 for albedo and error together).  Once the tile is
+    blocks are read one at a time, and each output written a block of rows at a time
+    (:class:`~lunaralbedo.io.geotiff.GeoTiffRows`: the block's rows of albedo and error
+    held, 8 bytes per pixel, never the whole tile's).  Once the tile is
     complete its cached blocks are discarded (nothing reads them again, a resumed run
     neither): moved into :data:`TRASH` at once and deleted on a background thread
     (:func:`lunaralbedo.io.cache.discard`), so the cache goes in parallel over the workers
@@ -394,32 +392,36 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     h, w_ = tile.height, tile.width
     name = f"{tile.name}.tif"
     if (out_dir / "weightsSum" / name).exists() and (skip_done or not (folder / "block_0000").exists()):
-        import rasterio
-
-        with rasterio.open(out_dir / "albedo" / name) as ds:
-            valid = int(np.count_nonzero(np.isfinite(ds.read(1))))
-        return {**_tile_images(scene, t, idx), "valid_pixels": valid, "reused": True}
-    alb = np.empty((h, w_), np.float32)
-    want_err = s.compute_errors and len(idx)
-    err = np.empty((h, w_), np.float32) if want_err else None
-    no_err = np.empty(0, np.float32)
-    for b0, b1, obs, per_pixel, c0 in _blocks(folder, meta):
-        if not len(obs["index"]):
-            alb[b0:b1] = np.nan
-            if want_err:
-                err[b0:b1] = np.nan
-            continue
-        r, w, texp = tile_model(scene, obs, state)
-        kernels.finalise_runs(obs["chunks"], obs["run_start"], obs["run_pixel"], obs["run_image"], obs["image"], texp, r, w,
-                              per_pixel.get("wblend_sum", per_pixel["weights_sum"]), c0,  # eq. 7's sum of blending weights
-                              alb[b0:b1].reshape(-1), err[b0:b1].reshape(-1) if want_err else no_err)
-    write = partial(write_geotiff, transform=tile.transform, crs=scene.crs, threads=write_threads)
-    write(out_dir / "albedo" / name, alb, **OUTPUT_OPTIONS["albedo"])
-    valid = int(np.count_nonzero(np.isfinite(alb)))
-    del alb
+        return {**_tile_images(scene, t, idx), "valid_pixels": _valid_pixels(out_dir / "albedo" / name), "reused": True}
+    want_err = bool(s.compute_errors and len(idx))
+    rows_file = partial(GeoTiffRows, shape=(h, w_), transform=tile.transform, crs=scene.crs, threads=write_threads)
+    files = {"albedo": rows_file(out_dir / "albedo" / name, **OUTPUT_OPTIONS["albedo"])}
     if want_err:
-        write(out_dir / "error" / name, err, **OUTPUT_OPTIONS["error"])
-        del err
+        files["error"] = rows_file(out_dir / "error" / name, **OUTPUT_OPTIONS["error"])
+    valid = 0
+    no_err = np.empty(0, np.float32)
+    try:
+        for b0, b1, obs, per_pixel, c0 in _blocks(folder, meta):  # one block's rows of the outputs held at a time
+            alb = np.empty((b1 - b0, w_), np.float32)
+            err = np.empty((b1 - b0, w_), np.float32) if want_err else no_err
+            if len(obs["index"]):
+                r, w, texp = tile_model(scene, obs, state)
+                kernels.finalise_runs(obs["chunks"], obs["run_start"], obs["run_pixel"], obs["run_image"], obs["image"],
+                                      texp, r, w, per_pixel.get("wblend_sum", per_pixel["weights_sum"]),
+                                      c0, alb.reshape(-1), err.reshape(-1))  # eq. 7's sum of blending weights
+            else:
+                alb[:], err[:] = np.nan, np.nan
+            valid += int(np.count_nonzero(np.isfinite(alb)))
+            files["albedo"].write(alb, b0)
+            if want_err:
+                files["error"].write(err, b0)
+            del alb, err
+        for f in files.values():  # each renamed into place complete
+            f.close()
+    except BaseException:
+        for f in files.values():
+            f.abort()
+        raise
     for kind in KNOWN_OUTPUTS:  # written at prepare: moved into place (weightsSum last: the tile is complete)
         src, dst = folder / f"{kind}.tif", out_dir / kind / name
         if src.exists():
@@ -430,3 +432,13 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     # the tile is complete: its observations are not needed again (deleted in the background)
     discard([folder / f"block_{i:04d}" for i in range(len(meta["blocks"]))], cache_root / TRASH)
     return {**_tile_images(scene, t, idx), "valid_pixels": valid, "reused": False}
+
+
+def _valid_pixels(path: Path, rows: int = 1024) -> int:
+    """Finite pixels of a written albedo tile, read ``rows`` at a time (a tile of any size in bounded memory)."""
+    import rasterio
+    from rasterio.windows import Window
+
+    with rasterio.open(path) as ds:
+        return sum(int(np.count_nonzero(np.isfinite(ds.read(1, window=Window(0, r, ds.width, min(rows, ds.height - r))))))
+                   for r in range(0, ds.height, rows))

@@ -24,7 +24,10 @@ import shutil
 import threading
 from pathlib import Path
 
+import numpy as np
+
 from .cache import move_into_place, save_meta, save_stack, temporary_beside
+from .geotiff import GeoTiffRows
 
 #: Jobs that may wait for the writer before :meth:`Entry.save` blocks ...
 PENDING = 8
@@ -106,6 +109,7 @@ class Entry:
         self.writer, self.folder = writer, folder
         self.tmp = temporary_beside(folder)
         self.abandoned = False
+        self._rows: dict[str, GeoTiffRows] = {}  # files of save_rows being written (the writer's thread only)
 
     def save(self, name: str, arrays: dict, meta: dict) -> None:
         """Queue one part (a :func:`.cache.save_stack` entry ``name`` inside this one); ``arrays`` must not change after."""
@@ -116,9 +120,21 @@ class Entry:
         """Queue one file ``name`` inside this entry, written by ``write(path)`` (``nbytes``: the memory it holds)."""
         self.writer._put(self, lambda: write(self.tmp / name), int(nbytes))
 
+    def save_rows(self, name: str, rows: np.ndarray, row0: int, shape: tuple[int, int], **geotiff) -> None:
+        """Queue rows ``row0:row0 + len(rows)`` of the one-band GeoTIFF ``name`` of ``shape`` inside this entry
+        (:class:`~.geotiff.GeoTiffRows`, made with ``geotiff`` at its first rows, finished by :meth:`complete`);
+        ``rows`` must not change after.  The file's other rows are never held here."""
+        def write():
+            if name not in self._rows:
+                self._rows[name] = GeoTiffRows(self.tmp / name, shape, **geotiff)
+            self._rows[name].write(rows, row0)
+        self.writer._put(self, write, int(rows.nbytes))
+
     def complete(self, meta: dict) -> None:
         """Queue ``meta.json`` and the rename that makes the entry appear, complete, at its place."""
         def finish():
+            for rows_file in self._take_rows():  # the GeoTIFFs written a block of rows at a time, finished
+                rows_file.close()
             save_meta(self.tmp, meta)
             move_into_place(self.tmp, self.folder)
         self.writer._put(self, finish)
@@ -132,7 +148,18 @@ class Entry:
             self.remove()
 
     def remove(self) -> None:
+        for rows_file in self._take_rows():
+            rows_file.abort()
         shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def _take_rows(self):
+        """The :meth:`save_rows` files, each taken once (``popitem`` is atomic: a failed writer's entry may be
+        removed by the caller's thread as well)."""
+        while True:
+            try:
+                yield self._rows.popitem()[1]
+            except KeyError:
+                return
 
     def named(self, exc: BaseException) -> BaseException:
         """``exc`` naming the entry rather than its temporary folder (as :func:`.cache.save_stack` names it)."""
