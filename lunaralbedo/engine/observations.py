@@ -31,9 +31,11 @@ height follows from a budget, :data:`BLOCK_BYTES` (environment variable
 a height) and the measured bytes per pixel below: a tile that fits is one block.  Blocks
 give the observations and per-pixel arrays of one whole-tile block; only sums that cross
 blocks are added in another order (float64 rounding, ``tests/test_scale.py``).  Besides
-the block, a worker holds per tile the cast-shadow DEM (4 bytes per pixel with its
-margin); the tile outputs are written a block of rows at a time
-(:class:`~lunaralbedo.io.geotiff.GeoTiffRows`), so no other whole-tile raster is held (docs/performance.md).
+the block, a worker holds the cast-shadow DEM (4 bytes per pixel with its margin) of the tile,
+or of the block's band of rows when the tile's would exceed ``terrain.WHOLE_DEM_BYTES``
+(:class:`~.terrain.TileShadows`); the tile outputs are written a block of rows at a time
+(:class:`~lunaralbedo.io.geotiff.GeoTiffRows`), so no whole-tile raster is held: the memory
+follows the block whatever the tile size (docs/performance.md).
 """
 from __future__ import annotations
 
@@ -202,8 +204,10 @@ def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None, helpers: 
     for b0, b1 in row_blocks(tile.height, block_rows(scene, t, depth)):
         cols = [(w[2], w[3]) for _, w in windows if w is not None and w[0] < b1 and w[1] > b0]
         span = (min(c for c, _ in cols), max(c for _, c in cols)) if cols else (0, 0)
-        geo = BlockGeometry(scene, tile, b0, b1, *span, shadows=cast) if geometry_needed else None
-        yield (b0, b1, *_gather_block(scene, tile, b0, b1, windows, geo, cast, model, lut, pool, depth, span), span)
+        band = cast.for_rows(b0, b1) if cast is not None else None  # the tile's terrain, or its band of these rows
+        geo = BlockGeometry(scene, tile, b0, b1, *span, shadows=band) if geometry_needed else None
+        yield (b0, b1, *_gather_block(scene, tile, b0, b1, windows, geo, band, model, lut, pool, depth, span), span)
+        del band, geo
 
 
 @njit(cache=True, nogil=True)

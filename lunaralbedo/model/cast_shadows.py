@@ -200,22 +200,27 @@ class MarchGrid:
     centres; the step and number of steps; the highest height; the global :func:`slope_bound`;
     and, built on first need (:meth:`pyramid`), the maximum-height and slope pyramid.
     Cells are powers of 2 (:data:`CELL_PX`, :data:`LEVEL_RATIO`): the march finds them by shifts.
+
+    ``band``: ``(grid_transform, row0, grid_height)`` when ``dem`` (on ``transform``) is rows
+    ``row0:row0 + h`` of a taller grid: the step, the tables and the samples' coordinates are
+    then the whole grid's (the same bits as its march), a ray leaving the band is lit.
     """
 
     def __init__(self, dem_m, transform, *, max_reach_km: float = MAX_REACH_KM, step_px: float = STEP_PX,
-                 tolerance_m: float = TOLERANCE_M):
+                 tolerance_m: float = TOLERANCE_M, band: tuple | None = None):
         self.dem = dem = _as_heights(dem_m)
         h, w = dem.shape
         self.transform = transform
-        lat_mid = math.radians(transform.f + transform.e * h / 2.0)
-        px_km = math.radians(1.0) * MOON_RADIUS_KM * min(abs(transform.a) * max(math.cos(lat_mid), 1e-3),
-                                                          abs(transform.e))
+        grid, self.row0, grid_h = band if band is not None else (transform, 0, h)
+        self.grid_transform, self.banded = grid, band is not None
+        lat_mid = math.radians(grid.f + grid.e * grid_h / 2.0)
+        px_km = math.radians(1.0) * MOON_RADIUS_KM * min(abs(grid.a) * max(math.cos(lat_mid), 1e-3), abs(grid.e))
         self.step_km = step_px * px_km
         self.max_steps = max(1, int(math.ceil(max_reach_km / self.step_km)))
         self.blocks = _blocks(dem, CELL_PX)  # level 0 of the pyramid; its maxima give the global figures
         self.hmax = float(self.blocks[0].max()) if self.blocks[0].size else -np.inf
         self.empty = h < 2 or w < 2 or not np.isfinite(self.hmax)
-        self.tables = _trig_tables(float(transform.c), float(transform.a), w, float(transform.f), float(transform.e), h)
+        self.tables = _trig_tables(float(grid.c), float(grid.a), w, float(grid.f), float(grid.e), h, self.row0)
         self.slope = 0.0 if self.empty else _global_slope(self.blocks, _ground_px_km(transform, dem.shape))
         self.tolerance_m = float(tolerance_m)
         self._pyramid = None
@@ -292,9 +297,10 @@ class MarchGrid:
         if lit is not None and lit[0].all():
             return out.astype(bool)
         lit = lit if lit is not None else (np.zeros((0, 0), np.int8), 0, 0, 0)  # the march skips the pixels of lit blocks
-        tr = self.transform
+        tr = self.grid_transform
         prm = np.array([tr.c, tr.a, tr.f, tr.e, self.step_km, self.hmax, self.tolerance_m, MOON_RADIUS_KM,
-                        self.slope if skip else 0.0, *(offset if isinstance(offset, tuple) else (offset, offset))])
+                        self.slope if skip else 0.0, *(offset if isinstance(offset, tuple) else (offset, offset)),
+                        *((self.row0,) if self.banded else ())])
         sun = np.asarray(sun_km, dtype=np.float64)
         none = (np.zeros(0), np.zeros(0), *(np.zeros(0, np.int64),) * 4)
         if skip and self.slope > 0.0:  # first the rays the global slope bound answers; the pyramid if some ray needs it

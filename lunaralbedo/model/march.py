@@ -61,15 +61,16 @@ def _sample_xy_exact(qx, qy, qz, lon0, dlon, lat0, dlat, lon_mid):
 
 
 @njit(cache=True, nogil=True)
-def _trig_tables(lon0, dlon, w, lat0, dlat, h):
-    """Cosines and sines of the pixel-centre longitudes and latitudes (radians from ``transform * (c + 0.5, r + 0.5)``)."""
+def _trig_tables(lon0, dlon, w, lat0, dlat, h, row0=0):
+    """Cosines and sines of the pixel-centre longitudes and latitudes (radians from ``transform * (c + 0.5, r + 0.5)``)
+    of rows ``row0:row0 + h`` of the grid."""
     d2r = math.pi / 180.0
     cos_lon, sin_lon, cos_lat, sin_lat = np.empty(w), np.empty(w), np.empty(h), np.empty(h)
     for j in range(w):
         lon = (lon0 + (j + 0.5) * dlon) * d2r
         cos_lon[j], sin_lon[j] = math.cos(lon), math.sin(lon)
     for i in range(h):
-        lat = (lat0 + (i + 0.5) * dlat) * d2r
+        lat = (lat0 + (i + row0 + 0.5) * dlat) * d2r
         cos_lat[i], sin_lat[i] = math.cos(lat), math.sin(lat)
     return cos_lon, sin_lon, cos_lat, sin_lat
 
@@ -78,12 +79,16 @@ def _trig_tables(lon0, dlon, w, lat0, dlat, h):
 def _march_pixels(dem, prm, max_steps, exact, decide, cos_lon, sin_lon, cos_lat, sin_lat, sun, rows, cols,
                   lev_top, lev_slope, lev_off, lev_width, lev_shift, lev_skip, lit, bi0, bj0, shift, out):
     """The march of every pixel ``(rows[o], cols[o])`` into ``out[o]``: 1 shadowed, 0 lit, 2 (``decide``) not
-    answered by the global slope bound (``prm[8]``; 0: none); ``prm[9]``, ``prm[10]``: offsets of rows, columns.
+    answered by the global slope bound (``prm[8]``; 0: none); ``prm[9]``, ``prm[10]``: offsets of rows, columns;
+    ``prm[11]`` (if given): the grid row of ``dem``'s first row when ``dem`` is a band of rows of the grid whose
+    ``prm[0:4]`` and tables these are (the samples' coordinates are the grid's, as for the whole grid: the same bits;
+    a ray leaving the band is lit, as one leaving the grid).
     A pixel whose block is flagged in ``lit`` (:func:`lit_cells` from block ``bi0, bj0``; blocks of ``1 << shift``
     pixels; empty: none) is lit without a march (its ``out`` is left as it is)."""
     lon0, dlon, lat0, dlat, step_km, hmax_m, tol_m, radius, slope = prm[0], prm[1], prm[2], prm[3], prm[4], \
         prm[5], prm[6], prm[7], prm[8]
     roff, coff = int(prm[9]), int(prm[10])
+    rb = int(prm[11]) if prm.shape[0] > 11 else 0
     h_, w_ = dem.shape
     lon_mid = lon0 + dlon * w_ / 2.0
     d2r = math.pi / 180.0
@@ -137,11 +142,12 @@ def _march_pixels(dem, prm, max_steps, exact, decide, cos_lon, sin_lon, cos_lat,
             if exact:
                 x, y = _sample_xy_exact(qx, qy, qz, lon0, dlon, lat0, dlat, lon_mid)
             else:
-                x, y = _sample_xy(qx, qy, qz, cos_lon[j], sin_lon[j], cos_lat[i], sin_lat[i], i, j, kx, ky)
-            if x < 0.0 or y < 0.0 or x > w_ - 1 or y > h_ - 1:
+                x, y = _sample_xy(qx, qy, qz, cos_lon[j], sin_lon[j], cos_lat[i], sin_lat[i], i + rb, j, kx, ky)
+            if x < 0.0 or y < rb or x > w_ - 1 or y > rb + h_ - 1:
                 break
-            ix, iy = min(int(x), w_ - 2), min(int(y), h_ - 2)
+            ix, iy = min(int(x), w_ - 2), min(int(y), rb + h_ - 2)
             fx, fy = x - ix, y - iy
+            iy -= rb  # the grid's row -> dem's
             z = ((dem[iy, ix] * (1 - fx) + dem[iy, ix + 1] * fx) * (1 - fy)
                  + (dem[iy + 1, ix] * (1 - fx) + dem[iy + 1, ix + 1] * fx) * fy)
             if np.isfinite(z) and hray < z - tol_m:
