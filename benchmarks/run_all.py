@@ -18,7 +18,9 @@ Prints, in one run on this machine:
    peak memory of one 4000 x 4000 px tile under 16 images (blocks of rows);
 11. what two workers cost each other (``benchmarks/contention_bench.py``): the plain pass, the
    strip's prepare and iterate steps alone and in two processes at once, and the ceiling of
-   the 1 -> 2 speed-up that follows (needs item 6's scene).
+   the 1 -> 2 speed-up that follows (needs item 6's scene);
+12. any tile size (``benchmarks/scale_bench.py``): peak memory of one 12000 x 12000 px tile
+   under 3 narrow images (outputs and cast-shadow DEM a block of rows at a time).
 
 Scenes are rendered once into ``bench_out/`` and reused.  ``--quick`` uses smaller scenes
 (a smoke run, not the figures of docs/performance.md).
@@ -83,8 +85,8 @@ def main() -> int:
     ap.add_argument("--out", default="bench_out")
     ap.add_argument("--quick", action="store_true", help="small scenes (smoke run)")
     ap.add_argument("--json", default=None, help="also write the figures as JSON here")
-    ap.add_argument("--only", default="1,2,3,4,5,6,7,8,9,10,11", help="comma-separated items to run (3 comes with 1)")
-    ap.add_argument("--before", default=None, help="source tree of a previous implementation to measure too (items 6, 8, 10)")
+    ap.add_argument("--only", default="1,2,3,4,5,6,7,8,9,10,11,12", help="comma-separated items to run (3 comes with 1)")
+    ap.add_argument("--before", default=None, help="source tree of a previous implementation to measure too (items 6, 8, 10, 12)")
     args = ap.parse_args()
     root = (REPO / args.out).resolve()
     root.mkdir(exist_ok=True)

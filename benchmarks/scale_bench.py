@@ -1,4 +1,4 @@
-"""Items 6-10 of ``make bench`` (issue 15): real tile sizes, 10^5 images, orthoprojection, memory bandwidth.
+"""Items 6-10 and 12 of ``make bench`` (issue 15): real tile sizes, 10^5 images, orthoprojection, memory bandwidth.
 
 6. the narrow-strip scene of issue 15: 24 DRGs of 320 x 2000 px, TILE_SIZE 4 at 0.002 deg/px
    (tiles of 2000 x 2000 px), Lunar-Lambert, 10 iterations, 1 worker: wall and CPU time (user +
@@ -15,7 +15,10 @@
 10. bounded memory: one 4000 x 4000 px tile (TILE_SIZE 4 at 0.001 deg/px) under 16 images of
    1000 x 4000 px (80 % overlap: ~5 images over each pixel, 64 M observations), 3 iterations,
    1 worker: peak RSS (the budget of ``engine/observations.py``, blocks of rows), CPU time,
-   ns per observation to prepare.
+   ns per observation to prepare;
+12. any tile size: one 12000 x 12000 px tile (TILE_SIZE 4 at 1/3000 deg/px, 144 M pixels) under
+   3 images of 200 x 12000 px, 2 iterations, 1 worker: peak RSS (the tile outputs and the cast-shadow
+   DEM a block of rows at a time), CPU time.
 
 The machine may be shared: CPU times are the honest figure, wall times are printed too.
 """
@@ -194,6 +197,22 @@ def big_tile(root: Path, q: bool, figures: dict, before: Path | None) -> None:
     figures["big_tile"] = out
 
 
+def huge_tile(root: Path, q: bool, figures: dict, before: Path | None) -> None:
+    rows, px, n = (3000, 100, 3) if q else (12000, 200, 3)
+    spec = SceneSpec(n_images=n, image_px=px, image_rows=rows, res_deg=4.0 / rows, overlap=0.8, tile_size=4.0,
+                     lon0=8.0, lat0=-4.0, max_num_iter=2, seed=10)
+    d = scene(root, f"hugetile_{rows}", spec)
+    out = {"images": n, "image": f"{px} x {rows} px", "tile": f"{rows} x {rows} px", "observations": n * px * rows}
+    for name, src in (("before", before), ("after", None)):
+        if name == "before" and src is None:
+            continue
+        r = solve_child(d, root / f"out_huge_{name}", max_iter=2, src=src)
+        out[name] = r
+        print(f"12. {rows} x {rows} px tile under {n} images ({name}): peak {r['peak_mb']:.0f} MB, "
+              f"{r['cpu_s']:.1f} s CPU ({r['seconds']:.1f} s wall) (stages {r['timings']})", flush=True)
+    figures["huge_tile"] = out
+
+
 def run_scale_items(root: Path, q: bool, figures: dict, only: set, before: Path | None) -> None:
     if 6 in only:
         narrow_strip(root, q, figures, before)
@@ -205,6 +224,8 @@ def run_scale_items(root: Path, q: bool, figures: dict, only: set, before: Path 
         bandwidth(figures)
     if 10 in only:
         big_tile(root, q, figures, before)
+    if 12 in only:
+        huge_tile(root, q, figures, before)
 
 
 if __name__ == "__main__":
