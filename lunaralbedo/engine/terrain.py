@@ -58,7 +58,9 @@ def _pixel_km(tile) -> float:
 
 #: Largest cast-shadow DEM (bytes, float32, the tile with its margin) held for a whole tile; a bigger tile holds
 #: one band at a time: its block's rows with the margin above and below (:meth:`TileShadows.for_rows`).
-WHOLE_DEM_BYTES = 256 * 2**20
+#: An 8000 x 8000 px tile under 4 narrow images: peak 812 MB held whole (at 256 MiB), 393 MB banded, as fast;
+#: make bench item 10's 4000 x 4000 px tile: 808 MB either way (its blocks dominate), so it stays whole.
+WHOLE_DEM_BYTES = 128 * 2**20
 
 
 class TileShadows:
@@ -68,7 +70,7 @@ class TileShadows:
     only where an image would otherwise have an observation (the narrow strip of issue 15
     spent 90 % of its prepare time marching whole tiles per image).
 
-    A tile whose DEM with its margin exceeds :data:`WHOLE_DEM_BYTES` (8000 x 8000 px and more)
+    A tile whose DEM with its margin exceeds :data:`WHOLE_DEM_BYTES` (~5700 x 5700 px and more)
     is *banded*: its margin is found from the terrain read a few rows at a time, and
     :meth:`for_rows` reads, for each block of rows, the band of those rows with the margin
     above and below, so the memory follows the block, not the tile.  A ray is then followed
