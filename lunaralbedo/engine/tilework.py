@@ -32,6 +32,7 @@ import numpy as np
 from ..io.cache import MemoryCache, discard, load_meta, load_stack
 from ..io.cachewriter import CacheWriter
 from ..io.geotiff import GeoTiffRows
+from ..io.rasters import count_finite
 from ..model import exposure_init, shadows, updates
 from ..parallel.ahead import ahead, helper
 from . import kernels, observations, runs
@@ -392,7 +393,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     h, w_ = tile.height, tile.width
     name = f"{tile.name}.tif"
     if (out_dir / "weightsSum" / name).exists() and (skip_done or not (folder / "block_0000").exists()):
-        return {**_tile_images(scene, t, idx), "valid_pixels": _valid_pixels(out_dir / "albedo" / name), "reused": True}
+        return {**_tile_images(scene, t, idx), "valid_pixels": count_finite(out_dir / "albedo" / name), "reused": True}
     want_err = bool(s.compute_errors and len(idx))
     rows_file = partial(GeoTiffRows, shape=(h, w_), transform=tile.transform, crs=scene.crs, threads=write_threads)
     files = {"albedo": rows_file(out_dir / "albedo" / name, **OUTPUT_OPTIONS["albedo"])}
@@ -433,12 +434,3 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     discard([folder / f"block_{i:04d}" for i in range(len(meta["blocks"]))], cache_root / TRASH)
     return {**_tile_images(scene, t, idx), "valid_pixels": valid, "reused": False}
 
-
-def _valid_pixels(path: Path, rows: int = 1024) -> int:
-    """Finite pixels of a written albedo tile, read ``rows`` at a time (a tile of any size in bounded memory)."""
-    import rasterio
-    from rasterio.windows import Window
-
-    with rasterio.open(path) as ds:
-        return sum(int(np.count_nonzero(np.isfinite(ds.read(1, window=Window(0, r, ds.width, min(rows, ds.height - r))))))
-                   for r in range(0, ds.height, rows))

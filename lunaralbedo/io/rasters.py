@@ -321,3 +321,10 @@ def read_dem_onto_grid(
                                               nodata=nodata))[0]
               for info in infos if intersects_lon(info.lonlat_bounds, grid_box))
     return merge_dem_layers(layers, dst_shape, np.float32)
+
+
+def count_finite(path: str | Path, rows: int = 1024) -> int:
+    """Finite pixels of band 1 of a raster, read ``rows`` at a time (a raster of any size in bounded memory)."""
+    with raster_errors(path), rasterio.open(path) as ds:
+        return sum(int(np.count_nonzero(np.isfinite(ds.read(1, window=Window(0, r, ds.width, min(rows, ds.height - r))))))
+                   for r in range(0, ds.height, rows))
