@@ -46,9 +46,14 @@ def _read(scene, tile, margin: int, inner=None) -> tuple[np.ndarray, Affine]:
         return dem, transform
     d = (h - inner.shape[0]) // 2
     dem[d:h - d, d:w - d] = inner
-    for r0, r1, c0, c1 in ((0, d, 0, w), (h - d, h, 0, w), (d, h - d, 0, d), (d, h - d, w - d, w)):
+    for r0, r1, c0, c1 in _frame(h, w, d):
         _read_into(dem, scene, transform, r0, r1, c0, c1)
     return dem, transform
+
+
+def _frame(h: int, w: int, d: int) -> tuple:
+    """``(r0, r1, c0, c1)`` of the four parts of an ``h`` x ``w`` grid within ``d`` pixels of its edges."""
+    return (0, d, 0, w), (h - d, h, 0, w), (d, h - d, 0, d), (d, h - d, w - d, w)
 
 
 def _pixel_km(tile) -> float:
@@ -161,10 +166,8 @@ def _banded_margin(scene, tile, elev: float, px_km: float, max_margin: int) -> i
     with kept_open():
         while True:
             transform = tile.transform @ Affine.translation(-margin, -margin)
-            d = margin - inner  # the frame between the margin read before (inner) and this one
-            parts = [(0, h + 2 * margin, 0, w + 2 * margin)] if inner == 0 else [
-                (0, d, 0, w + 2 * margin), (h + 2 * margin - d, h + 2 * margin, 0, w + 2 * margin),
-                (d, h + 2 * margin - d, 0, d), (d, h + 2 * margin - d, w + 2 * margin - d, w + 2 * margin)]
+            hm, wm = h + 2 * margin, w + 2 * margin  # the frame between the margin read before (inner) and this one
+            parts = [(0, hm, 0, wm)] if inner == 0 else _frame(hm, wm, margin - inner)
             for r0, r1, c0, c1 in parts:
                 for a in range(r0, r1, READ_ROWS):
                     b = min(a + READ_ROWS, r1)

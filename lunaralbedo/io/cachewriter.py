@@ -116,10 +116,6 @@ class Entry:
         self.writer._put(self, lambda: save_stack(self.tmp / name, arrays, meta),
                          sum(int(getattr(a, "nbytes", 0)) for a in arrays.values()))
 
-    def save_file(self, name: str, write, nbytes: int = 0) -> None:
-        """Queue one file ``name`` inside this entry, written by ``write(path)`` (``nbytes``: the memory it holds)."""
-        self.writer._put(self, lambda: write(self.tmp / name), int(nbytes))
-
     def save_rows(self, name: str, rows: np.ndarray, row0: int, shape: tuple[int, int], **geotiff) -> None:
         """Queue rows ``row0:row0 + len(rows)`` of the one-band GeoTIFF ``name`` of ``shape`` inside this entry
         (:class:`~.geotiff.GeoTiffRows`, made with ``geotiff`` at its first rows, finished by :meth:`complete`);
