@@ -20,7 +20,11 @@ Prints, in one run on this machine:
    strip's prepare and iterate steps alone and in two processes at once, and the ceiling of
    the 1 -> 2 speed-up that follows (needs item 6's scene);
 12. any tile size (``benchmarks/scale_bench.py``): peak memory of one 12000 x 12000 px tile
-   under 3 narrow images (outputs and cast-shadow DEM a block of rows at a time).
+   under 3 narrow images (outputs and cast-shadow DEM a block of rows at a time);
+13. the floor of the strip's prepare step on one CPU (``benchmarks/floor_bench.py``): what any
+   code must spend per observation to decode the inputs, compute the geometry, keep the
+   observations and write the DEM and weight-sum tiles, into new memory and into memory used
+   again (needs item 6's scene and outputs).
 
 Scenes are rendered once into ``bench_out/`` and reused.  ``--quick`` uses smaller scenes
 (a smoke run, not the figures of docs/performance.md).
@@ -85,7 +89,7 @@ def main() -> int:
     ap.add_argument("--out", default="bench_out")
     ap.add_argument("--quick", action="store_true", help="small scenes (smoke run)")
     ap.add_argument("--json", default=None, help="also write the figures as JSON here")
-    ap.add_argument("--only", default="1,2,3,4,5,6,7,8,9,10,11,12", help="comma-separated items to run (3 comes with 1)")
+    ap.add_argument("--only", default="1,2,3,4,5,6,7,8,9,10,11,12,13", help="comma-separated items to run (3 comes with 1)")
     ap.add_argument("--before", default=None, help="source tree of a previous implementation to measure too (items 6, 8, 10, 12)")
     args = ap.parse_args()
     root = (REPO / args.out).resolve()
@@ -112,6 +116,10 @@ def main() -> int:
         from contention_bench import contention  # noqa: E402
 
         contention(root, figures)
+    if 13 in only:
+        from floor_bench import prepare_floor  # noqa: E402
+
+        prepare_floor(root, q, figures)
     if args.json:
         Path(args.json).write_text(json.dumps(figures, indent=2))
     return 0
