@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from lunaralbedo.settings import load_settings
 from lunaralbedo.engine.scene import build_scene
-from lunaralbedo.engine import tilework
+from lunaralbedo.engine import prepare, tilework
 
 def cpu():
     t = resource.getrusage(resource.RUSAGE_SELF)
@@ -36,7 +36,7 @@ d, cache = Path(sys.argv[1]), Path(sys.argv[2])
 scene = build_scene(load_settings(d / "settings.txt"), False, map_fn=lambda f, xs: list(map(f, xs)))
 tiles = range(len(scene.tiles))
 for t in tiles:
-    tilework.prepare_tile(t, scene=scene, cache_root=cache)
+    prepare.prepare_tile(t, scene=scene, cache_root=cache)
 state = tilework.SolveState(np.ones(len(scene.images)), scene.settings.initial_params.copy())
 n = sum(np.load(p, mmap_mode="r").shape[0] for p in cache.rglob("weight.npy"))
 out = {"observations": n}
@@ -47,7 +47,7 @@ for _ in range(3):
     parts = run()
 out["steady_ns"] = 1e9 * (cpu() - c0) / 3 / n
 out["q"] = sum(p.q for p in parts)
-blk = lambda t: tilework._cache_dir(cache, scene, t) / "block_0000"  # the first block of rows of a tile
+blk = lambda t: tilework.cache_dir(cache, scene, t) / "block_0000"  # the first block of rows of a tile
 t = max(tiles, key=lambda t: np.load(blk(t) / "weight.npy", mmap_mode="r").shape[0])
 arrays, meta = tilework.load_stack(blk(t))
 obs, _ = tilework._split({k: np.array(v) for k, v in arrays.items()})

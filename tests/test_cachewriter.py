@@ -218,7 +218,7 @@ def test_an_abandoned_entry_leaves_nothing_and_its_late_failure_is_no_error(tmp_
 def test_prepare_in_one_process_returns_before_its_tile_is_written(tmp_path, monkeypatch):
     """``wait=False``: the next tile's computation overlaps this tile's writing; ``flush`` puts it on disk,
     where a second prepare finds it complete (reused)."""
-    from lunaralbedo.engine import tilework
+    from lunaralbedo.engine import prepare, tilework
     from lunaralbedo.engine.scene import build_scene
     from lunaralbedo.settings import load_settings
     from lunaralbedo.simulate import SceneSpec, render_scene
@@ -231,10 +231,10 @@ def test_prepare_in_one_process_returns_before_its_tile_is_written(tmp_path, mon
     cache = tmp_path / "cache"
     cache.mkdir()
     t = max(range(len(sc.tiles)), key=lambda t: len(sc.tile_images[t]))
-    first = tilework.prepare_tile(t, scene=sc, cache_root=cache, wait=False)
-    folder = tilework._cache_dir(cache, sc, t)
+    first = prepare.prepare_tile(t, scene=sc, cache_root=cache, wait=False)
+    folder = tilework.cache_dir(cache, sc, t)
     assert first["reused"] is False and not folder.exists()
     gate.set()
-    tilework.WRITER.flush()
-    assert tilework.prepare_tile(t, scene=sc, cache_root=cache) == {**first, "reused": True}
+    prepare.WRITER.flush()
+    assert prepare.prepare_tile(t, scene=sc, cache_root=cache) == {**first, "reused": True}
     assert _leftovers(cache) == []

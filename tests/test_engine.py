@@ -59,7 +59,7 @@ def test_blocks_are_cached_in_runs_and_read_as_they_are_over_the_memory_budget(s
     are deleted by its finalise task."""
     import numpy as np
 
-    from lunaralbedo.engine import runs, tilework
+    from lunaralbedo.engine import prepare, runs, tilework
     from lunaralbedo.engine.scene import build_scene
     from lunaralbedo.io.cache import load_stack, mapped
     from lunaralbedo.settings import load_settings
@@ -68,7 +68,7 @@ def test_blocks_are_cached_in_runs_and_read_as_they_are_over_the_memory_budget(s
     cache = tmp_path / "cache"
     cache.mkdir()
     t = max(range(len(sc.tiles)), key=lambda t: len(sc.tile_images[t]))
-    assert tilework.prepare_tile(t, scene=sc, cache_root=cache)["reused"] is False
+    assert prepare.prepare_tile(t, scene=sc, cache_root=cache)["reused"] is False
     folder = cache / sc.tiles[t].name
     arrays, _ = load_stack(folder / "block_0000")
     start, pixel = np.asarray(arrays["run_start"]), np.asarray(arrays["run_pixel"])
@@ -83,9 +83,9 @@ def test_blocks_are_cached_in_runs_and_read_as_they_are_over_the_memory_budget(s
     angles = np.asarray(arrays["alpha"])[np.asarray(arrays["weight"]) > 0]  # the block's phase-angle range, stored
     assert tuple(arrays["alpha_range"]) == (np.nanmin(angles), np.nanmax(angles))
     meta = json.loads((folder / "meta.json").read_text())
-    assert tilework.prepare_tile(t, scene=sc, cache_root=cache)["reused"] is True
+    assert prepare.prepare_tile(t, scene=sc, cache_root=cache)["reused"] is True
     (folder / "meta.json").write_text(json.dumps({k: v for k, v in meta.items() if k != "layout"}))
-    assert tilework.prepare_tile(t, scene=sc, cache_root=cache)["reused"] is False
+    assert prepare.prepare_tile(t, scene=sc, cache_root=cache)["reused"] is False
     assert json.loads((folder / "meta.json").read_text())["layout"] == tilework.CACHE_LAYOUT
 
     monkeypatch.setattr(tilework.STACKS, "budget", 0)
@@ -111,7 +111,7 @@ def test_a_tile_prepared_again_is_iterated_with_its_new_meta(scene, tmp_path, mo
     ``meta.json``) in the same process is iterated with its new blocks, not the ones remembered."""
     import numpy as np
 
-    from lunaralbedo.engine import tilework
+    from lunaralbedo.engine import prepare, tilework
     from lunaralbedo.engine.scene import build_scene
     from lunaralbedo.settings import load_settings
 
@@ -122,7 +122,7 @@ def test_a_tile_prepared_again_is_iterated_with_its_new_meta(scene, tmp_path, mo
     for rows in ("1000", "7"):
         monkeypatch.setenv("LUNARALBEDO_BLOCK_ROWS", rows)
         shutil.rmtree(tmp_path / "cache", ignore_errors=True)
-        meta = tilework.prepare_tile(t, scene=sc, cache_root=tmp_path / "cache")
+        meta = prepare.prepare_tile(t, scene=sc, cache_root=tmp_path / "cache")
         sums[rows] = (len(meta["blocks"]), tilework.iterate_tile(t, scene=sc, cache_root=tmp_path / "cache", state=state,
                                                                  want_phase=True))
     (one, whole), (many, blocks) = sums["1000"], sums["7"]

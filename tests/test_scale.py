@@ -151,7 +151,7 @@ def test_reading_and_reducing_ahead_caches_the_same_bytes(tmp_path, monkeypatch)
     also when the blocks are too big to be held beside the next one (reduced in the task's thread)."""
     import filecmp
 
-    from lunaralbedo.engine import tilework
+    from lunaralbedo.engine import prepare
     from lunaralbedo.engine.scene import build_scene
     from lunaralbedo.settings import load_settings
     from lunaralbedo.simulate import SceneSpec, render_scene
@@ -159,11 +159,11 @@ def test_reading_and_reducing_ahead_caches_the_same_bytes(tmp_path, monkeypatch)
     render_scene(tmp_path / "s", SceneSpec(n_images=5, image_px=80, seed=5, cast_shadows=True))
     scene = build_scene(load_settings(tmp_path / "s" / "settings.txt"), False, map_fn=lambda f, xs: list(map(f, xs)))
     monkeypatch.setenv("LUNARALBEDO_BLOCK_ROWS", "9")
-    runs = {"plain": (0, tilework.AHEAD_BYTES), "ahead": (2, tilework.AHEAD_BYTES), "ahead, big blocks": (3, 0)}
+    runs = {"plain": (0, prepare.AHEAD_BYTES), "ahead": (2, prepare.AHEAD_BYTES), "ahead, big blocks": (3, 0)}
     for name, (helpers, ahead_bytes) in runs.items():
-        monkeypatch.setattr(tilework, "AHEAD_BYTES", ahead_bytes)
+        monkeypatch.setattr(prepare, "AHEAD_BYTES", ahead_bytes)
         for t in range(len(scene.tiles)):
-            tilework.prepare_tile(t, scene=scene, cache_root=tmp_path / name, helpers=helpers)
+            prepare.prepare_tile(t, scene=scene, cache_root=tmp_path / name, helpers=helpers)
     files = sorted(p.relative_to(tmp_path / "plain") for p in (tmp_path / "plain").rglob("*") if p.is_file())
     assert sum(p.name == "weight.npy" for p in files) > 2 * len(scene.tiles)  # tiles of several blocks
     assert sum(p.name == "DEM.tif" for p in files) == len(scene.tiles)
@@ -179,7 +179,7 @@ def test_windows_cut_to_the_drgs_pixels_cache_what_padded_windows_do(tmp_path, m
     empty pixels; only the per-pixel sums' columns may be fewer."""
     import json
 
-    from lunaralbedo.engine import observations, tilework
+    from lunaralbedo.engine import observations, prepare
     from lunaralbedo.engine.scene import build_scene
     from lunaralbedo.settings import load_settings
     from lunaralbedo.simulate import SceneSpec, render_scene
@@ -193,7 +193,7 @@ def test_windows_cut_to_the_drgs_pixels_cache_what_padded_windows_do(tmp_path, m
         area[name] = sum((w[1] - w[0]) * (w[3] - w[2]) for t in range(len(scene.tiles))
                          for _, w in observations.tile_windows(scene, t) if w is not None)
         for t in range(len(scene.tiles)):
-            tilework.prepare_tile(t, scene=scene, cache_root=tmp_path / name)
+            prepare.prepare_tile(t, scene=scene, cache_root=tmp_path / name)
     assert area["cut"] < area["padded"]
     cut = sorted(p.relative_to(tmp_path / "cut") for p in (tmp_path / "cut").rglob("*") if p.is_file())
     padded = sorted(p.relative_to(tmp_path / "padded") for p in (tmp_path / "padded").rglob("*") if p.is_file())

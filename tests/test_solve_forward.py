@@ -82,7 +82,7 @@ def test_report_counts_the_observations_and_their_cost_per_stage(scene, tmp_path
     cache itself) and each stage's wall time per observation (per observation and pass to iterate)."""
     import json
 
-    from lunaralbedo.engine import tilework
+    from lunaralbedo.engine import prepare
     from lunaralbedo.engine.scene import build_scene
     from lunaralbedo.io.cache import load_stack
 
@@ -93,7 +93,7 @@ def test_report_counts_the_observations_and_their_cost_per_stage(scene, tmp_path
     cache.mkdir()
     cached = 0
     for t in range(len(sc.tiles)):
-        meta = tilework.prepare_tile(t, scene=sc, cache_root=cache)
+        meta = prepare.prepare_tile(t, scene=sc, cache_root=cache)
         cached += sum(len(load_stack(cache / sc.tiles[t].name / f"block_{i:04d}")[0]["image"]) for i in range(len(meta["blocks"])))
     obs = rep["observations"]
     assert obs["count"] == cached > 1000

@@ -25,7 +25,7 @@ and over whole rows 96 of its 361 MB (its windows span half of its tiles' column
 **Blocks of rows** bound the memory of a worker whatever TILE_SIZE and the number of
 images: a tile is processed in blocks of :func:`block_rows` rows, each with the one-row
 halo its normals need, and each
-block's observations are cached on their own (``tilework.prepare_tile``).  The block
+block's observations are cached on their own (``prepare.prepare_tile``).  The block
 height follows from a budget, :data:`BLOCK_BYTES` (environment variable
 ``LUNARALBEDO_BLOCK_MB``, default 384 MiB per worker; ``LUNARALBEDO_BLOCK_ROWS`` forces
 a height) and the measured bytes per pixel below: a tile that fits is one block.  Blocks

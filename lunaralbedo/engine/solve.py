@@ -1,6 +1,6 @@
 """The solve driver: passes over tiles, global reductions, checkpoints, outputs.
 
-Passes (each a map of tile tasks, see :mod:`.tilework`):
+Passes (each a map of tile tasks, see :mod:`.prepare` and :mod:`.tilework`):
 
 1. *prepare*: read inputs once per tile, cache the observation stack in
    ``OUTDIR/checkpoint/cache``; reduce the initialisation sums (seed exposure, overlap log-ratios);
@@ -36,11 +36,12 @@ from ..parallel.workers import trim_malloc
 from .response import check_resume, known_exposures, lut_digest, move_outputs, report_parts, resolve_response
 from .observations import ROW_PIXEL_BYTES, block_budget
 from .scene import Scene, build_scene
-from .tilework import WRITER, SolveState, finalize_tile, iterate_tile, prepare_tile
+from .prepare import WRITER, prepare_tile
+from .tilework import SolveState, finalize_tile, iterate_tile
 
 METHODS = ("overlap", "seed")
 #: Modules local workers import as they start (the tile tasks' own, with NumPy, numba, rasterio).
-WORKER_PRELOAD = ("lunaralbedo.engine.tilework",)
+WORKER_PRELOAD = ("lunaralbedo.engine.prepare", "lunaralbedo.engine.tilework")
 #: A tile task's fixed cost in observations (~2 ms of a worker's time at ~9 ns per observation),
 #: for sharing the tiles' iterations evenly among workers (:meth:`~lunaralbedo.parallel.DaskExecutor.place`).
 TASK_OBSERVATIONS = 250_000

@@ -1,7 +1,7 @@
-"""The three kinds of tile task: prepare, iterate, finalise.
+"""The tile tasks' shared state and cache layout, and two of the three kinds of tile task: iterate, finalise.
 
 Each task is a plain function of (scene, tile index, small state) that a Dask worker
-(or a plain loop) runs.  ``prepare`` reads the inputs once and caches the tile's
+(or a plain loop) runs.  ``prepare`` (:mod:`.prepare`) reads the inputs once and caches the tile's
 compact observations (:mod:`.observations`) inside OUTDIR; ``iterate`` computes one
 iteration's partial sums from them in one fused pass (:mod:`.kernels`); ``finalise`` writes the tile's outputs.  Global couplings
 (exposures, phase coefficients, Q) leave a task only as small float64 sums.
@@ -30,12 +30,10 @@ from pathlib import Path
 import numpy as np
 
 from ..io.cache import MemoryCache, discard, load_meta, load_stack
-from ..io.cachewriter import CacheWriter
 from ..io.geotiff import GeoTiffRows
 from ..io.rasters import count_finite
-from ..model import exposure_init, shadows, updates
-from ..parallel.ahead import ahead, helper
-from . import kernels, observations, runs
+from ..model import shadows, updates
+from . import kernels, runs
 from .scene import Scene
 
 
@@ -87,13 +85,8 @@ ERROR_PREDICTOR = 1
 #: 50-image scene's 1000 x 1000 px tile 21 -> 10 ms, 0.13 -> 0.14 MB; make bench item 10's
 #: 4000 x 4000 px tile 176 -> 125 ms, 8.9 -> 5.8 MB).
 WEIGHTS_SUM_PREDICTOR = 2
-#: Blocks whose observations take at most this many bytes are reduced (initialisation sums,
-#: chunk-major runs) on a helper thread while the next block is gathered, when the prepare
-#: step has helpers; bigger ones in the task's thread (a block less held at once: make bench
-#: item 10's blocks of a 4000 x 4000 px tile raised its peak by 120 MB when reduced ahead).
-AHEAD_BYTES = 64 * 2**20
 #: The tile outputs known once a tile is prepared (their output folders: the block's DEM and its blending
-#: sums, assembled by :func:`_prepare_blocks`).  They are written into the tile's cache entry by the cache writer
+#: sums, assembled by :func:`.prepare._prepare_blocks`).  They are written into the tile's cache entry by the cache writer
 #: (behind the computation of the next tiles in a one-process run) and moved into place by
 #: finalise, ``weightsSum`` last.
 KNOWN_OUTPUTS = ("DEM", "weightsSum")
@@ -102,102 +95,9 @@ OUTPUT_OPTIONS = {"albedo": {"nodata": float("nan")}, "error": {"nodata": float(
                   "DEM": {"nodata": float("nan")}, "weightsSum": {"predictor": WEIGHTS_SUM_PREDICTOR}}
 
 
-def _cache_dir(cache_root: Path, scene: Scene, t: int) -> Path:
+def cache_dir(cache_root: Path, scene: Scene, t: int) -> Path:
+    """The cache folder of tile ``t`` under ``cache_root``."""
     return Path(cache_root) / scene.tiles[t].name
-
-
-# --------------------------------------------------------------------------- prepare
-def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | None = None, wait: bool = True,
-                 helpers: int = 0) -> dict:
-    """Read every image over tile ``t`` (its footprint window only), compute geometry, cache the observations.
-
-    ``lut``: camera response g over 0..255 (seed 002), applied to each DRG's DN before
-    it is resampled onto the tile grid; None keeps the DN (linear response).
-
-    The tile is done block of rows by block (:func:`observations.gather_blocks`), each
-    block handed to this process's cache writer (:data:`WRITER`), which writes it while the
-    next one is computed, into a temporary folder renamed once the tile is complete.  With
-    ``wait`` the task returns once its tile is on disk (Dask workers: a finished task's tile
-    can be read by any worker); without, the caller calls ``WRITER.flush()`` before the cache
-    is read (a run in one process: the writing then overlaps the next tiles too).  Returns
-    the tile's initialisation sums (also stored in the cache's meta, so a resumed run does not
-    recompute them): per-image reflectance sums for the seed exposure, and pairwise log-ratio
-    sums for the overlap exposure, added block by block in block order.  ``helpers`` (>= 2, a
-    task with CPUs to spare: :mod:`lunaralbedo.parallel.ahead`): each block's image windows are
-    read and reduced to observations on that many helper threads, ahead of the task's thread,
-    which adds them up in tile order, and each block is reordered on another while the next
-    one is gathered (the same bytes as one thread's).
-    """
-    folder = _cache_dir(cache_root, scene, t)
-    cached = load_stack(folder)
-    if cached is not None and cached[1].get("layout") == CACHE_LAYOUT:
-        return {**cached[1], "reused": True}
-    entry = WRITER.entry(folder)  # the tile's folder appears when all its blocks are written
-    try:
-        meta = _prepare_blocks(scene, t, lut, entry, helpers)
-    except BaseException:
-        entry.abandon()
-        if wait:
-            WRITER.drain()  # nothing of the task left in flight when it reports its failure
-        raise
-    if wait:
-        WRITER.flush()
-    return {**meta, "reused": False}
-
-
-#: This process's cache writer (:mod:`lunaralbedo.io.cachewriter`).
-WRITER = CacheWriter()
-
-
-def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
-    r_sums: dict[int, list] = {}
-    pairs: dict = {}
-    blocks = []
-    tile = scene.tiles[t]
-    width = tile.width
-    n_obs = 0
-    # the tile outputs known once it is prepared (its DEM and blending sums), written a block of rows at a time
-    known = partial(entry.save_rows, shape=(tile.height, width), transform=tile.transform, crs=scene.crs)
-
-    def reduce(block):  # the initialisation sums and the chunk-major runs of a block
-        b0, b1, obs, per_pixel, cols = block
-        names = [n for n in obs if n not in ("pix", "start", "index")]
-        pm = runs.chunk_runs(obs, (b1 - b0) * width, names)
-        if "alpha" in pm:  # the phase-angle range of the block's observations (iterate_block): computed once
-            pm["alpha_range"] = np.array(kernels.alpha_range(pm["alpha"], pm["weight"]), np.float32)
-        return b0, b1, cols, per_pixel, _init_sums(scene, obs, width), pm
-
-    big = lambda block: sum(a.nbytes for a in block[2].values()) > AHEAD_BYTES  # noqa: E731
-    for b0, b1, cols, per_pixel, part, pm in ahead(reduce, observations.gather_blocks(scene, t, lut, helpers),
-                                             helper("reduce") if helpers > 1 else None, here=big):
-        if "dem" in per_pixel:  # every column (a view of the tile's terrain: copied, the writer holds only these rows)
-            known("DEM.tif", np.array(per_pixel.pop("dem"), np.float32), b0, **OUTPUT_OPTIONS["DEM"])
-        sums = np.zeros((b1 - b0, width), np.float32)  # 0 in the columns no image's window reaches
-        sums[:, cols[0]:cols[1]] = per_pixel["weights_sum"]
-        known("weightsSum.tif", sums, b0, **OUTPUT_OPTIONS["weightsSum"])
-        for k, rs, n in zip(part["index"], part["r_sum"], part["r_count"]):
-            acc = r_sums.setdefault(k, [0.0, 0.0])
-            acc[0] += rs
-            acc[1] += n
-        exposure_init.merge_pair_sums(pairs, part["pairs"])
-        n_obs += len(pm["image"])
-        entry.save(f"block_{len(blocks):04d}", {**pm, **{f"tile_{k}": v for k, v in per_pixel.items()}},
-                   {"rows": [b0, b1], "cols": [int(cols[0]), int(cols[1])]})
-        del pm, per_pixel, sums
-        blocks.append([b0, b1])
-    index = [int(k) for k in scene.tile_images[t] if int(k) in r_sums]  # tile order
-    meta = {
-        "index": index,
-        "r_sum": [r_sums[k][0] for k in index],
-        "r_count": [r_sums[k][1] for k in index],
-        "pairs": [[j, k, n_, d] for (j, k), (n_, d) in sorted(pairs.items())],
-        "tile": scene.tiles[t].name,
-        "blocks": blocks,
-        "observations": n_obs,
-        "layout": CACHE_LAYOUT,
-    }
-    entry.complete(meta)
-    return meta
 
 
 def _split(arrays) -> tuple[dict, dict]:
@@ -212,17 +112,6 @@ def _blocks(folder: Path, meta: dict):
     for i, (b0, b1) in enumerate(meta["blocks"]):
         arrays, block_meta = load_stack(folder / f"block_{i:04d}")
         yield (b0, b1, *_split(arrays), block_meta.get("cols", [0])[0])
-
-
-def _init_sums(scene: Scene, obs, width: int) -> dict:
-    s = scene.settings
-    r = s.model.reflectance_from(obs, s.initial_params)
-    rs, n = exposure_init.mean_reflectance_sums(r, obs["start"])  # observations already have positive weight,
-    use = r > 0  # value and geometry; R > 0 remains (nearly always: no copies then)
-    ustart = np.concatenate([[0], np.cumsum(n)]).astype(np.int64)
-    pick = (lambda a: a) if use.all() else (lambda a: a[use])
-    pairs = exposure_init.pair_sums(pick(obs["pix"]), ustart, pick(obs["image"]), pick(r), obs["index"], width)
-    return {"index": obs["index"].tolist(), "r_sum": rs.tolist(), "r_count": n.tolist(), "pairs": pairs}
 
 
 # --------------------------------------------------------------------------- iterate
@@ -262,7 +151,7 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
     Each block's observations, in chunk-major runs, come from :data:`STACKS` (kept in memory
     across iterations within its budget) and run through one fused kernel (:func:`iterate_block`).
     """
-    folder = _cache_dir(cache_root, scene, t)
+    folder = cache_dir(cache_root, scene, t)
     meta = load_meta(folder)  # parsed once per process (every pass asks)
     if meta is None:
         raise FileNotFoundError(f"{folder}: the prepared tile's meta.json is missing")
@@ -385,7 +274,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     """
     s = scene.settings
     tile = scene.tiles[t]
-    folder = _cache_dir(cache_root, scene, t)
+    folder = cache_dir(cache_root, scene, t)
     meta = load_stack(folder)[1]
     idx = np.asarray(meta["index"], np.int32)
     for i in range(len(meta["blocks"])):
