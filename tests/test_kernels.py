@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from lunaralbedo.engine import kernels, runs, tilework
+from lunaralbedo.engine.finalise_kernels import finalise_runs
 from lunaralbedo.io.cache import MemoryCache, load_stack, mapped, save_stack
 from lunaralbedo.model import shadows, updates
 from lunaralbedo.model.photometry import REGISTRY, lunar_lambert
@@ -119,7 +120,7 @@ def test_fused_kernel_equals_the_numpy_formulas(chunk_px):
     # image axis bit for bit (its numerator over a blending sum that is 0 at some pixels, 2.5 elsewhere)
     blend = np.where(np.arange(h * w) % 7 == 0, 0.0, 2.5).astype(np.float32)
     alb2, err = np.empty(h * w, np.float32), np.empty(h * w, np.float32)
-    kernels.finalise_runs(pm["chunks"], pm["run_start"], pm["run_pixel"], pm["run_image"], pm["image"], t, pm["r"],
+    finalise_runs(pm["chunks"], pm["run_start"], pm["run_pixel"], pm["run_image"], pm["image"], t, pm["r"],
                           pm["weight"], blend.reshape(h, w), 0, alb2, err)
     np.testing.assert_array_equal(alb2, got["alb"])
     num = updates._f64sum(updates.error_terms(image, alb[None], tr.astype(np.float32), wt), axis=0).ravel()
@@ -369,7 +370,7 @@ def test_finalise_takes_the_blending_sums_of_the_windows_columns_only(chunk_px):
 
     def finalise(sums, c0):
         alb, err = np.empty(h * w, np.float32), np.empty(h * w, np.float32)
-        kernels.finalise_runs(pm["chunks"], pm["run_start"], pm["run_pixel"], pm["run_image"], pm["image"], t,
+        finalise_runs(pm["chunks"], pm["run_start"], pm["run_pixel"], pm["run_image"], pm["image"], t,
                               pm["r"], pm["weight"], np.ascontiguousarray(sums), c0, alb, err)
         return alb.reshape(h, w), err.reshape(h, w)
 
@@ -392,7 +393,7 @@ def test_a_pixel_seen_by_more_images_than_uint16_numbers():
     got = _run(pm, 0, (pm["r"],) * 3, (), t, 0)
     assert got["alb"][0] == 2 and got["n_obs"] == m and got["q"] == 0 and np.all(got["en"] == 6) and np.all(got["ed"] == 4)
     alb, err = np.empty(1, np.float32), np.empty(1, np.float32)
-    kernels.finalise_runs(pm["chunks"], pm["run_start"], pm["run_pixel"], pm["run_image"], pm["image"], t, pm["r"],
+    finalise_runs(pm["chunks"], pm["run_start"], pm["run_pixel"], pm["run_image"], pm["image"], t, pm["r"],
                           pm["weight"], np.full((1, 1), 2.0, np.float32), 0, alb, err)
     assert alb[0] == 2 and err[0] == 0
 

@@ -4,8 +4,10 @@ The prepare step caches each block's observations in chunk-major runs (:mod:`.ru
 of consecutive pixels; within a chunk, each image's observations (images in tile order) in
 runs of consecutive pixels.  :func:`iterate_runs` computes, chunk by chunk, each pixel's
 albedo and all the sums of an iteration, with the photometric model's ``point`` (R and
-dR/dp) inline; finalise's :func:`finalise_runs` computes the albedo and eq. 7's error the
-same way.  Every product is formed in float32 as the NumPy formulas of
+dR/dp) inline; finalise's :func:`.finalise_kernels.finalise_runs` computes the albedo and eq. 7's
+error the same way, with this module's run helpers (``_chunk_extent``, ``_spans``,
+``_zero_sums``, ``_eq3_run``, ``_albedo_span``: the engine's own, shared by the two kernels so
+their albedo bits agree).  Every product is formed in float32 as the NumPy formulas of
 :mod:`lunaralbedo.model.updates` form it and summed into float64 accumulators in one fixed
 order (each pixel's sums over its images in tile order; fixed lanes for the global sums), so
 results do not depend on workers or threads.  ``cache=True``, no fastmath (IEEE semantics, no
@@ -378,88 +380,3 @@ def alpha_range(alpha, w):
     """
     kmin, kmax = _alpha_keys(alpha.view(np.int32), w, alpha.shape[0], _MAX32, _MIN32)
     return _key_range(kmin, kmax)
-
-
-@njit(cache=True)
-def _error_run(img, r, w, t, a, E, n):
-    r"""Eq. 7's terms :math:`(I/(TR) - A)^2 w` (where :math:`w > 0`) of one run added to its consecutive pixels' float64 sums."""
-    for i in range(n):
-        if w[i] > 0:
-            dev = img[i] / (t * r[i]) - a[i]
-            E[i] += dev * dev * w[i]
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def _error_default(blend, err, n):
-    """Eq. 7's error where a pixel has a blending weight (``0.0 / blend``: 0 until an observation adds to it), one row."""
-    for j in range(n):
-        if blend[j] > 0:
-            err[j] = np.float32(0.0 / blend[j])
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def _error_quotient(num, blend, err, n):
-    """Eq. 7's quotient over a row's consecutive pixels: the float64 numerator over the float32 blending sum."""
-    for j in range(n):
-        if blend[j] > 0:
-            err[j] = num[j] / blend[j]
-
-
-@njit(cache=True, nogil=True, error_model="numpy")  # IEEE division, as the NumPy formulas (model/updates.albedo, error_terms)
-def finalise_runs(chunks, run_start, run_pixel, run_image, image, texp, r, w, blend, c0, alb, err):
-    r"""Eq. 3's albedo and eq. 7's error of a block's observations in chunk-major runs, into ``alb`` and ``err``.
-
-    ``texp`` (float32) are the exposures of the local images ``run_image``, ``r`` the model's R
-    and ``w`` the weights of the observations (float32); ``blend`` (float32, rows x columns
-    ``c0:`` of the block: those its images' windows span; 0 in the others) eq. 7's denominator,
-    the sum of blending weights.  ``alb`` (float32 per pixel of the block) gets
-    :math:`A = \sum I\,TR\,w / \sum (TR)^2 w` (NaN where no weight), each pixel's float64
-    sums over its images in tile order, as :func:`iterate_runs` sums them (the same bits);
-    ``err`` (float32 per pixel, or size 0: not wanted) gets
-    :math:`\sum_{w>0} (I/(TR) - A)^2 w / \sum S` (float64 numerator and quotient, its terms in
-    the same order; 0 where the pixel has a blending weight and no observation, NaN where it has
-    none), the bits of the NumPy formulas (``np.where(den > 0, num / den, nan)`` cast to float32).
-    """
-    nan = np.float32(np.nan)
-    want_err = err.shape[0] > 0
-    for p in range(alb.shape[0]):
-        alb[p] = nan
-    n_rows, n_cols = blend.shape
-    width = alb.shape[0] // n_rows
-    if want_err:
-        for p in range(err.shape[0]):
-            err[p] = nan
-        for i in range(n_rows):
-            _error_default(blend[i], err[i * width + c0:i * width + c0 + n_cols], n_cols)
-    most_obs, most_px, most_runs = _chunk_extent(chunks, run_start, run_pixel)
-    SN, SD = np.empty(most_px), np.empty(most_px)
-    order, spans = np.empty(most_runs, np.int32), np.empty((most_runs, 2), np.int32)
-    for c in range(chunks.shape[0] - 1):  # eq. 3 as iterate_runs does it: a shared njit helper cost it 3 % (0.15 ns)
-        r0, r1 = chunks[c], chunks[c + 1]
-        lo = run_pixel[r0]
-        for rr in range(r0, r1):
-            lo = min(lo, run_pixel[rr])
-        nsp = _spans(run_start, run_pixel, r0, r1, lo, order, spans)
-        for q in range(nsp):
-            _zero_sums(SN[spans[q, 0]:spans[q, 1]], SD[spans[q, 0]:spans[q, 1]], spans[q, 1] - spans[q, 0])
-        for rr in range(r0, r1):
-            a, b, p = run_start[rr], run_start[rr + 1], run_pixel[rr] - lo
-            _eq3_run(image[a:b], r[a:b], w[a:b], texp[run_image[rr]], SN[p:p + b - a], SD[p:p + b - a], b - a)
-        for q in range(nsp):
-            a, b = spans[q, 0], spans[q, 1]
-            _albedo_span(SN[a:b], SD[a:b], alb[lo + a:lo + b], b - a)
-        if not want_err:
-            continue
-        for q in range(nsp):  # SN holds eq. 7's numerators now
-            _zero_sums(SN[spans[q, 0]:spans[q, 1]], SD[spans[q, 0]:spans[q, 1]], spans[q, 1] - spans[q, 0])
-        for rr in range(r0, r1):
-            a, b, p = run_start[rr], run_start[rr + 1], run_pixel[rr] - lo
-            _error_run(image[a:b], r[a:b], w[a:b], texp[run_image[rr]], alb[lo + p:lo + p + b - a], SN[p:p + b - a], b - a)
-        for q in range(nsp):  # the span's pixels row by row: pixel p is column p - i * width - c0 of blend's row i
-            p, end = lo + spans[q, 0], lo + spans[q, 1]
-            while p < end:
-                i = p // width
-                a, b = max(p, i * width + c0), min(end, i * width + c0 + n_cols)  # observed pixels lie in blend's columns
-                if b > a:
-                    _error_quotient(SN[a - lo:b - lo], blend[i, a - i * width - c0:b - i * width - c0], err[a:b], b - a)
-                p = (i + 1) * width

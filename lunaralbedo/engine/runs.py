@@ -3,7 +3,7 @@
 The prepare step gathers observations image by image (:mod:`.observations`): image ``k``
 owns ``start[k]:start[k+1]``, in increasing pixel order (``pix``, the flat index in the
 block).  The iterations (:func:`.kernels.iterate_runs`) and finalise
-(:func:`.kernels.finalise_runs`) take them chunk by chunk: the block's pixels are cut into
+(:func:`.finalise_kernels.finalise_runs`) take them chunk by chunk: the block's pixels are cut into
 chunks of ``chunk_px`` consecutive pixels, and within a chunk the observations stay image by
 image in tile order, then pixel by pixel.  Each image's observations of a chunk fall into
 **runs** of consecutive pixels (a row of its footprint, or several rows where it covers the

@@ -34,6 +34,7 @@ from ..io.geotiff import GeoTiffRows
 from ..io.rasters import count_finite
 from ..model import shadows, updates
 from . import kernels, runs
+from .finalise_kernels import finalise_runs
 from .scene import Scene
 
 
@@ -120,7 +121,7 @@ def tile_model(scene: Scene, obs, state: SolveState):
 
     Returns ``(R, w, T)``: R (float32 per observation), the weights with the dynamic shadow
     mask (eq. 1), and the exposures of the block's local images (float32; ``obs["run_image"]``
-    numbers them), which :func:`kernels.finalise_runs` takes.
+    numbers them), which :func:`.finalise_kernels.finalise_runs` takes.
     """
     s = scene.settings
     texp = state.exposure[obs["index"]].astype(np.float32)
@@ -296,7 +297,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
             err = np.empty((b1 - b0, w_), np.float32) if want_err else no_err
             if len(obs["index"]):
                 r, w, texp = tile_model(scene, obs, state)
-                kernels.finalise_runs(obs["chunks"], obs["run_start"], obs["run_pixel"], obs["run_image"], obs["image"],
+                finalise_runs(obs["chunks"], obs["run_start"], obs["run_pixel"], obs["run_image"], obs["image"],
                                       texp, r, w, per_pixel.get("wblend_sum", per_pixel["weights_sum"]),
                                       c0, alb.reshape(-1), err.reshape(-1))  # eq. 7's sum of blending weights
             else:
