@@ -36,7 +36,8 @@ if kind == "pass":
     a.sum()
     run = lambda: [a.sum(dtype=np.float64) for _ in range(3)]
 else:
-    from lunaralbedo.engine import prepare, tilework
+    from lunaralbedo.engine import tilework
+    from lunaralbedo.engine.prepare import prepare_tile
     from lunaralbedo.engine.scene import build_scene
     from lunaralbedo.settings import load_settings
     scene = build_scene(load_settings(scene_dir / "settings.txt"), False, map_fn=lambda f, xs: list(map(f, xs)))
@@ -46,7 +47,7 @@ else:
         shutil.rmtree(cache, ignore_errors=True)
         cache.mkdir(parents=True)
         for t in tiles:
-            prepare.prepare_tile(t, scene=scene, cache_root=cache)
+            prepare_tile(t, scene=scene, cache_root=cache)
     prepare()  # warm: numba caches, GDAL, the page cache of the inputs
     if kind == "prepare":
         run = prepare
