@@ -21,6 +21,7 @@ Needs item 6's scene and its output tiles (``bench_out/out_strip_after``): run i
 """
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import shutil
@@ -106,6 +107,7 @@ def child(d: Path, out: Path, n_obs: int) -> dict:
     from lunaralbedo.engine.scene import build_scene
     from lunaralbedo.io.drgs import pixels_on_grid
     from lunaralbedo.io.geotiff import geotiff_profile
+    from lunaralbedo.model.geometry import lonlat_axes
     from lunaralbedo.settings import load_settings
 
     figures = memory_price()
@@ -129,11 +131,9 @@ def child(d: Path, out: Path, n_obs: int) -> dict:
 
     parts["DRG windows decoded"] = best(drg_windows)
     parts["DEM decoded once"] = best(dem_once)
-    with rasterio.open(scene.dems[0].path) as ds:
-        dem = ds.read(1).astype(np.float32)
-        lon = ds.transform.c + ds.transform.a * (np.arange(ds.width) + 0.5)
-        lat = ds.transform.f + ds.transform.e * (np.arange(ds.height) + 0.5)
-    dem = np.where(np.isfinite(dem) & (dem > -1e4), dem, 0.0).astype(np.float32)
+    with rasterio.open(scene.dems[0].path) as ds:  # heights (m), no-data as NaN (which the points count as 0)
+        dem = ds.read(1, masked=True).astype(np.float32).filled(np.nan)
+        lon, lat = lonlat_axes(ds.transform, ds.shape)
     trig = (np.cos(np.radians(lon)), np.sin(np.radians(lon)), np.cos(np.radians(lat)), np.sin(np.radians(lat)))
     sun, sc = np.asarray(scene.sun[0], np.float64), np.asarray(scene.spacecraft[0], np.float64)
     ci, ce, al = (np.empty(n_obs) for _ in range(3))  # float64, as the solver's candidates
@@ -161,16 +161,16 @@ def child(d: Path, out: Path, n_obs: int) -> dict:
 
     cold = {"cache": min(best(new_file), best(new_memory))}
     # the DEM and weight-sum tiles (outputs), as the solve wrote them
-    tiles = [np.asarray(rasterio.open(p).read(1)) for kind in ("DEM", "weightsSum")
-             for p in sorted((out / "out_strip_after" / kind).glob("*.tif"))]
-    with rasterio.open(next((out / "out_strip_after" / "DEM").glob("*.tif"))) as ds:
-        transform, crs = ds.transform, ds.crs
-    calls = iter(range(10**6))
+    tiles = []
+    for path in (p for kind in ("DEM", "weightsSum") for p in sorted((out / "out_strip_after" / kind).glob("*.tif"))):
+        with rasterio.open(path) as ds:
+            tiles.append((ds.read(1), ds.transform, ds.crs))
+    calls = itertools.count()
 
     def write_tiles(options, new: bool):
         def go():  # new files each call (kept until the end, as a solve writes them), or the same files again
             call = next(calls) if new else "again"
-            for i, a in enumerate(tiles):
+            for i, (a, transform, crs) in enumerate(tiles):
                 prof = geotiff_profile(1, *a.shape, "float32", transform, crs, compress=None)
                 prof.update(options)
                 with rasterio.open(tmp / f"t{call}_{i}.tif", "w", **prof) as ds:
