@@ -74,6 +74,14 @@ def test_the_rule_is_the_mean_of_the_dems_with_a_value():
         want = merge_dem_layers(layers, (1000,)).astype(np.float32)
         got32 = merge_dem_layers(iter(layers), (1000,), np.float32)
         assert got32.dtype == np.float32 and np.array_equal(got32.view(np.uint32), want.view(np.uint32))
+    # a fresh read the caller gives away (owned): the same bytes, made in place; anything else is left as it was
+    want = merge_dem_layers([heights], (1000,)).astype(np.float32)
+    given = heights.copy()
+    owned = merge_dem_layers([given], (1000,), np.float32, owned=True)
+    assert owned is given and np.array_equal(owned.view(np.uint32), want.view(np.uint32))
+    kept = heights.copy()
+    assert merge_dem_layers([kept], (1000,), np.float32) is not kept and np.signbit(kept[0])
+    assert merge_dem_layers([heights], (1000,), np.float64, owned=True) is not heights  # another type: a new array
 
 
 def test_radius_or_height_is_decided_by_the_median_of_the_finite_values():

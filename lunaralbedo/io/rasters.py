@@ -252,33 +252,27 @@ def read_onto_grid(
 
 def _read_onto_grid_once(info, band, dst_transform, dst_shape, dst_crs, resampling, nodata) -> np.ndarray:
     src_nodata = info.nodata if info.nodata is not None else nodata
-    out = np.full(dst_shape, np.nan, dtype=np.float32)
     with raster_errors(info.path), open_raster(info.path) as ds:
         same_crs = dst_crs is None or ds.crs is None or ds.crs == dst_crs
         off = aligned_offset(ds.transform, dst_transform, dst_shape) if same_crs else None
         if off is not None:  # the target's pixels are source pixels: copy them
             r, c = off
             r0, r1, c0, c1 = max(r, 0), min(r + dst_shape[0], ds.height), max(c, 0), min(c + dst_shape[1], ds.width)
-            if r1 > r0 and c1 > c0:
-                src = ds.read(band, window=Window(c0, r0, c1 - c0, r1 - r0), out_dtype=np.float32, masked=False)
-                if src_nodata is not None:
-                    src[src == np.float32(src_nodata)] = np.nan
-                scale, offset = ds.scales[band - 1], ds.offsets[band - 1]
-                if (scale, offset) != (1.0, 0.0):
-                    src = (src.astype(np.float64) * scale + offset).astype(np.float32)
-                out[r0 - r:r1 - r, c0 - c:c1 - c] = src
+            if r1 <= r0 or c1 <= c0:
+                return np.full(dst_shape, np.nan, dtype=np.float32)
+            src = _read_values(ds, band, Window(c0, r0, c1 - c0, r1 - r0), src_nodata)
+            if (r1 - r0, c1 - c0) == tuple(dst_shape):  # the target lies inside the source: its pixels as read
+                return src
+            out = np.full(dst_shape, np.nan, dtype=np.float32)
+            out[r0 - r:r1 - r, c0 - c:c1 - c] = src
             return out
+        out = np.full(dst_shape, np.nan, dtype=np.float32)
         win = _source_window(ds, dst_transform, dst_shape, dst_crs)
         win = Window(win.col_off - 2, win.row_off - 2, win.width + 4, win.height + 4).round_offsets().round_lengths()
         win = win.intersection(Window(0, 0, ds.width, ds.height)) if _overlaps(win, ds) else None
         if win is None or win.width <= 0 or win.height <= 0:
             return out
-        src = ds.read(band, window=win, out_dtype=np.float32, masked=False)
-        if src_nodata is not None:
-            src[src == np.float32(src_nodata)] = np.nan
-        scale, offset = ds.scales[band - 1], ds.offsets[band - 1]
-        if (scale, offset) != (1.0, 0.0):  # ISIS Base/Multiplier, GeoTIFF scale/offset
-            src = (src.astype(np.float64) * scale + offset).astype(np.float32)
+        src = _read_values(ds, band, win, src_nodata)
         reproject(
             source=src,
             destination=out,
@@ -291,6 +285,18 @@ def _read_onto_grid_once(info, band, dst_transform, dst_shape, dst_crs, resampli
             resampling=resampling,
         )
     return out
+
+
+def _read_values(ds, band: int, win: Window, nodata: float | None) -> np.ndarray:
+    """Band ``band`` of ``ds`` over ``win``: float32, NaN where it equals ``nodata`` (compared in float32), its
+    scale and offset applied (ISIS Base/Multiplier, GeoTIFF scale/offset; in float64, rounded once)."""
+    src = ds.read(band, window=win, out_dtype=np.float32, masked=False)
+    if nodata is not None:  # in place, no index arrays (a boolean-mask assignment made two more passes)
+        np.copyto(src, np.float32(np.nan), where=src == np.float32(nodata))
+    scale, offset = ds.scales[band - 1], ds.offsets[band - 1]
+    if (scale, offset) != (1.0, 0.0):
+        src = (src.astype(np.float64) * scale + offset).astype(np.float32)
+    return src
 
 
 def _source_window(ds, dst_transform: Affine, dst_shape: tuple[int, int], dst_crs: CRS | None) -> Window:
@@ -320,7 +326,7 @@ def read_dem_onto_grid(
     layers = (radius_to_height(read_onto_grid(info, 1, dst_transform, dst_shape, dst_crs, Resampling.bilinear,
                                               nodata=nodata))[0]
               for info in infos if intersects_lon(info.lonlat_bounds, grid_box))
-    return merge_dem_layers(layers, dst_shape, np.float32)
+    return merge_dem_layers(layers, dst_shape, np.float32, owned=True)
 
 
 def count_finite(path: str | Path, rows: int = 1024) -> int:

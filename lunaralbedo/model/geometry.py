@@ -163,7 +163,7 @@ def _illumination_flat(p, n, sun, sc):
     return ci, ce, al
 
 
-def merge_dem_layers(layers, shape, dtype=np.float64) -> np.ndarray:
+def merge_dem_layers(layers, shape, dtype=np.float64, owned: bool = False) -> np.ndarray:
     """Heights where DEMs overlap: the mean of the DEMs with a value there (seed 000 section 6).
 
     The one overlap rule of the package, used by ``ingest`` (:class:`lunaralbedo.ingest.dem.DemMosaic`)
@@ -174,6 +174,8 @@ def merge_dem_layers(layers, shape, dtype=np.float64) -> np.ndarray:
     Returns metres of ``dtype`` (the float64 mean rounded once), NaN where no DEM has a value;
     one DEM gives its own values (``0.0 + h``: -0.0 becomes 0.0), formed in ``dtype`` directly
     when its values are of that type (float32 heights: the same bytes, no float64 pass).
+    ``owned``: the layers are the caller's to overwrite (fresh reads): one DEM's array of that
+    type and shape is then returned itself, its -0.0 made 0.0 in place.
     """
     layers = iter(layers)
     first = next(layers, None)
@@ -183,7 +185,10 @@ def merge_dem_layers(layers, shape, dtype=np.float64) -> np.ndarray:
     if second is None:  # one DEM: its values (the sum's 0.0 + h turns -0.0 into 0.0; NaN stays NaN)
         first = np.asarray(first)
         work = dtype if first.dtype == np.dtype(dtype) else np.float64
-        out = np.array(np.broadcast_to(first.astype(work, copy=False), shape))
+        if owned and first.dtype == np.dtype(work) and first.shape == tuple(shape) and first.flags.writeable:
+            out = first
+        else:
+            out = np.array(np.broadcast_to(first.astype(work, copy=False), shape))
         out += work(0.0)
         return out.astype(dtype, copy=False)
     total = np.zeros(shape, np.float64)
