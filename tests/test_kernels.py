@@ -354,6 +354,24 @@ def test_the_fused_kernel_is_vectorised():
     assert len(packed) >= kernels.N_SUMS
 
 
+@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64"), reason="checks x86 packed instructions")
+def test_the_error_terms_loop_is_vectorised():
+    """Eq. 7's terms divide as the NumPy formula does (IEEE): without numba's zero-division check in the division,
+    LLVM runs the loop several observations per instruction (packed float32 divisions)."""
+    import re
+
+    from numba import njit
+
+    from lunaralbedo.engine.finalise_kernels import _error_run
+
+    assert _error_run.targetoptions.get("error_model") == "numpy"
+    fresh = njit(error_model=_error_run.targetoptions["error_model"])(_error_run.py_func)
+    x = np.linspace(0.5, 1.5, 64, dtype=np.float32)
+    fresh(x, x, x, np.float32(1.3), x, np.zeros(64), 64)
+    assert "division by zero" not in fresh.inspect_llvm(fresh.signatures[0])
+    assert re.search(r"\bvdivps\s[^\n]*%[xyz]mm", fresh.inspect_asm(fresh.signatures[0]))
+
+
 @pytest.mark.parametrize("chunk_px", [None, 16])
 def test_finalise_takes_the_blending_sums_of_the_windows_columns_only(chunk_px):
     """The cache keeps a block's blending sums only over the columns its images' windows span: finalise given
