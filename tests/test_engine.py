@@ -382,6 +382,38 @@ def test_tune_numpy_turns_off_hugepage_advice_unless_the_user_set_it():
     assert out.stdout.split() == ["True", "False", "True"]
 
 
+@pytest.mark.skipif("forkserver" not in __import__("multiprocessing").get_all_start_methods(), reason="no forkserver")
+def test_local_workers_are_forked_from_one_server_that_imported_the_package(monkeypatch):
+    """Local workers are forks of one server process that imported distributed and the preloaded modules once
+    (parallel/forkserver.py), not fresh interpreters that each import them again; they have WORKER_ENV.
+    LUNARALBEDO_WORKER_START=spawn gives Dask's fresh interpreters (children of this process, where the nannies
+    run); any other value is a ClusterError before anything starts."""
+    import os
+    import sys
+
+    from lunaralbedo.errors import ClusterError
+    from lunaralbedo.parallel.executor import make_executor
+
+    def parents(preload=()):
+        ex = make_executor(2, preload=preload)
+        try:
+            return ex.client.run(lambda: (os.getppid(), "lunaralbedo.engine.tilework" in sys.modules,
+                                          os.environ.get("MALLOC_ARENA_MAX")))
+        finally:
+            ex.close()
+
+    forked = parents(("lunaralbedo.engine.tilework",))
+    servers = {p for p, _, _ in forked.values()}
+    assert len(forked) == 2 and len(servers) == 1 and os.getpid() not in servers
+    assert all(loaded and arenas == "1" for _, loaded, arenas in forked.values())
+    assert servers == {p for p, _, _ in parents().values()}  # the same server serves the next cluster
+    monkeypatch.setenv("LUNARALBEDO_WORKER_START", "spawn")
+    assert {p for p, _, _ in parents().values()} == {os.getpid()}
+    monkeypatch.setenv("LUNARALBEDO_WORKER_START", "fork")
+    with pytest.raises(ClusterError, match="LUNARALBEDO_WORKER_START must be one of forkserver, spawn"):
+        make_executor(2)
+
+
 def test_local_workers_run_without_dashboard_monitors():
     """A local cluster's workers and scheduler get DASK_CONFIG (no task profiler, slow ticks) and WORKER_ENV,
     whose malloc settings take effect (the workers reuse freed arrays instead of faulting them in again), and

@@ -41,11 +41,13 @@ def connect(address: str):
         raise ClusterError(f"cannot connect to Dask scheduler {address}: {exc}") from None
 
 
-def local_cluster(workers: int, memory_limit: str | None, preload: tuple = ()):
-    """``workers`` local worker processes of one thread each; ``preload``: modules each worker imports as it starts."""
+def local_cluster(workers: int, memory_limit: str | None, preload: tuple = (), start: str = "spawn"):
+    """``workers`` local worker processes of one thread each; ``preload``: modules each worker imports as it starts;
+    ``start``: how they start (:func:`.forkserver.ready` gives it: ``forkserver`` once that server is running)."""
+    import dask
     from distributed import Client, LocalCluster
 
-    with worker_config():
+    with worker_config(), dask.config.set({"distributed.worker.multiprocessing-method": start}):
         cluster = LocalCluster(
             n_workers=workers,
             threads_per_worker=1,

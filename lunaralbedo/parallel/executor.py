@@ -21,7 +21,7 @@ from typing import Any, Callable, Iterable
 from tqdm.auto import tqdm
 
 from ..errors import ClusterError, LunarAlbedoError, typed_error
-from . import clusters
+from . import clusters, forkserver
 from .nodefile import nodefile_client, pbs_nodes
 from .workers import available_cpus, tune_malloc, tune_numpy
 
@@ -340,6 +340,8 @@ def make_executor(
     (:class:`DaskExecutor` then waits for it where it must); ``preload``: modules its
     workers import as they start, so that the first tasks do not wait for the imports.
     The solver overlaps the ~1-2 s of that start with building its scene (docs/scaling.md).
+    Local workers are forked from a server that has imported ``preload`` once (:mod:`.forkserver`;
+    ``LUNARALBEDO_WORKER_START=spawn``: each a fresh interpreter, Dask's default).
     """
     if client is not None:
         return DaskExecutor(client, "Dask client", progress, own_client=False)
@@ -359,12 +361,13 @@ def make_executor(
         return SerialExecutor(progress)
     if local == "processes":
         what, description = f"local cluster of {workers} processes", f"local cluster ({workers} processes)"
+        start = forkserver.ready(preload)  # in this thread: it sets the server's environment for a moment
         if background:
             pool = ThreadPoolExecutor(1, thread_name_prefix="lunaralbedo-cluster-start")
-            pending = pool.submit(_starting, what, clusters.local_cluster, workers, memory_limit, preload)
+            pending = pool.submit(_starting, what, clusters.local_cluster, workers, memory_limit, preload, start)
             pool.shutdown(wait=False)  # the start goes on; its thread ends with it
             return DaskExecutor(pending, description, progress, workers=workers)
-        client, owned = _starting(what, clusters.local_cluster, workers, memory_limit, preload)
+        client, owned = _starting(what, clusters.local_cluster, workers, memory_limit, preload, start)
         return DaskExecutor(client, description, progress, owned=owned)
     if local == "threads":
         return LocalPoolExecutor(workers, progress)
