@@ -361,7 +361,8 @@ def make_executor(
         return SerialExecutor(progress)
     if local == "processes":
         what, description = f"local cluster of {workers} processes", f"local cluster ({workers} processes)"
-        start = forkserver.ready(preload)  # in this thread: it sets the server's environment for a moment
+        # in this thread: the server's environment is set in os.environ for a moment
+        start = _starting("server of local workers", forkserver.ready, preload)
         if background:
             pool = ThreadPoolExecutor(1, thread_name_prefix="lunaralbedo-cluster-start")
             pending = pool.submit(_starting, what, clusters.local_cluster, workers, memory_limit, preload, start)

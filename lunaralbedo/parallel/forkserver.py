@@ -62,15 +62,14 @@ def ready(preload: tuple = ()) -> str:
     from multiprocessing import forkserver
 
     with _LOCK:
-        if not _OURS:
-            if getattr(getattr(forkserver, "_forkserver", None), "_forkserver_pid", None) is not None:
-                return "spawn"  # someone else's server
-            _OURS = True
+        if not _OURS and getattr(getattr(forkserver, "_forkserver", None), "_forkserver_pid", None) is not None:
+            return "spawn"  # someone else's server
         forkserver.set_forkserver_preload(["distributed", *preload])
         saved = {k: os.environ.get(k) for k in WORKER_ENV}
         os.environ.update({k: str(v) for k, v in WORKER_ENV.items()})
         try:
             forkserver.ensure_running()  # started once; started again (the same way) only if it has died
+            _OURS = True
         finally:
             for k, v in saved.items():
                 if v is None:
