@@ -382,7 +382,7 @@ def test_tune_numpy_turns_off_hugepage_advice_unless_the_user_set_it():
     assert out.stdout.split() == ["True", "False", "True"]
 
 
-@pytest.mark.skipif("forkserver" not in __import__("multiprocessing").get_all_start_methods(), reason="no forkserver")
+@pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="workers are forked from a server on Linux")
 def test_local_workers_are_forked_from_one_server_that_imported_the_package(monkeypatch):
     """Local workers are forks of one server process that imported distributed and the preloaded modules once
     (parallel/forkserver.py), not fresh interpreters that each import them again; they have WORKER_ENV.

@@ -15,20 +15,21 @@ worker would from its nanny: glibc reads the malloc settings and NumPy its hugep
 the server starts and imports NumPy, and every worker forked from it inherits them.  It lives
 as long as this process and serves its later local clusters too, so a worker runs the code this
 process first loaded: after editing the package in a notebook, restart the kernel (or set
-``LUNARALBEDO_WORKER_START=spawn``, which also suits platforms without ``forkserver``, where it
-is the default).
+``LUNARALBEDO_WORKER_START=spawn``, the default where the platform is not Linux or has no
+``forkserver``).
 """
 from __future__ import annotations
 
 import multiprocessing
 import os
+import sys
 import threading
 
 from ..errors import ClusterError
 from .workers import WORKER_ENV
 
-#: Environment variable choosing how local workers start: ``forkserver`` (the default where the platform has it)
-#: or ``spawn`` (Dask's default: each worker a fresh interpreter).
+#: Environment variable choosing how local workers start: ``forkserver`` (the default on Linux) or ``spawn``
+#: (Dask's default: each worker a fresh interpreter; the default elsewhere).
 START_ENV = "LUNARALBEDO_WORKER_START"
 START_METHODS = ("forkserver", "spawn")
 
@@ -37,8 +38,11 @@ _OURS = False  # this module started the running forkserver (with the package pr
 
 
 def start_method() -> str:
-    """How local workers start: :data:`START_ENV` (default ``forkserver``), ``spawn`` where there is no forkserver."""
-    wanted = os.environ.get(START_ENV, "forkserver").strip().lower()
+    """How local workers start: :data:`START_ENV`, by default ``forkserver`` on Linux and ``spawn`` elsewhere (on
+    macOS a process that forks without exec may crash in system frameworks, which is why Python spawns there);
+    ``spawn`` where there is no forkserver."""
+    default = "forkserver" if sys.platform.startswith("linux") else "spawn"
+    wanted = os.environ.get(START_ENV, default).strip().lower()
     if wanted not in START_METHODS:
         raise ClusterError(f"{START_ENV} must be one of {', '.join(START_METHODS)}, got {wanted!r}")
     if wanted == "forkserver" and "forkserver" not in multiprocessing.get_all_start_methods():
