@@ -90,6 +90,25 @@ def test_normals_of_a_sphere_are_radial_and_flat_sun_gives_incidence():
     np.testing.assert_allclose(h, 0, atol=1e-6)
 
 
+def test_mask_profiles_are_each_rows_and_columns_first_and_last_valid_pixel():
+    """profile_from_mask (one pass, numba) against the definition written with NumPy's argmax, on random masks
+    with empty rows and columns, an empty mask and a full one."""
+    def reference(valid):
+        h, w = valid.shape
+        any_r, any_c = valid.any(axis=1), valid.any(axis=0)
+        return (np.where(any_r, valid.argmax(axis=1), w), np.where(any_r, w - 1 - valid[:, ::-1].argmax(axis=1), -1),
+                np.where(any_c, valid.argmax(axis=0), h), np.where(any_c, h - 1 - valid[::-1, :].argmax(axis=0), -1))
+
+    rng = np.random.default_rng(3)
+    masks = [rng.random((37, 53)) < p for p in (0.02, 0.3, 0.97)] + [np.zeros((5, 7), bool), np.ones((6, 4), bool)]
+    masks[1][:, 10:14] = False  # empty columns
+    masks[1][20:22] = False  # empty rows
+    for mask in masks:
+        got = weights.profile_from_mask(mask)
+        for a, b in zip((got.row_first, got.row_last, got.col_first, got.col_last), reference(mask)):
+            assert a.dtype == np.int32 and np.array_equal(a, b)
+
+
 def test_tent_weights_are_one_at_centre_zero_at_boundary_and_follow_the_mask():
     mask = np.zeros((9, 11), bool)
     mask[1:8, 2:11] = True

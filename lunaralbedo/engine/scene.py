@@ -98,12 +98,11 @@ def weight_profile(info: RasterInfo) -> WeightProfile:
     with raster_errors(info.path), rasterio.open(info.path) as ds:
         for r0 in range(0, info.height, _STRIP_ROWS):
             win = Window(0, r0, info.width, min(_STRIP_ROWS, info.height - r0))
-            valid = np.ones((int(win.height), info.width), bool)
-            if info.has_alpha:
-                valid &= ds.read(2, window=win) > 0
+            valid = ds.read(2, window=win) > 0 if info.has_alpha else None
             if info.nodata is not None:
                 v = ds.read(1, window=win)
-                valid &= (v != info.nodata) & np.isfinite(v)
+                ok = (v != info.nodata) & np.isfinite(v)
+                valid = ok if valid is None else valid & ok
             parts.append((r0, profile_from_mask(valid)))
     return merge_profiles(parts, info.height, info.width)
 

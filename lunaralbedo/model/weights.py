@@ -46,15 +46,36 @@ class WeightProfile:
 
 
 def profile_from_mask(valid: np.ndarray) -> WeightProfile:
-    """Profiles of a boolean validity mask ``(H, W)``."""
-    valid = np.asarray(valid, dtype=bool)
+    """Profiles of a boolean validity mask ``(H, W)``: each row's first and last valid column (``W``, ``-1``
+    where none), each column's first and last valid row (``H``, ``-1`` where none), in one pass over the
+    mask (:func:`_mask_profile`)."""
+    valid = np.ascontiguousarray(valid, dtype=bool)
     h, w = valid.shape
-    any_r, any_c = valid.any(axis=1), valid.any(axis=0)
-    rf = np.where(any_r, valid.argmax(axis=1), w)
-    rl = np.where(any_r, w - 1 - valid[:, ::-1].argmax(axis=1), -1)
-    cf = np.where(any_c, valid.argmax(axis=0), h)
-    cl = np.where(any_c, h - 1 - valid[::-1, :].argmax(axis=0), -1)
-    return WeightProfile(rf.astype(np.int32), rl.astype(np.int32), cf.astype(np.int32), cl.astype(np.int32))
+    rf, rl = np.empty(h, np.int32), np.empty(h, np.int32)
+    cf, cl = np.full(w, h, np.int32), np.full(w, -1, np.int32)
+    _mask_profile(valid, rf, rl, cf, cl)
+    return WeightProfile(rf, rl, cf, cl)
+
+
+@njit(cache=True, nogil=True)
+def _mask_profile(valid, rf, rl, cf, cl):
+    """:func:`profile_from_mask` (``cf`` and ``cl`` come filled with ``H`` and ``-1``): a row's ends by scans from
+    either side, which stop at its first valid pixel; the columns' ends updated row by row in one branch-free
+    (vectorised) loop."""
+    h, w = valid.shape
+    for i in range(h):
+        row = valid[i]
+        a = 0
+        while a < w and not row[a]:
+            a += 1
+        b = w - 1
+        while b >= a and not row[b]:
+            b -= 1
+        rf[i], rl[i] = (a, b) if a < w else (w, -1)
+        for j in range(w):
+            v = row[j]
+            cf[j] = i if (v and cf[j] == h) else cf[j]
+            cl[j] = i if v else cl[j]
 
 
 def merge_profiles(parts: list[tuple[int, WeightProfile]], height: int, width: int) -> WeightProfile:
