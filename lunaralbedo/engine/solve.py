@@ -186,7 +186,9 @@ def solve(
     # local workers start while the scene is built (their imports included): ~1.5 s off a 2-worker run
     executor = make_executor(workers, scheduler, cluster, cluster_options, progress, background=True, preload=WORKER_PRELOAD)
     try:
-        scene = build_scene(settings, skip_missing, map_fn=lambda f, xs: executor.map(f, xs, "masks", meanwhile=True))
+        # the DRGs' masks on a thread per CPU in one process (GDAL and the profile kernel release the GIL)
+        scene = build_scene(settings, skip_missing,
+                            map_fn=lambda f, xs: executor.map(f, xs, "masks", meanwhile=True, threads=_threads(executor)))
         timings["scene"] = time.perf_counter() - t0
         if not resume:
             _clear_previous_run(out)
