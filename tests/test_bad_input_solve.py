@@ -160,3 +160,12 @@ def test_a_failed_run_folder_is_renamed_away_before_it_is_deleted(tmp_path, monk
     monkeypatch.setattr(os, "rename", lambda *a: (_ for _ in ()).throw(OSError("cross-device")))
     atomic.remove_tree(out)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_unknown_worker_start_method(scene, monkeypatch):
+    """LUNARALBEDO_WORKER_START names how local workers start (parallel/forkserver.py): another value is a
+    cluster error (exit 3) naming the variable and the value, before any worker starts or OUTDIR is made."""
+    monkeypatch.setenv("LUNARALBEDO_WORKER_START", "fork")
+    res, out = solve(scene, ["--workers", "2"])
+    msg = assert_clean_failure(res, 3, "LUNARALBEDO_WORKER_START", "'fork'", absent=out)
+    assert "forkserver, spawn" in msg
