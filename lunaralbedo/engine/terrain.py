@@ -111,11 +111,10 @@ class TileShadows:
                 inner = dem[margin:margin + tile.height, margin:margin + tile.width]
                 if not np.isfinite(inner).any():
                     return
-                relief = float(np.nanmax(dem) - np.nanmin(inner))
-                need = _margin_px(relief, elev, px_km)
-                if need <= margin or margin >= max_margin:
+                wider = _wider_margin(float(np.nanmax(dem) - np.nanmin(inner)), elev, px_km, margin, max_margin)
+                if wider is None:
                     break
-                margin = min(max(need, 2 * margin), max_margin)
+                margin = wider
         self._hold(dem, transform, margin, 0)
 
     def _hold(self, dem, transform, margin: int, row0: int, band=None) -> None:
@@ -152,9 +151,13 @@ class TileShadows:
                                offset=(self.margin + row0 - self.row0, self.margin + col0))
 
 
-def _margin_px(relief_m: float, elev: float, px_km: float) -> int:
-    """Pixels of margin the longest shadow of ``relief_m`` with the Sun ``elev`` (rad) high needs."""
-    return int(math.ceil(shadow_reach_km(relief_m, elev) / px_km)) + 2
+def _wider_margin(relief_m: float, elev: float, px_km: float, margin: int, max_margin: int) -> int | None:
+    """The next margin to read when the longest shadow of ``relief_m`` with the Sun ``elev`` (rad) high needs more
+    pixels than ``margin`` (the need, at least twice the margin, at most ``max_margin``); None when it does not."""
+    need = int(math.ceil(shadow_reach_km(relief_m, elev) / px_km)) + 2
+    if need <= margin or margin >= max_margin:
+        return None
+    return min(max(need, 2 * margin), max_margin)
 
 
 def _banded_margin(scene, tile, elev: float, px_km: float, max_margin: int) -> int | None:
@@ -181,7 +184,7 @@ def _banded_margin(scene, tile, elev: float, px_km: float, max_margin: int) -> i
                                 lo = min(lo, float(np.nanmin(core)))
             if not np.isfinite(lo):
                 return None
-            need = _margin_px(hi - lo, elev, px_km)
-            if need <= margin or margin >= max_margin:
+            wider = _wider_margin(hi - lo, elev, px_km, margin, max_margin)
+            if wider is None:
                 return margin
-            inner, margin = margin, min(max(need, 2 * margin), max_margin)
+            inner, margin = margin, wider

@@ -298,8 +298,8 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
             if len(obs["index"]):
                 r, w, texp = tile_model(scene, obs, state)
                 finalise_runs(obs["chunks"], obs["run_start"], obs["run_pixel"], obs["run_image"], obs["image"],
-                                      texp, r, w, per_pixel.get("wblend_sum", per_pixel["weights_sum"]),
-                                      c0, alb.reshape(-1), err.reshape(-1))  # eq. 7's sum of blending weights
+                              texp, r, w, per_pixel.get("wblend_sum", per_pixel["weights_sum"]),
+                              c0, alb.reshape(-1), err.reshape(-1))  # eq. 7's sum of blending weights
             else:
                 alb[:], err[:] = np.nan, np.nan
             valid += int(np.count_nonzero(np.isfinite(alb)))
