@@ -14,7 +14,10 @@ Whatever the code, preparing the strip of item 6 must at least
    GeoTIFF settings, LERC and no compression).
 
 The floor is also given with the tiles written as the solver writes them (ZSTD 1 with a
-predictor, whose files are 6-10 x smaller than uncompressed ones).
+predictor, whose files are 6-10 x smaller than uncompressed ones), and with the solver's own
+features added at their cheapest (:func:`features_kernels`): the bracket of eq. 2 (a stored
+model layer), the reflectance and the two logarithms of the exposure initialisation, and a cast-
+shadow test by one sweep along each row (exact only for a Sun on the rows, as the strip's is).
 
 Each part is measured alone, best of three, in a child process confined to one CPU, and
 divided by the strip's observations.  Also measured: the price this machine asks for memory a
@@ -26,6 +29,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -101,6 +105,70 @@ def geometry_kernel():
     return geometry
 
 
+def features_kernels():
+    """Numba loops for what the solver adds to the floor, each at its cheapest (the same arithmetic as the solver's)."""
+    from numba import njit
+
+    from lunaralbedo.model.photometry import vexp
+    from lunaralbedo.model.photometry.lunar_lambert import _DEGREES, _bracket_nb, _polynomial_nb
+
+    @njit(cache=True, nogil=True, error_model="numpy")
+    def bracket(ci, ce, al, out):
+        """Eq. 2's bracket with L(alpha), the model layer the observations keep (float32, as stored)."""
+        for o in range(out.shape[0]):
+            out[o] = _bracket_nb(ci[o], ce[o], _polynomial_nb(al[o] * _DEGREES))
+
+    @njit(cache=True, nogil=True, error_model="numpy")
+    def reflectance(g, al, c1, c2, out):
+        """R = (exp(-c1 alpha) + c2) G (eq. 2) for the exposure initialisation (float32, vectorised)."""
+        for o in range(out.shape[0]):
+            out[o] = (vexp.exp(-c1 * al[o]) + c2) * g[o]
+
+    @njit(cache=True, nogil=True, error_model="numpy")
+    def sweep(dem, n_obs, strip, margin, drop, shadow):
+        """Cast shadows of ``n_obs`` pixels in column strips of ``strip`` px, a Sun in the east: each row swept
+        from ``margin`` px beyond the strip's Sun side, the horizon falling ``drop`` m a pixel (no curvature)."""
+        h, w = dem.shape
+        o = 0
+        while o < n_obs:
+            for j0 in range(1, w - margin - strip, strip):
+                for r in range(h):
+                    if o >= n_obs:
+                        return
+                    m = min(strip, n_obs - o)
+                    top = -np.inf
+                    for j in range(j0 + strip + margin - 1, j0 - 1, -1):
+                        z = dem[r, j]
+                        top -= drop
+                        if j < j0 + m:
+                            shadow[o + j - j0] = z < top
+                        top = max(top, z)
+                    o += m
+
+    return bracket, reflectance, sweep
+
+
+def features(dem, ci, ce, al, n_obs: int, drop_m: float) -> dict:
+    """Thread CPU seconds of each feature the solver adds to the floor, at its cheapest (:func:`features_kernels`)."""
+    bracket, reflectance, sweep = features_kernels()
+    g, r, a32 = np.empty(n_obs, np.float32), np.empty(n_obs, np.float32), al.astype(np.float32)
+    values = np.random.default_rng(15).random(n_obs, dtype=np.float32) * 200 + 10  # DN > 0
+    logs, logs2 = np.empty(n_obs, np.float32), np.empty(n_obs, np.float32)
+
+    def log_sums():  # log(DN) - log(R), float32 (NumPy's vectorised logarithm), summed in float64
+        np.log(values, out=logs)
+        np.log(r, out=logs2)
+        np.subtract(logs, logs2, out=logs)
+        return float(logs.sum(dtype=np.float64))
+
+    shadow = np.empty(n_obs, np.bool_)
+    got = {"the model layer (eq. 2's bracket)": best(lambda: bracket(ci, ce, al, g))}
+    got["the initialisation's reflectance and logarithms"] = (
+        best(lambda: reflectance(g, a32, np.float32(1.4), np.float32(0.5), r)) + best(log_sums))
+    got["cast shadows (a sweep along each row)"] = best(lambda: sweep(dem, n_obs, 320, 16, drop_m, shadow))
+    return got
+
+
 def child(d: Path, out: Path, n_obs: int) -> dict:
     import rasterio
     from rasterio.windows import Window
@@ -111,6 +179,8 @@ def child(d: Path, out: Path, n_obs: int) -> dict:
     from lunaralbedo.io.drgs import pixels_on_grid
     from lunaralbedo.engine.tilework import OUTPUT_OPTIONS
     from lunaralbedo.io.geotiff import geotiff_profile
+    from lunaralbedo.model import geometry
+    from lunaralbedo.model.cast_shadows import sun_elevation
     from lunaralbedo.model.geometry import lonlat_axes
     from lunaralbedo.settings import load_settings
 
@@ -138,13 +208,16 @@ def child(d: Path, out: Path, n_obs: int) -> dict:
     with rasterio.open(scene.dems[0].path) as ds:  # heights (m), no-data as NaN (which the points count as 0)
         dem = ds.read(1, masked=True).astype(np.float32).filled(np.nan)
         lon, lat = lonlat_axes(ds.transform, ds.shape)
+        res_lon = abs(ds.transform.a)
     trig = (np.cos(np.radians(lon)), np.sin(np.radians(lon)), np.cos(np.radians(lat)), np.sin(np.radians(lat)))
     sun, sc = np.asarray(scene.sun[0], np.float64), np.asarray(scene.spacecraft[0], np.float64)
     ci, ce, al = (np.empty(n_obs) for _ in range(3))  # float64, as the solver's candidates
     kernel = geometry_kernel()
     parts["geometry (3 sqrt, 6 divisions, arc cosine)"] = best(
         lambda: kernel(dem, *trig, MOON_RADIUS_KM, sun, sc, n_obs, 320, ci, ce, al))
-    del ci, ce, al
+    lon_c, lat_c = float(lon.mean()), float(lat.mean())
+    px_m = 1000 * math.radians(res_lon) * MOON_RADIUS_KM * math.cos(math.radians(lat_c))  # a pixel along the rows (m)
+    elevation = float(sun_elevation(geometry.body_fixed(lon_c, lat_c, 0.0), sun))
     # the observations kept: 16 bytes each into memory this process has not touched
     src = np.ones(4 * n_obs, np.float32)
     tmp = out / "floor_tmp"
@@ -191,6 +264,10 @@ def child(d: Path, out: Path, n_obs: int) -> dict:
     tiles_warm = {k: best(write_tiles(v, False)) for k, v in options.items()}
     del held[:]
     shutil.rmtree(tmp, ignore_errors=True)
+    # the features last: the memory they free would otherwise serve the "new pages" above
+    extra = features(dem, ci, ce, al, n_obs, px_m * math.tan(elevation))
+    figures["features_ns_per_obs"] = {k: 1e9 * v / n_obs for k, v in extra.items()}
+    del ci, ce, al
     cold["tiles"], warm["tiles"] = min(tiles_cold.values()), min(tiles_warm.values())
     figures["tile_options_ns_per_obs"] = {k: {"new pages": 1e9 * tiles_cold[k] / n_obs, "pages again": 1e9 * tiles_warm[k] / n_obs}
                                           for k in options}
@@ -241,6 +318,12 @@ def prepare_floor(root: Path, q: bool, figures: dict) -> None:
     figures["prepare_floor"]["with_solver_tiles_ns_per_obs"] = own
     print(f"13. strip, the same floor with the tiles as the solver writes them: "
           f"{own['new pages']:.1f} ns/obs into new pages, {own['pages again']:.1f} into pages again", flush=True)
+    feats = got["features_ns_per_obs"]
+    added = sum(feats.values())
+    figures["prepare_floor"]["with_features_ns_per_obs"] = {k: v + added for k, v in own.items()}
+    print("13. the solver's features at their cheapest: " + ", ".join(f"{k} {v:.1f}" for k, v in feats.items())
+          + f"; the floor with them and the solver's tiles: {own['new pages'] + added:.1f} ns/obs into new pages, "
+          f"{own['pages again'] + added:.1f} into pages again", flush=True)
     print("13. (target 50 ns/obs" + (f"; the solve's prepare stage on one CPU {one:.0f})" if one else ")"), flush=True)
 
 

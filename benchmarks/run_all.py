@@ -24,7 +24,8 @@ Prints, in one run on this machine:
 13. the floor of the strip's prepare step on one CPU (``benchmarks/floor_bench.py``): what any
    code must spend per observation to decode the inputs, compute the geometry, keep the
    observations and write the DEM and weight-sum tiles, into new memory and into memory used
-   again (needs item 6's scene and outputs).
+   again; then with the solver's own features added at their cheapest (the model layer, the
+   exposure initialisation's logarithms, cast shadows by a sweep) (needs item 6's scene and outputs).
 
 Scenes are rendered once into ``bench_out/`` and reused.  ``--quick`` uses smaller scenes
 (a smoke run, not the figures of docs/performance.md).
