@@ -178,7 +178,7 @@ def child(d: Path, out: Path, n_obs: int) -> dict:
     from lunaralbedo.engine.scene import build_scene
     from lunaralbedo.io.drgs import pixels_on_grid
     from lunaralbedo.engine.tilework import OUTPUT_OPTIONS
-    from lunaralbedo.io.geotiff import geotiff_profile
+    from lunaralbedo.io.geotiff import geotiff_profile, write_rows
     from lunaralbedo.model import geometry
     from lunaralbedo.model.cast_shadows import sun_elevation
     from lunaralbedo.model.geometry import lonlat_axes
@@ -254,7 +254,7 @@ def child(d: Path, out: Path, n_obs: int) -> dict:
                     prof = geotiff_profile(1, *a.shape, "float32", transform, crs, compress=None)
                     prof.update(options)
                 with rasterio.open(tmp / f"t{call}_{i}.tif", "w", **prof) as ds:
-                    ds.write(a, 1)
+                    write_rows(ds, a[None], 0)  # as the solver does: blocks of no data only left to GDAL
         return go
 
     options = {SOLVERS: None,
