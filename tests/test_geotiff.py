@@ -102,6 +102,14 @@ def test_blocks_of_no_data_only_are_left_to_gdal_with_the_same_bits(tmp_path):
     write_geotiff(tmp_path / "z.tif", z, TR, MOON_CRS, predictor=2)
     with rasterio.open(tmp_path / "z.tif") as ds:
         np.testing.assert_array_equal(ds.read(1).view(np.uint32), z.view(np.uint32))
+    # a no-data value the dtype cannot hold exactly: GDAL would round or clamp it, so no block is left to GDAL
+    assert fill_bits(np.uint8, -32768) is None and fill_bits(np.float32, 0.1) is None
+    assert fill_bits(np.int16, -32767.0) == 0x8001 and fill_bits(np.uint8, 255) == 255
+    t = np.full((300, 300), np.float32(0.1))
+    t[280, 10] = 2.0
+    write_geotiff(tmp_path / "t.tif", t, TR, MOON_CRS, nodata=0.1)
+    with rasterio.open(tmp_path / "t.tif") as ds:
+        np.testing.assert_array_equal(ds.read(1).view(np.uint32), t.view(np.uint32))
     d = np.zeros((2, 520, 300), np.uint8)  # two bands: a block is empty only when both are
     d[1, 10:20, 10:20] = 255
     d[0, 300:, 290] = 7

@@ -14,6 +14,7 @@ over big tiles leave most blocks of the solver's outputs empty.
 from __future__ import annotations
 
 import contextlib
+import math
 import sys
 from pathlib import Path
 from typing import Sequence
@@ -88,10 +89,14 @@ def write_geotiff(
                 dst.update_tags(k + 1, **band_tags)
 
 
-def fill_bits(dtype, nodata: float | None) -> int:
-    """The bit pattern of the pixels GDAL gives a block never written (its no-data value, else 0) in ``dtype``."""
-    value = np.array(0 if nodata is None else nodata).astype(dtype)
-    return int(value.view(f"u{value.itemsize}"))
+def fill_bits(dtype, nodata: float | None) -> int | None:
+    """The bit pattern of the pixels GDAL gives a block never written (its no-data value, else 0) in ``dtype``;
+    None when the no-data value is not exactly one of ``dtype``'s (GDAL would clamp or round it: no block is left
+    to it then)."""
+    with np.errstate(all="ignore"):
+        value = np.array(0 if nodata is None else nodata).astype(dtype)
+    exact = nodata is None or float(value) == float(nodata) or (math.isnan(nodata) and np.isnan(value))
+    return int(value.view(f"u{value.itemsize}")) if exact else None
 
 
 def empty_blocks(bands: np.ndarray, fill: int) -> np.ndarray:
@@ -117,9 +122,9 @@ def write_rows(dst, bands: np.ndarray, row0: int) -> None:
     """
     count, n, w = bands.shape
     fill = fill_bits(bands.dtype, dst.nodata)
-    skip = []  # (row of the file's block, first row, rows, empty column blocks) of the rows' whole blocks
+    skip = []  # (first row, rows, empty column blocks) of the rows' whole blocks of the file
     h = dst.height
-    for a in range(0, n, BLOCK):
+    for a in range(0, n if fill is not None else 0, BLOCK):
         r = row0 + a
         rows = min(BLOCK, n - a)
         if r % BLOCK == 0 and (rows == BLOCK or r + rows == h):
