@@ -102,9 +102,8 @@ def fill_bits(dtype, nodata: float | None) -> int | None:
 def empty_blocks(bands: np.ndarray, fill: int) -> np.ndarray:
     """Per :data:`BLOCK`-wide column block of ``bands`` (``(count, rows, width)``): True where every pixel of every band
     has the bits ``fill`` (a block GDAL writes by itself when it is never written)."""
-    count, h, w = bands.shape
     u = bands.view(f"u{bands.dtype.itemsize}")
-    starts = np.arange(0, w, BLOCK)
+    starts = np.arange(0, bands.shape[2], BLOCK)
     empty = (u[:, 0, starts] == fill).all(axis=0)  # the first pixel of each block decides most
     for b in np.flatnonzero(empty):
         empty[b] = bool((u[:, :, starts[b]:starts[b] + BLOCK] == fill).all())
@@ -120,7 +119,7 @@ def write_rows(dst, bands: np.ndarray, row0: int) -> None:
     took 1.9-4.8 ns per pixel (narrow strips over big tiles leave most blocks of their outputs empty).  The same file
     contents (the same pixels, every block present) for any split of the rows into whole blocks of the file.
     """
-    count, n, w = bands.shape
+    _, n, w = bands.shape
     fill = fill_bits(bands.dtype, dst.nodata)
     skip = []  # (first row, rows, empty column blocks) of the rows' whole blocks of the file
     h = dst.height
