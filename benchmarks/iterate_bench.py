@@ -34,6 +34,9 @@ def cpu():
 
 d, cache = Path(sys.argv[1]), Path(sys.argv[2])
 scene = build_scene(load_settings(d / "settings.txt"), False, map_fn=lambda f, xs: list(map(f, xs)))
+if len(sys.argv) > 3:  # the stack budget: a Runtime field (older checkouts read LUNARALBEDO_STACK_MEMORY_MB)
+    from lunaralbedo.runtime import Runtime
+    scene.runtime = Runtime(stack_memory_mb=float(sys.argv[3]))
 tiles = range(len(scene.tiles))
 for t in tiles:
     prepare.prepare_tile(t, scene=scene, cache_root=cache)
@@ -68,8 +71,13 @@ if "offsets" not in obs and "chunks" not in obs:  # an image-major cache (before
     k["reorder (once per tile in memory)"] = timed(lambda: pixelmajor.pixel_major(obs, npix, names), 1)
 else:
     pm = tilework.pixel_stack(blk(t), cache)
-s = tilework.TileSums(index=pm["index"], n_params=2, exp_num=np.zeros(len(pm["index"])), exp_den=np.zeros(len(pm["index"])))
-k["fused kernel"] = timed(lambda: tilework.iterate_block(pm, scene.settings, state, True, s))
+if hasattr(tilework, "TileSums"):  # checkouts before one sums type and the scene's bound model
+    s = tilework.TileSums(index=pm["index"], n_params=2, exp_num=np.zeros(len(pm["index"])), exp_den=np.zeros(len(pm["index"])))
+    k["fused kernel"] = timed(lambda: tilework.iterate_block(pm, scene.settings, state, True, s))
+else:
+    from lunaralbedo.model import updates
+    s = updates.PassSums(len(pm["index"]), 2, index=pm["index"])
+    k["fused kernel"] = timed(lambda: tilework.iterate_block(pm, scene.settings, scene.model, state, True, s))
 out["kernels_ns"] = {"tile_observations": m, **k}
 out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 print(json.dumps(out))
@@ -78,9 +86,12 @@ print(json.dumps(out))
 
 def measure(d: Path, cache: Path, src: Path, budget_mb: float | None) -> dict:
     env = {**os.environ, "PYTHONPATH": str(src)}
+    args = []
     if budget_mb is not None:
-        env["LUNARALBEDO_STACK_MEMORY_MB"] = str(budget_mb)
-    res = subprocess.run([sys.executable, "-c", CHILD, str(d), str(cache)], capture_output=True, text=True, cwd=src, env=env)
+        env["LUNARALBEDO_STACK_MEMORY_MB"] = str(budget_mb)  # read by checkouts before lunaralbedo.runtime
+        args = [str(budget_mb)] if (src / "lunaralbedo" / "runtime.py").exists() else []
+    res = subprocess.run([sys.executable, "-c", CHILD, str(d), str(cache), *args], capture_output=True, text=True, cwd=src,
+                         env=env)
     if res.returncode:
         raise RuntimeError(res.stderr[-3000:])
     return json.loads(res.stdout.strip().splitlines()[-1])

@@ -11,15 +11,16 @@ four to a 256-bit register; eight to a register, the iterate stage of a one-CPU 
 numba compiles for the CPU features of its configuration (``NUMBA_CPU_FEATURES`` when set, else
 the host's), read once, when it makes its CPU target (at the first ``@njit(cache=True)`` a module
 defines).  :func:`apply` sets them to the host's features with ``-prefer-256-bit`` in this
-process; :mod:`lunaralbedo` calls it before any of its modules defines a kernel, so every process
-that imports the package (Dask workers too) decides for its own CPU.  It changes no result: there
+process; the command line calls it as a command starts, before any of the package's modules defines
+a kernel (``cli/_common.reports_errors``); importing :mod:`lunaralbedo` does not (the library changes
+nothing process-wide), and worker processes keep numba's own choice.  It changes no result: there
 is no fast-math, no contraction into fused multiply-adds and no reassociation, so each lane does
 the same IEEE operations at either width (``tests/test_simd.py`` compares a solve's bytes at both).
 
 Left alone, with nothing set, where the user chose: ``NUMBA_CPU_NAME`` or ``NUMBA_CPU_FEATURES``
 set, ``LUNARALBEDO_VECTOR_BITS=256`` (this module's switch), a CPU without AVX-512F, or numba's CPU
-target already made in this process (numba used before :mod:`lunaralbedo` was imported: the
-kernels then compile for the features it chose).
+target already made in this process (numba used before the command started: the kernels then
+compile for the features it chose).
 """
 from __future__ import annotations
 
@@ -67,7 +68,7 @@ def _host_features() -> str:
         return ""
 
 
-def apply(environ: Mapping[str, str] = os.environ) -> str | None:
+def apply(environ: Mapping[str, str]) -> str | None:
     """Have numba compile for full-width vectors where :func:`wide_features` says so and its CPU
     target is not made yet; returns the features set (None: nothing changed).
 

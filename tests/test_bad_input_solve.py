@@ -163,9 +163,9 @@ def test_a_failed_run_folder_is_renamed_away_before_it_is_deleted(tmp_path, monk
 
 
 def test_an_unknown_worker_start_method(scene, monkeypatch):
-    """LUNARALBEDO_WORKER_START names how local workers start (parallel/forkserver.py): another value is a
-    cluster error (exit 3) naming the variable and the value, before any worker starts or OUTDIR is made."""
+    """LUNARALBEDO_WORKER_START names how local workers start (lunaralbedo.runtime): another value is bad input
+    (exit 2) naming the variable and the value, before any worker starts or OUTDIR is made."""
     monkeypatch.setenv("LUNARALBEDO_WORKER_START", "fork")
     res, out = solve(scene, ["--workers", "2"])
-    msg = assert_clean_failure(res, 3, "LUNARALBEDO_WORKER_START", "'fork'", absent=out)
+    msg = assert_clean_failure(res, 2, "LUNARALBEDO_WORKER_START", "'fork'", absent=out)
     assert "forkserver, spawn" in msg

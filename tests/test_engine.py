@@ -1,6 +1,7 @@
 """The Dask tile engine: identical bytes for any worker count, resume after kill -9, bounded memory."""
 from __future__ import annotations
 
+from lunaralbedo.runtime import Runtime
 import filecmp
 import json
 import os
@@ -120,7 +121,7 @@ def test_a_tile_prepared_again_is_iterated_with_its_new_meta(scene, tmp_path, mo
     state = tilework.SolveState(np.ones(len(sc.images)), sc.settings.initial_params.copy())
     sums = {}
     for rows in ("1000", "7"):
-        monkeypatch.setenv("LUNARALBEDO_BLOCK_ROWS", rows)
+        sc.runtime = Runtime(block_rows=int(rows))
         shutil.rmtree(tmp_path / "cache", ignore_errors=True)
         meta = prepare.prepare_tile(t, scene=sc, cache_root=tmp_path / "cache")
         sums[rows] = (len(meta["blocks"]), tilework.iterate_tile(t, scene=sc, cache_root=tmp_path / "cache", state=state,
@@ -201,16 +202,18 @@ def test_resume_refuses_a_checkpoint_of_other_settings(scene, tmp_path):
 # parent's peak across fork/exec on Linux, and the parent rendered the scene).
 PEAK_RSS = """
 import sys
+from lunaralbedo import Runtime
 from lunaralbedo.engine.solve import solve
-solve(sys.argv[1], out=sys.argv[2], workers=1, plots=False)
+solve(sys.argv[1], out=sys.argv[2], workers=1, plots=False,
+      runtime=Runtime(stack_memory_mb=float(sys.argv[3])) if len(sys.argv) > 3 else None)
 hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM')][0]
 print(int(hwm.split()[1]) // 1024)
 """
 
 
 def _peak_mb(settings: Path, out: Path, stack_memory_mb: int | None = None) -> int:
-    env = {**os.environ, **({"LUNARALBEDO_STACK_MEMORY_MB": str(stack_memory_mb)} if stack_memory_mb is not None else {})}
-    res = subprocess.run([sys.executable, "-c", PEAK_RSS, str(settings), str(out)], capture_output=True, text=True, env=env)
+    budget = [str(stack_memory_mb)] if stack_memory_mb is not None else []
+    res = subprocess.run([sys.executable, "-c", PEAK_RSS, str(settings), str(out), *budget], capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     return int(res.stdout.split()[-1])
 
@@ -235,16 +238,19 @@ def test_memory_depends_on_the_tile_not_on_the_number_of_images(tmp_path):
 
 
 def test_pbs_nodefile_starts_workers_on_every_listed_node(scene, reference, tmp_path, monkeypatch):
-    """PBS lists a host once per core; workers start on each distinct host (here: a stand-in remote shell)."""
+    """PBS lists a host once per core; workers start on each distinct host (here: a stand-in remote shell) when
+    the node file is given; a set PBS_NODEFILE alone starts nothing remote (the library reads no environment)."""
     nodefile = tmp_path / "nodes"
     nodefile.write_text("localhost\nlocalhost\nnode-b\nnode-b\n")
-    monkeypatch.setenv("PBS_NODEFILE", str(nodefile))
     # like ssh, the launcher gets HOST and a command line to run there; this one runs it here
-    monkeypatch.setenv("LUNARALBEDO_REMOTE_SHELL", "sh -c 'shift; eval \"exec $*\"' launcher")
+    rt = Runtime(nodefile=str(nodefile), remote_shell="sh -c 'shift; eval \"exec $*\"' launcher")
     out = tmp_path / "out"
-    res = solve(scene / "settings.txt", out=out, workers=1, plots=False)
+    res = solve(scene / "settings.txt", out=out, workers=1, plots=False, runtime=rt)
     assert res.report["executor"] == "PBS_NODEFILE (2 nodes x 1 processes)"
     same_results(reference, out)
+    monkeypatch.setenv("PBS_NODEFILE", str(nodefile))
+    res = solve(scene / "settings.txt", out=tmp_path / "plain", workers=1, plots=False)
+    assert res.report["executor"] == "in-process (1 worker)", res.report["executor"]
 
 
 def test_ingest_cubes_in_parallel_match_serial(tmp_path):
@@ -301,6 +307,16 @@ def faults_of_reuse():
 """
 
 
+def cli_runtime_of(extra: dict):
+    """The command line's runtime with ``extra`` variables in its environment."""
+    import unittest.mock
+
+    from lunaralbedo.cli._common import cli_runtime
+
+    with unittest.mock.patch.dict(os.environ, extra):
+        return cli_runtime()
+
+
 #: Minor page faults of holding four arrays of 20-56 MB at once and freeing them, ten times, as a tile task's
 #: blocks do: over the 64 MiB heaps glibc gives threads other than the main one, whatever the thresholds.
 FAULTS_OF_ARRAYS_HELD_TOGETHER = """
@@ -345,7 +361,8 @@ def test_tasks_in_threads_reuse_arrays_held_together_after_tune_malloc():
 def test_tune_malloc_lets_freed_arrays_be_reused():
     """In the state Dask's nanny leaves glibc in (MALLOC_TRIM_THRESHOLD_=65536: trim threshold 64 KiB, mmap
     threshold frozen at 128 KiB) every freed array goes back to the kernel and the next one is page-faulted
-    in anew; after tune_malloc() the heap keeps it for the next.  A user's own MALLOC_* variable is left alone."""
+    in anew; after tune_malloc() the heap keeps it for the next.  Where the user set a MALLOC_* variable of
+    their own, the command line does not tune (the library tunes its own processes only when asked)."""
     code = FAULTS_OF_REUSE + """
 import ctypes
 from lunaralbedo.parallel.workers import tune_malloc
@@ -362,10 +379,7 @@ print(before, ok, faults_of_reuse())
     assert ok == "True"
     assert int(before) >= 8 * 512, out.stdout  # every array faulted in again
     assert int(after) <= 512, out.stdout  # reused: at most one array's pages in ten rounds
-    out = subprocess.run([sys.executable, "-c", code], env={**env, "MALLOC_TRIM_THRESHOLD_": "65536"},
-                         capture_output=True, text=True, check=True)
-    before, ok, after = out.stdout.split()
-    assert ok == "False" and int(after) >= 8 * 512, out.stdout  # the user's setting stays in force
+    assert not cli_runtime_of({"MALLOC_TRIM_THRESHOLD_": "65536"}).tune_process  # the user's setting stays in force
 
 
 def test_tune_numpy_turns_off_hugepage_advice_unless_the_user_set_it():
@@ -377,60 +391,58 @@ def test_tune_numpy_turns_off_hugepage_advice_unless_the_user_set_it():
     env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["True", "True", "False"]
-    out = subprocess.run([sys.executable, "-c", code], env={**env, "NUMPY_MADVISE_HUGEPAGE": "1"},
-                         capture_output=True, text=True, check=True)
-    assert out.stdout.split() == ["True", "False", "True"]
+    assert not cli_runtime_of({"NUMPY_MADVISE_HUGEPAGE": "1"}).tune_workers
 
 
 @pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="workers are forked from a server on Linux")
 def test_local_workers_are_forked_from_one_server_that_imported_the_package(monkeypatch):
     """Local workers are forks of one server process that imported distributed and the preloaded modules once
-    (parallel/forkserver.py), not fresh interpreters that each import them again; they have WORKER_ENV.
-    LUNARALBEDO_WORKER_START=spawn gives Dask's fresh interpreters (children of this process, where the nannies
-    run); any other value is a ClusterError before anything starts."""
+    (parallel/forkserver.py), not fresh interpreters that each import them again; the server was tuned
+    (parallel/worker_server.py) without this process's environment being touched.
+    ``Runtime(worker_start="spawn")`` gives Dask's fresh interpreters (children of this process, where the nannies
+    run); any other value is a SettingsError before anything starts."""
     import os
     import sys
 
-    from lunaralbedo.errors import ClusterError
+    from lunaralbedo.errors import SettingsError
     from lunaralbedo.parallel.executor import make_executor
 
-    def parents(preload=()):
-        ex = make_executor(2, preload=preload)
+    env_before = dict(os.environ)
+
+    def parents(preload=(), runtime=None):
+        ex = make_executor(2, preload=preload, runtime=runtime)
         try:
             return ex.client.run(lambda: (os.getppid(), "lunaralbedo.engine.tilework" in sys.modules,
-                                          os.environ.get("MALLOC_ARENA_MAX")))
+                                          "lunaralbedo.parallel.worker_server" in sys.modules))
         finally:
             ex.close()
 
     forked = parents(("lunaralbedo.engine.tilework",))
     servers = {p for p, _, _ in forked.values()}
     assert len(forked) == 2 and len(servers) == 1 and os.getpid() not in servers
-    assert all(loaded and arenas == "1" for _, loaded, arenas in forked.values())
+    assert all(loaded and tuned for _, loaded, tuned in forked.values())
     assert servers == {p for p, _, _ in parents().values()}  # the same server serves the next cluster
-    monkeypatch.setenv("LUNARALBEDO_WORKER_START", "spawn")
-    assert {p for p, _, _ in parents().values()} == {os.getpid()}
-    monkeypatch.setenv("LUNARALBEDO_WORKER_START", "fork")
-    with pytest.raises(ClusterError, match="LUNARALBEDO_WORKER_START must be one of forkserver, spawn"):
-        make_executor(2)
+    assert dict(os.environ) == env_before
+    assert {p for p, _, _ in parents(runtime=Runtime(worker_start="spawn")).values()} == {os.getpid()}
+    with pytest.raises(SettingsError, match="LUNARALBEDO_WORKER_START must be one of forkserver, spawn"):
+        make_executor(2, runtime=Runtime(worker_start="fork"))
 
 
 def test_local_workers_run_without_dashboard_monitors():
-    """A local cluster's workers and scheduler get DASK_CONFIG (no task profiler, slow ticks) and WORKER_ENV,
-    whose malloc settings take effect (the workers reuse freed arrays instead of faulting them in again), and
+    """A local cluster's workers and scheduler get DASK_CONFIG (no task profiler, slow ticks) and the tuning of
+    WORKER_ENV, whose malloc settings take effect (the workers reuse freed arrays instead of faulting them in again), and
     so does its NumPy setting (no hugepage advice)."""
     import os
 
     import dask
 
     from lunaralbedo.parallel.executor import make_executor
-    from lunaralbedo.parallel.workers import DASK_CONFIG, MALLOC_ENV
+    from lunaralbedo.parallel.workers import DASK_CONFIG
 
     ex = make_executor(2)
     try:
-        seen = ex.client.run(lambda: ({k: dask.config.get(k) for k in DASK_CONFIG},
-                                      {k: os.environ.get(k) for k in MALLOC_ENV}))
-        hugepage = ex.client.run(lambda: (os.environ.get("NUMPY_MADVISE_HUGEPAGE"),
-                                          __import__("numpy")._core.multiarray._get_madvise_hugepage()))
+        seen = ex.client.run(lambda: {k: dask.config.get(k) for k in DASK_CONFIG})
+        hugepage = ex.client.run(lambda: __import__("numpy")._core.multiarray._get_madvise_hugepage())
         scope: dict = {}
         exec(FAULTS_OF_REUSE, scope)
         ex.client.run(scope["faults_of_reuse"])  # the first array may fault in
@@ -443,14 +455,14 @@ def test_local_workers_run_without_dashboard_monitors():
     finally:
         ex.close()
     assert len(seen) == 2 and len(faults) == 2
-    for config, malloc in seen.values():
-        assert config == DASK_CONFIG and malloc == {k: str(v) for k, v in MALLOC_ENV.items()}
+    for config in seen.values():  # the malloc settings are checked by their effect: the faults below
+        assert config == DASK_CONFIG
     assert all(f <= 512 for f in faults.values()), faults
     # one arena for every thread: 5700-10300 faults a task with one per thread; here at most the heap's growth
     # by a few MB on a worker's first task, in 4 KiB pages (NUMPY_ENV: no huge pages), and ~none after
     assert all(f <= 2000 for f in held) and max(sorted(held)[:2]) <= 100, held
     assert tick_ms == 1000  # the scheduler's event-loop tick, 20 ms by Dask's default
-    assert set(hugepage.values()) == {("0", False)}  # NUMPY_ENV: read by NumPy when the worker imported it
+    assert set(hugepage.values()) == {False}  # NUMPY_ENV's setting: no hugepage advice in the workers
 
 
 #: The address of the worker running a task, after ``pause`` seconds (defined by value: workers cannot import tests).

@@ -186,13 +186,13 @@ def test_a_blocks_phase_angle_range_is_the_kernels_and_stands_in_for_it_without_
     model = REGISTRY["lunar-lambert"]
     stored = {**pm, "alpha_range": np.array([0.25, 0.5], np.float32)}  # not the data's: shows which one is used
     for shadow_type, expect in ((shadows.NONE, (0.25, 0.5)), (shadows.LUNAR_LAMBERT_RATIO, got)):
-        s = SimpleNamespace(model=model, shadow_type=shadow_type, shadow_thresh=0.0)
+        s = SimpleNamespace(shadow_type=shadow_type, shadow_thresh=0.0)
         state = tilework.SolveState(t.astype(np.float64), np.array([1.4, 0.5]))
-        out = tilework.TileSums(index=pm["index"], n_params=2, exp_num=np.zeros(k), exp_den=np.zeros(k))
-        tilework.iterate_block(stored, s, state, True, out)
+        out = updates.PassSums(k, 2, index=pm["index"])
+        tilework.iterate_block(stored, s, model, state, True, out)
         assert (out.alpha_min, out.alpha_max) == expect
-        plain = tilework.TileSums(index=pm["index"], n_params=2, exp_num=np.zeros(k), exp_den=np.zeros(k))
-        tilework.iterate_block(pm, s, state, True, plain)  # a block cached without the range (older caches)
+        plain = updates.PassSums(k, 2, index=pm["index"])
+        tilework.iterate_block(pm, s, model, state, True, plain)  # a block cached without the range (older caches)
         assert (plain.alpha_min, plain.alpha_max) == got
         for a, b in ((plain.q, out.q), (plain.jtj, out.jtj), (plain.exp_num, out.exp_num)):  # the NaN angle: NaN sums
             assert np.array_equal(a, b, equal_nan=True)
@@ -203,7 +203,7 @@ def _point_models():
 
 
 def test_the_fitted_model_has_a_kernel_also_on_a_worker(tmp_path):
-    """A model sent to a Dask worker carries a copy of its numba ``point``: the kernel still knows it."""
+    """A model sent to a Dask worker carries a copy of its numba ``point`` and its kernel branch."""
     import subprocess
     import sys
 
@@ -212,7 +212,7 @@ def test_the_fitted_model_has_a_kernel_also_on_a_worker(tmp_path):
     (tmp_path / "model.pkl").write_bytes(cloudpickle.dumps(REGISTRY["lunar-lambert"]))
     code = ("import pickle, sys; from lunaralbedo.engine import kernels; from lunaralbedo.model.photometry import lunar_lambert; "
             "m = pickle.loads(open(sys.argv[1], 'rb').read()); "
-            "print(m.point is lunar_lambert.point, kernels.point_kind(m.point))")
+            "print(m.point is lunar_lambert.point, kernels.point_kind(m))")
     out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "model.pkl")], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "1"]  # another dispatcher object, the same kernel branch
 
@@ -234,7 +234,7 @@ def test_fused_model_point_equals_its_numpy_functions(model):
     dr = model.derivatives_from(pm, params)
     assert r.dtype == np.float32 and all(d.dtype == np.float32 for d in dr)
     ls = [pm[n] for n in model.point_layers]
-    kind = kernels.point_kind(model.point)
+    kind = kernels.point_kind(model)
     assert kind  # every model with a point is inlined by the kernel
     fused = _run(pm, kind, ls + ls[:1] * (3 - len(ls)), params, t, n_par, alpha=pm.get("alpha"))
     generic = _run(pm, 0, (r, *dr, *([r] * (2 - len(dr)))), (), t, n_par, alpha=pm.get("alpha"))
@@ -298,10 +298,10 @@ def test_models_without_point_and_more_parameters_take_the_generic_path():
 
     obs = _compact(wt, image=image, weight=wt, **layers)
     pm = runs.chunk_runs(obs, h * w, ["image", "weight", *layers])
-    s = SimpleNamespace(model=model, shadow_type=shadows.NONE, shadow_thresh=0.0)
+    s = SimpleNamespace(shadow_type=shadows.NONE, shadow_thresh=0.0)
     state = tilework.SolveState(t.astype(np.float64), params)
-    out = tilework.TileSums(index=pm["index"], n_params=3, exp_num=np.zeros(k), exp_den=np.zeros(k))
-    tilework.iterate_block(pm, s, state, True, out)
+    out = updates.PassSums(k, 3, index=pm["index"])
+    tilework.iterate_block(pm, s, model, state, True, out)
     np.testing.assert_allclose(out.q, updates.cost(res, wt), rtol=1e-12)
     np.testing.assert_allclose(out.exp_num, en, rtol=1e-12)
     np.testing.assert_allclose(out.exp_den, ed, rtol=1e-12)

@@ -1,6 +1,7 @@
 """Structures that scale to 10^5 images: sparse overlap exposures and the tile x image index."""
 from __future__ import annotations
 
+from lunaralbedo.runtime import Runtime
 import numpy as np
 import pytest
 
@@ -90,9 +91,8 @@ def test_row_blocks_give_the_results_of_whole_tiles(tmp_path, monkeypatch):
     render_scene(tmp_path / "s", SceneSpec(n_images=4, image_px=60, seed=3, max_num_iter=2, cast_shadows=True))
     runs = {}
     for name, rows in (("whole", None), ("blocks", "7")):
-        if rows:
-            monkeypatch.setenv("LUNARALBEDO_BLOCK_ROWS", rows)
-        res = solve(tmp_path / "s" / "settings.txt", out=tmp_path / name, workers=1, plots=False, tolerance=0.0)
+        res = solve(tmp_path / "s" / "settings.txt", out=tmp_path / name, workers=1, plots=False, tolerance=0.0,
+                    runtime=Runtime(block_rows=int(rows) if rows else None))
         tiles = {p.parent.name + "/" + p.name: rasterio_read(p) for p in (tmp_path / name).glob("*/tile_*.tif")}
         runs[name] = (res, tiles)
     (whole, wt), (blocks, bt) = runs["whole"], runs["blocks"]
@@ -120,7 +120,7 @@ def test_blocks_bound_the_rows_held(tmp_path, monkeypatch):
     t = max(range(len(scene.tiles)), key=lambda i: len(scene.tile_images[i]))
     tile = scene.tiles[t]
     assert observations.block_rows(scene, t) == tile.height  # the default budget holds these tiles whole
-    monkeypatch.setenv("LUNARALBEDO_BLOCK_MB", "1")
+    scene.runtime = Runtime(block_mb=1)
     rows = observations.block_rows(scene, t)
     width = sum(win[3] - win[2] for _, win in observations.tile_windows(scene, t) if win is not None)
     assert 1 <= rows < tile.height
@@ -158,7 +158,7 @@ def test_reading_and_reducing_ahead_caches_the_same_bytes(tmp_path, monkeypatch)
 
     render_scene(tmp_path / "s", SceneSpec(n_images=5, image_px=80, seed=5, cast_shadows=True))
     scene = build_scene(load_settings(tmp_path / "s" / "settings.txt"), False, map_fn=lambda f, xs: list(map(f, xs)))
-    monkeypatch.setenv("LUNARALBEDO_BLOCK_ROWS", "9")
+    scene.runtime = Runtime(block_rows=9)
     runs = {"plain": (0, prepare.AHEAD_BYTES), "ahead": (2, prepare.AHEAD_BYTES), "ahead, big blocks": (3, 0)}
     for name, (helpers, ahead_bytes) in runs.items():
         monkeypatch.setattr(prepare, "AHEAD_BYTES", ahead_bytes)

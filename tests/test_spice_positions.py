@@ -185,11 +185,12 @@ def test_label_kernels_resolve_through_isisdata(realdata, tmp_path, monkeypatch)
     assert len(found) == len(links)
     # (ShapeModel names a DEM, not a kernel: not listed)
     assert missing == ["$apollo15/kernels/ck/AS15_M_REV35_v2.bc", "$apollo15/kernels/spk/AS15_M_REV35_v2.bsp"]
-    # the ale slices of the SPK/CK have other names: give them with --kernels; ISISDATA from the environment
-    monkeypatch.setenv("ISISDATA", str(tmp_path))
+    # the ale slices of the SPK/CK have other names: give them with --kernels; the data area passed in
+    # (the command line's --isisdata defaults to $ISISDATA; the library reads no environment)
+    monkeypatch.setenv("ISISDATA", str(tmp_path / "elsewhere"))
     slices = [a15 / n for n in ("AS15-M-1450.isis_0.bsp", "AS15-M-1450.isis_1.bsp",
                                 "AS15_M_REV35_v2_0_sliced_-915240.bc", "AS15_M_REV35_v2_1_sliced_-915240.bc")]
-    (r,) = compute_positions([label], slices)
+    (r,) = compute_positions([label], slices, isisdata=tmp_path)
     (ref,) = compute_positions([label], [gen, a15])
     np.testing.assert_allclose(r.spacecraft, ref.spacecraft, atol=1e-9)
     np.testing.assert_allclose(r.sun, ref.sun, atol=1e-6)

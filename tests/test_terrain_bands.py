@@ -2,6 +2,7 @@
 the same margin, DEM rows and answers as the whole tile's, block of rows by block, and the same solve."""
 from __future__ import annotations
 
+from lunaralbedo.runtime import Runtime
 import numpy as np
 import pytest
 import rasterio
@@ -56,13 +57,13 @@ def test_a_banded_tile_gives_the_whole_tiles_margin_rows_and_shadows(low_sun, mo
 
 
 def test_a_solve_with_banded_tiles_writes_the_same_tiles(low_sun, tmp_path, monkeypatch):
-    monkeypatch.setenv("LUNARALBEDO_BLOCK_ROWS", "37")  # several blocks per tile, in both runs
-    solve(low_sun / "settings.txt", out=tmp_path / "whole", workers=1, plots=False)
+    rt = Runtime(block_rows=37)  # several blocks per tile, in both runs
+    solve(low_sun / "settings.txt", out=tmp_path / "whole", workers=1, plots=False, runtime=rt)
     monkeypatch.setattr(terrain, "WHOLE_DEM_BYTES", 0)  # every tile banded
     seen = []
     real = terrain.TileShadows.for_rows
     monkeypatch.setattr(terrain.TileShadows, "for_rows", lambda self, b0, b1: (seen.append(self.banded), real(self, b0, b1))[1])
-    solve(low_sun / "settings.txt", out=tmp_path / "banded", workers=1, plots=False)
+    solve(low_sun / "settings.txt", out=tmp_path / "banded", workers=1, plots=False, runtime=rt)
     assert seen and all(seen)
     names = sorted(p.relative_to(tmp_path / "whole") for kind in ("albedo", "error", "DEM", "weightsSum")
                    for p in (tmp_path / "whole" / kind).glob("*.tif"))

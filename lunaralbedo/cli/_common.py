@@ -8,6 +8,7 @@ Without the global ``--debug`` no traceback is printed, only ``error: <message>`
 from __future__ import annotations
 
 import functools
+import os
 import sys
 import traceback
 from typing import Callable
@@ -17,6 +18,17 @@ import click
 from ..errors import ClusterError, InputError, Interrupted, LunarAlbedoError, typed_error
 
 INTERNAL_ERROR = 1
+
+
+def cli_runtime(**given):
+    """The :class:`~lunaralbedo.runtime.Runtime` of a command: its environment variables
+    (:data:`lunaralbedo.runtime.VARIABLES`) and ``given`` fields.  This process and its workers are tuned
+    (:mod:`lunaralbedo.parallel.workers`) unless the user set malloc or NumPy variables of their own."""
+    from ..parallel.workers import MALLOC_ENV, NUMPY_ENV
+    from ..runtime import Runtime
+
+    users = any(k in os.environ for k in (*MALLOC_ENV, *NUMPY_ENV))
+    return Runtime.from_environ(os.environ, tune_workers=not users, tune_process=not users, **given)
 
 
 def debug_enabled() -> bool:
@@ -33,6 +45,18 @@ def _hint(exc: LunarAlbedoError) -> str:
     return ""
 
 
+def _vector_width() -> None:
+    """The command line's process-wide choice, made as a command starts (not for ``--help``) and before it
+    imports numba (the library makes none): full-width vectors on AVX-512 CPUs unless
+    ``LUNARALBEDO_VECTOR_BITS=256`` or numba's own variables say otherwise (:mod:`lunaralbedo.simd`)."""
+    from .. import simd
+
+    try:
+        simd.apply(os.environ)
+    except ValueError as exc:  # a bad LUNARALBEDO_VECTOR_BITS: say so, and leave numba's defaults
+        click.echo(f"warning: {exc}", err=True)
+
+
 def reports_errors(func: Callable) -> Callable:
     """Turn any failure into one line ``error: <message>`` on stderr and its exit status.
 
@@ -43,6 +67,7 @@ def reports_errors(func: Callable) -> Callable:
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
+        _vector_width()
         try:
             return func(*args, **kwargs)
         except (click.exceptions.Exit, click.ClickException, click.Abort):

@@ -16,9 +16,11 @@ from ._common import reports_errors
               help="DEM file or folder (GeoTIFF or ISIS DEM cube); default: the cube's ShapeModel when it resolves.")
 @click.option("--ellipsoid", is_flag=True, help="Intersect the 1737.4 km sphere (ISIS usedem=no / no DEM).")
 @click.option("--kernels", multiple=True, type=click.Path(path_type=Path), help="Extra kernel files or folders.")
+@click.option("--isisdata", type=click.Path(path_type=Path), default=None, envvar="ISISDATA",
+              help="ISIS data area for $base/$<mission> kernel paths (default: $ISISDATA).")
 @click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path), help="GeoTIFF to write.")
 @reports_errors
-def command(cube, band, dem, ellipsoid, kernels, out):
+def command(cube, band, dem, ellipsoid, kernels, isisdata, out):
     """Write 7 float32 bands: Phase, Emission, Incidence, Local Emission, Local Incidence Angle, Latitude, Longitude.
 
     Degrees; planetocentric latitude, longitude 0-360 east; NaN off the body.
@@ -29,7 +31,7 @@ def command(cube, band, dem, ellipsoid, kernels, out):
 
     if dem and ellipsoid:
         raise InputError("give either --dem or --ellipsoid, not both")
-    planes, shape = write_backplanes(cube, out, band, list(dem), ellipsoid, expand_kernel_args(kernels))
+    planes, shape = write_backplanes(cube, out, band, list(dem), ellipsoid, expand_kernel_args(kernels), isisdata)
     lat = planes["Latitude"]
     n = int(np.isfinite(lat).sum())
     click.echo(f"{cube}: band {band} on {shape.name}: {n} of {lat.size} pixels on the Moon; wrote {out}")

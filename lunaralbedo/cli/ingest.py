@@ -16,7 +16,7 @@ from ._common import parallel_options, reports_errors
 @click.option("-o", "--out", "workdir", required=True, type=click.Path(path_type=Path), help="Work folder to write.")
 @click.option("--kernels", "kernels", multiple=True, type=click.Path(path_type=Path),
               help="Kernel file, folder or meta-kernel (repeatable); added to the labels' Kernels groups.")
-@click.option("--isisdata", type=click.Path(path_type=Path), default=None,
+@click.option("--isisdata", type=click.Path(path_type=Path), default=None, envvar="ISISDATA",
               help="ISIS data area for $base/$<mission> kernel paths (default: $ISISDATA).")
 @click.option("--mpp", type=float, default=None, help="Output resolution in metres per pixel.")
 @click.option("--match-dem", is_flag=True, default=False, help="Use the first DEM's grid (the default).")

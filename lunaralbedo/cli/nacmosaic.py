@@ -15,7 +15,8 @@ from ._common import reports_errors
 @click.option("--offset", type=click.Path(path_type=Path), default=None,
               help="jitreg PREFIX.json to apply; without it the offset is measured (OUT-jitreg.* written).")
 @click.option("--kernels", multiple=True, type=click.Path(path_type=Path), help="Extra kernel file/folder (repeatable).")
-@click.option("--isisdata", type=click.Path(path_type=Path), default=None, help="ISIS data area for $mission paths.")
+@click.option("--isisdata", type=click.Path(path_type=Path), default=None, envvar="ISISDATA",
+              help="ISIS data area for $mission paths (default: $ISISDATA).")
 @click.option("--height", "height_m", type=float, default=0.0, show_default=True,
               help="Height (m above 1737.4 km) of the sphere the ideal rays meet (use the mean DEM height).")
 @click.option("--ideal", type=click.Choice(["auto", "noproj", "computed"]), default="auto", show_default=True,

@@ -23,9 +23,11 @@ from ._common import reports_errors
 @click.option("--isis-compat", is_flag=True,
               help="Reproduce ISIS lrowacphomap's numbers including its two band-matching defects (see docs).")
 @click.option("--kernels", multiple=True, type=click.Path(path_type=Path), help="Extra kernel files or folders.")
+@click.option("--isisdata", type=click.Path(path_type=Path), default=None, envvar="ISISDATA",
+              help="ISIS data area for $base/$<mission> kernel paths (default: $ISISDATA).")
 @click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path), help="GeoTIFF to write.")
 @reports_errors
-def command(cube, model, params, param_map, band, backplane, dem, ellipsoid, isis_compat, kernels, out):
+def command(cube, model, params, param_map, band, backplane, dem, ellipsoid, isis_compat, kernels, isisdata, out):
     """Write the photometrically corrected CUBE (float32, NaN where ISIS writes Null) and print statistics."""
     from ..errors import InputError
     from ..phocorr.run import correct
@@ -34,7 +36,7 @@ def command(cube, model, params, param_map, band, backplane, dem, ellipsoid, isi
     if sum(map(bool, (dem, ellipsoid, backplane))) > 1:
         raise InputError("give only one of --backplane, --dem, --ellipsoid")
     results = correct(cube, out, model, params, band, param_map, backplane, list(dem) or None, ellipsoid,
-                      isis_compat, kernels=expand_kernel_args(kernels))
+                      isis_compat, kernels=expand_kernel_args(kernels), isisdata=isisdata)
     for r in results:
         click.echo(f"band {r.band} ({r.center:g} nm) via {r.geometry}: {r.count} valid pixels, mean {r.mean:.12g}, "
                    f"std {r.std:.12g}, min {r.minimum:.12g}, max {r.maximum:.12g}, sum {r.total:.12g}")

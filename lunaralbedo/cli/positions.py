@@ -13,7 +13,7 @@ from ._common import reports_errors
 @click.argument("cubes", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("--kernels", "kernels", multiple=True, type=click.Path(path_type=Path),
               help="Kernel file, folder or meta-kernel (repeatable); added to the label's Kernels group.")
-@click.option("--isisdata", type=click.Path(path_type=Path), default=None,
+@click.option("--isisdata", type=click.Path(path_type=Path), default=None, envvar="ISISDATA",
               help="ISIS data area for $base/$<mission> kernel paths (default: $ISISDATA).")
 @click.option("--source", type=click.Choice(["auto", "table", "kernels"]), default="auto", show_default=True,
               help="auto: the cube's attached SPICE tables when present, else kernels.")

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from ..engine.solve import DEFAULT_TOLERANCE, METHODS
-from ._common import parallel_options, reports_errors
+from ._common import cli_runtime, parallel_options, reports_errors
 
 
 def _print_summary(result) -> None:
@@ -55,6 +55,8 @@ def _print_summary(result) -> None:
 @click.option("--walltime", default=None, help="Wall time per batch job, e.g. 02:00:00 (with --cluster).")
 @click.option("--jobs", type=int, default=1, show_default=True, help="Number of batch jobs (with --cluster).")
 @click.option("--account", default=None, help="Account / project to charge (with --cluster).")
+@click.option("--nodefile", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help='Start --workers processes on every host of this PBS node file (inside a job: --nodefile "$PBS_NODEFILE").')
 @click.option("--resume", is_flag=True, help="Continue an interrupted run in OUTDIR (same settings and inputs).")
 @click.option("--skip-missing", is_flag=True, help="Leave out DRGs without a Sun/spacecraft position (listed in the report).")
 @click.option("--max-iter", type=int, default=None, help="Override MAX_NUM_ITER.")
@@ -67,10 +69,11 @@ def _print_summary(result) -> None:
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @reports_errors
 def command(settings, out, method, legacy, workers, scheduler, cluster, queue, cores, memory, walltime, jobs, account,
-            resume, skip_missing, max_iter, tolerance, response, exposure_times, quiet):
+            nodefile, resume, skip_missing, max_iter, tolerance, response, exposure_times, quiet):
     """Solve for the albedo of SETTINGS (legacy PhotometryTK settings file or TOML)."""
     from ..settings import load_settings
 
+    runtime = cli_runtime(nodefile=str(nodefile) if nodefile else None)  # its variables checked before any work
     s = load_settings(settings)
     if legacy:
         from ..engine.solve import default_out_dir
@@ -90,5 +93,6 @@ def command(settings, out, method, legacy, workers, scheduler, cluster, queue, c
     opts = dict(queue=queue, cores=cores, memory=memory, walltime=walltime, jobs=jobs, account=account)
     result = solve(s, out=out, method=method, workers=workers, scheduler=scheduler, cluster=cluster,
                    cluster_options=opts, resume=resume, skip_missing=skip_missing, max_iter=max_iter, tolerance=tolerance,
-                   progress=not quiet and sys.stderr.isatty(), response=response, exposure_times=exposure_times)
+                   progress=not quiet and sys.stderr.isatty(), response=response, exposure_times=exposure_times,
+                   runtime=runtime)
     _print_summary(result)

@@ -26,22 +26,19 @@ from ..model.photometry import lunar_lambert
 NO_SHADOW_TEST, SHADOW_ON_R, SHADOW_ON_LAYER = 0, 1, 2
 
 
-#: The models' ``point`` functions the iterate kernel inlines, by number (0: none, R and dR/dp
-#: come as arrays).  They are reached as globals of :func:`_point`: a numba function passed as
-#: an argument would make its caller compile again in every process (the argument's type
-#: names the object).  A model that gets a ``point`` adds one line here and a branch there.
-POINT_KINDS = {"lunaralbedo.model.photometry.lunar_lambert.point": 1}
+def point_kind(model) -> int | None:
+    """The kernel branch of a model's ``point`` (its ``point_kind``; None: the kernel takes arrays).
 
-
-def point_kind(point) -> int | None:
-    """The number of a model's ``point`` in :data:`POINT_KINDS` (None: not inlined by the kernel)."""
-    f = getattr(point, "py_func", point)
-    return POINT_KINDS.get(f"{getattr(f, '__module__', '')}.{getattr(f, '__qualname__', '')}")
+    Each model carries its own fast path: ``point`` and the number of the branch of :func:`_point` that
+    calls it.  The models' ``point`` functions are reached as globals of :func:`_point`: a numba function
+    passed as an argument would make its caller compile again in every process (the argument's type
+    names the object).  A model that gets a ``point`` sets ``point_kind`` and adds a branch there."""
+    return model.point_kind if (model.point is not None and model.point_kind) else None
 
 
 @njit(cache=True)
 def _point(kind, l0, l1, l2, params):
-    """R and dR/dp of one observation: the model's ``point`` of :data:`POINT_KINDS`, or the layers."""
+    """R and dR/dp of one observation: the ``point`` of the model whose ``point_kind`` is ``kind``, or the layers."""
     if kind == 1:
         return lunar_lambert.point(l0, l1, l2, params)
     return l0, l1, l2
@@ -254,7 +251,7 @@ def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1
     (eq. 5), chunk by chunk.
 
     ``kind`` picks the model's ``point(l0, l1, l2, params) -> (R, dR/dp_0, dR/dp_1)``
-    (:data:`POINT_KINDS`, :mod:`lunaralbedo.model.photometry.pointwise`); 0: the layers are R
+    (the model's ``point_kind``, :mod:`lunaralbedo.model.photometry.pointwise`); 0: the layers are R
     and its derivatives.  ``params`` and the layers are float32.  ``texp`` (float32) are the
     exposures of the local images ``run_image``.  ``shadow``/``ratio``/``thresh``: dynamic
     shadow test :math:`I/(\rho T) \ge t` on R or on the layer ``ratio`` (:data:`SHADOW_ON_R`, ...).

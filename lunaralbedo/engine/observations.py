@@ -27,7 +27,7 @@ images: a tile is processed in blocks of :func:`block_rows` rows, each with the 
 halo its normals need, and each
 block's observations are cached on their own (``prepare.prepare_tile``).  The block
 height follows from a budget, :data:`BLOCK_BYTES` (environment variable
-``LUNARALBEDO_BLOCK_MB``, default 384 MiB per worker; ``LUNARALBEDO_BLOCK_ROWS`` forces
+``Runtime.block_mb``, default 384 MiB per worker; ``Runtime.block_rows`` forces
 a height) and the measured bytes per pixel below: a tile that fits is one block.  Blocks
 give the observations and per-pixel arrays of one whole-tile block; only sums that cross
 blocks are added in another order (float64 rounding, ``tests/test_scale.py``).  Besides
@@ -39,7 +39,6 @@ follows the block whatever the tile size (docs/performance.md).
 """
 from __future__ import annotations
 
-import os
 
 import numpy as np
 from numba import njit
@@ -51,12 +50,12 @@ from ..io.rasters import read_dem_onto_grid
 from ..model import geometry, shadows
 from ..model.longitude import overlap_shifts
 from ..parallel.ahead import ahead, helper
-from .photometry import solver_model
+from ..runtime import BLOCK_MB
 from .scene import Scene
 from .terrain import TileShadows
 
-#: Working memory of one block of a tile in the prepare and iterate steps (bytes); ``LUNARALBEDO_BLOCK_MB`` overrides it.
-BLOCK_BYTES = 384 * 2**20
+#: Default working memory of one block of a tile in the prepare and iterate steps (bytes); ``Runtime.block_mb`` sets it.
+BLOCK_BYTES = int(BLOCK_MB * 2**20)
 #: Bytes per pixel of a block's full width: DEM (and its reader's temporaries), per-pixel sums ...
 #: (measured when the block also held its points and normals, 48 bytes per pixel, which are now computed
 #: row by row in :func:`geometry.observe_window`; 48 here made 4000 px tiles' blocks taller and raised
@@ -103,9 +102,9 @@ def tile_windows(scene: Scene, t: int) -> list[tuple[int, tuple[int, int, int, i
     return out
 
 
-def block_budget() -> float:
-    """Bytes of a block's working memory: :data:`BLOCK_BYTES`, or ``LUNARALBEDO_BLOCK_MB`` MiB."""
-    return float(os.environ.get("LUNARALBEDO_BLOCK_MB", BLOCK_BYTES / 2**20)) * 2**20
+def block_budget(scene: Scene) -> float:
+    """Bytes of a block's working memory: the run's ``Runtime.block_mb`` (default :data:`BLOCK_BYTES`)."""
+    return scene.runtime.block_bytes
 
 
 def block_rows(scene: Scene, t: int, ahead: int = 0) -> int:
@@ -113,11 +112,11 @@ def block_rows(scene: Scene, t: int, ahead: int = 0) -> int:
     ``ahead`` more windows of the largest width being read and reduced at once (helper threads); a tile cut
     into blocks gets a multiple of the tile outputs' 256-row blocks when that many fit (each block of the
     GeoTIFFs is then compressed and written once: :mod:`lunaralbedo.io.geotiff`)."""
-    forced = os.environ.get("LUNARALBEDO_BLOCK_ROWS")
+    forced = scene.runtime.block_rows
     tile = scene.tiles[t]
     if forced:
         return max(1, min(tile.height, int(forced)))
-    budget = block_budget()
+    budget = block_budget(scene)
     widths = [win[3] - win[2] for _, win in tile_windows(scene, t) if win is not None]
     per_row = ((tile.width + 2) * ROW_PIXEL_BYTES + sum(widths) * WINDOW_PIXEL_BYTES
                + max(widths, default=0) * (READ_PIXEL_BYTES + AHEAD_PIXEL_BYTES * ahead))
@@ -194,7 +193,7 @@ def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None, helpers: 
     results; the blocks are made shorter by as many windows).
     """
     s = scene.settings
-    model = solver_model(s)
+    model = scene.model
     tile = scene.tiles[t]
     geometry_needed = model.needs_geometry
     cast = TileShadows(scene, tile, scene.tile_images[t]) if geometry_needed and s.uses_cast_shadows else None

@@ -124,7 +124,7 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
 
 def _init_sums(scene: Scene, obs, width: int) -> dict:
     s = scene.settings
-    r = s.model.reflectance_from(obs, s.initial_params)
+    r = scene.model.reflectance_from(obs, s.initial_params)
     rs, n = exposure_init.mean_reflectance_sums(r, obs["start"])  # observations already have positive weight,
     use = r > 0  # value and geometry; R > 0 remains (nearly always: no copies then)
     ustart = np.concatenate([[0], np.cumsum(n)]).astype(np.int64)

@@ -57,6 +57,10 @@ def response_tile(t: int, *, scene: Scene, max_pixels: int = MAX_PIXELS_PER_TILE
     thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
     step = max(1, int(np.ceil(tile.height * tile.width / max_pixels)))
     pick = np.arange(0, tile.height * tile.width, step)
+    where = {}
+    if scene.model.needs_location:  # a model with per-point parameters (a Hapke parameter map) needs the ground points
+        lon, lat = geometry.lonlat_axes(tile.transform, shape)
+        where = dict(lon=np.broadcast_to(lon[None, :], shape), lat=np.broadcast_to(lat[:, None], shape))
     out = {k: [] for k in ("pixel", "image", "dn", "factor")}
     for k in scene.tile_images[t]:
         got = read_drg_onto_grid(scene.images[k], scene.profiles[k], tile.transform, shape, scene.crs, thresh,
@@ -70,7 +74,7 @@ def response_tile(t: int, *, scene: Scene, max_pixels: int = MAX_PIXELS_PER_TILE
             _, pts, normals, bad = geo
             ci, ce, al = geometry.illumination(pts, normals, scene.sun[k], scene.spacecraft[k])
             use &= ~bad & (ci >= MIN_COS_INCIDENCE_MODEL) & (ce > 0)
-            r = s.model.reflectance(ci, ce, al, s.initial_params)
+            r = scene.model.reflectance(ci, ce, al, s.initial_params, **where)
             use &= r > 0
         sel = pick[use.ravel()[pick]]
         out["pixel"].append(sel)

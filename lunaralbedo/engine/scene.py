@@ -18,7 +18,9 @@ from ..errors import InputError, SolverError
 from ..io.guard import raster_errors
 from ..io.positions import read_positions
 from ..io.rasters import RasterInfo, catalog_drgs, geographic_crs, list_rasters, raster_info
+from ..model.photometry import PhotometricModel
 from ..model.weights import WeightProfile, merge_profiles, profile_from_mask
+from ..runtime import Runtime
 from ..settings import Settings
 from .photometry import solver_model
 from .tiles import Tile, make_tiles
@@ -41,6 +43,23 @@ class Scene:
     tiles: list[Tile]
     tile_images: list[np.ndarray]  # per tile: global indices of the images that overlap it
     skipped: dict[str, str] = field(default_factory=dict)  # key -> reason
+    #: The photometric model bound to the files its settings name (:func:`.photometry.solver_model`):
+    #: the one model the engine uses.  Not pickled: each process binds it again from the settings
+    #: (once per process while the files are unchanged), so a Hapke parameter map is not shipped to workers.
+    model: PhotometricModel = field(default=None, repr=False, compare=False)
+    #: How the run uses the machine (memory budgets); changes no result, so not in :meth:`fingerprint`.
+    runtime: Runtime = field(default_factory=Runtime, repr=False, compare=False)
+
+    def __post_init__(self):
+        if self.model is None:
+            self.model = solver_model(self.settings)
+
+    def __getstate__(self):
+        return {**self.__dict__, "model": None}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self.model = solver_model(self.settings)
 
     @property
     def keys(self) -> list[str]:
@@ -131,7 +150,7 @@ def _positions(settings: Settings, images: list[RasterInfo], skip_missing: bool,
     return kept, np.array(sun).reshape(-1, 3), np.array(sc).reshape(-1, 3)
 
 
-def build_scene(settings: Settings, skip_missing: bool = False, map_fn=map) -> Scene:
+def build_scene(settings: Settings, skip_missing: bool = False, map_fn=map, runtime: Runtime | None = None) -> Scene:
     """Catalogue inputs, read positions, choose the tile grid and the images of every tile.
 
     ``map_fn`` maps :func:`weight_profile` over images (pass an executor's map to
@@ -152,7 +171,7 @@ def build_scene(settings: Settings, skip_missing: bool = False, map_fn=map) -> S
     for im in images:
         if crs0 is not None and im.crs is not None and geographic_crs(im.crs) != crs0:
             raise InputError(f"{im.path}: its body/datum differs from the first DRG's ({images[0].path})")
-    solver_model(settings)  # a model's own files (e.g. Hapke's parameters) fail here, before any tile work
+    model = solver_model(settings)  # a model's own files (e.g. Hapke's parameters) fail here, before any tile work
     images, sun, sc = _positions(settings, images, skip_missing, skipped)
     if not images:
         raise SolverError("no DRG left after skipping images without positions")
@@ -165,4 +184,4 @@ def build_scene(settings: Settings, skip_missing: bool = False, map_fn=map) -> S
         if k not in used:
             skipped.setdefault(im.key, "overlaps no tile")
     profiles = list(map_fn(weight_profile, images))
-    return Scene(settings, images, sun, sc, profiles, dems, tiles, tile_images, skipped)
+    return Scene(settings, images, sun, sc, profiles, dems, tiles, tile_images, skipped, model, runtime or Runtime())

@@ -33,6 +33,7 @@ from ..model import exposure_init, updates
 from ..settings import Settings, load_settings
 from ..parallel import local_workers, make_executor
 from ..parallel.workers import trim_malloc
+from ..runtime import Runtime
 from .response import check_resume, known_exposures, lut_digest, move_outputs, report_parts, resolve_response
 from .observations import ROW_PIXEL_BYTES, block_budget
 from .scene import Scene, build_scene
@@ -162,6 +163,7 @@ def solve(
     plots: bool = True,
     response: str | Path | None = None,
     exposure_times: str | Path | None = None,
+    runtime: Runtime | None = None,
 ) -> SolveResult:
     """Solve for albedo, exposures and the photometric model's parameters (seed 000 section 7).
 
@@ -173,6 +175,8 @@ def solve(
     ``response``: None (linear DN), ``"estimate"`` or a ``response.csv`` (seed 002, see
     :mod:`.response`); ``exposure_times``: a ``key,exposure`` CSV that fixes the exposures.
     Iterations stop early once ``|Q_n - Q_(n-1)| <= tolerance * Q_n`` (0: run them all).
+    ``runtime``: how the run uses the machine (:class:`lunaralbedo.runtime.Runtime`: memory budgets,
+    how workers start, a node file); no value of it changes a result.
     """
     settings = settings if isinstance(settings, Settings) else load_settings(settings)
     if method not in METHODS:
@@ -184,11 +188,14 @@ def solve(
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     # local workers start while the scene is built (their imports included): ~1.5 s off a 2-worker run
-    executor = make_executor(workers, scheduler, cluster, cluster_options, progress, background=True, preload=WORKER_PRELOAD)
+    runtime = runtime or Runtime()
+    executor = make_executor(workers, scheduler, cluster, cluster_options, progress, background=True, preload=WORKER_PRELOAD,
+                             runtime=runtime)
     try:
         # the DRGs' masks on a thread per CPU in one process (GDAL and the profile kernel release the GIL)
         scene = build_scene(settings, skip_missing,
-                            map_fn=lambda f, xs: executor.map(f, xs, "masks", meanwhile=True, threads=_threads(executor)))
+                            map_fn=lambda f, xs: executor.map(f, xs, "masks", meanwhile=True, threads=_threads(executor)),
+                            runtime=runtime)
         timings["scene"] = time.perf_counter() - t0
         if not resume:
             _clear_previous_run(out)
@@ -257,16 +264,16 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     resume_info = {"tiles_prepared_before": sum(bool(m.get("reused")) for m in metas), "iterations_done_before": ck["iteration"]}
     n_obs = sum(int(m["observations"]) for m in metas) if all("observations" in m for m in metas) else None
     t2 = time.perf_counter()
-    want_phase = bool(s.model.parameters)
+    want_phase = bool(scene.model.parameters)
     while not ck["done"] and ck["iteration"] < max_iter:
         parts = on_tiles(iterate_tile, f"iteration {ck['iteration'] + 1}", state=state, want_phase=want_phase,
                          threads=_threads(executor))  # one process: tiles on its CPUs, summed in tile order
-        sums = _reduce_iteration(len(scene.images), len(s.model.parameters), parts)
+        sums = _reduce_iteration(len(scene.images), len(scene.model.parameters), parts)
         q_prev = ck["q"][-1] if ck["q"] else None
         ck["q"].append(sums.q)
         converged = q_prev is not None and abs(q_prev - sums.q) <= tol * max(sums.q, 1e-300)
         if not converged:
-            state = _update(state, sums, method, s.model, t_init, fixed=t_known is not None)
+            state = _update(state, sums, method, scene.model, t_init, fixed=t_known is not None)
             ck["params_history"].append(state.params.tolist())
         ck.update(iteration=ck["iteration"] + 1, exposure=state.exposure.tolist(), params=state.params.tolist(), done=converged)
         outputs.write_json(out / STATE_FILE, ck)
@@ -277,7 +284,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
         ck["finalising"] = True  # from here on the state is fixed; finished tiles can be kept
         outputs.write_json(out / STATE_FILE, ck)
     # one process: tiles on its CPUs, at most FINALISE_BYTES of their rows at once; GDAL's threads on the CPUs left
-    tile_px = max((min(t.height * t.width, int(block_budget() // ROW_PIXEL_BYTES)) for t in scene.tiles), default=1)
+    tile_px = max((min(t.height * t.width, int(block_budget(scene) // ROW_PIXEL_BYTES)) for t in scene.tiles), default=1)
     at_once = max(1, min(_threads(executor), len(tiles), FINALISE_BYTES // (8 * tile_px)))
     tile_reports = on_tiles(finalize_tile, "write tiles", out_dir=out / TILES_DIR, state=state, skip_done=skip_done,
                             write_threads=max(1, executor.cpus_per_task // at_once), threads=at_once)
@@ -306,7 +313,7 @@ def stage_costs(timings: dict, n_obs: int | None, passes: int) -> dict:
 #: the memory bus); more CPUs are for more workers (``--workers N``).
 MAX_THREADS = 4
 #: Bytes of albedo and error rows (8 per pixel) finalise may hold at once over the tiles it writes on threads
-#: (a tile always); each tile holds one block of rows at a time, at most ``block_budget() / ROW_PIXEL_BYTES`` pixels.
+#: (a tile always); each tile holds one block of rows at a time, at most ``block_budget(scene) / ROW_PIXEL_BYTES`` pixels.
 FINALISE_BYTES = 256 * 2**20
 
 
@@ -334,7 +341,7 @@ def _prepare(on_tiles, executor, lut) -> list:
 def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info, costs):
     keys = scene.keys
     outputs.write_exposure_csv(out / "exposure.csv", keys, state.exposure, t_init)
-    names = scene.settings.model.parameters
+    names = scene.model.parameters
     if names:
         outputs.write_phase_csv(out / "phase.csv", names, ck["params_history"])
     for key, prof in zip(keys, scene.profiles):
@@ -350,7 +357,7 @@ def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timi
         "iterations": ck["iteration"],
         "converged": ck["done"],
         "cost_q": ck["q"],
-        "photometric_model": scene.settings.model.name,
+        "photometric_model": scene.model.name,
         "parameters": {name: [h[m] for h in ck["params_history"]] for m, name in enumerate(names)},
         "images_used": len(keys),
         "images_skipped": scene.skipped,

@@ -35,6 +35,7 @@ from ..io.rasters import count_finite
 from ..model import shadows, updates
 from . import kernels, runs
 from .finalise_kernels import finalise_runs
+from ..runtime import STACK_MEMORY_MB
 from .scene import Scene
 
 
@@ -44,31 +45,6 @@ class SolveState:
 
     exposure: np.ndarray  # (K,) per image
     params: np.ndarray  # (P,) fitted parameters of the photometric model (Lunar-Lambert: c1, c2)
-
-
-@dataclass
-class TileSums:
-    """One tile's contribution to an iteration (float64, per local image where indexed).
-
-    ``jtj``/``jtr`` are the normal equations of the P fitted parameters plus the global scale.
-    """
-
-    index: np.ndarray
-    n_params: int = 0
-    q: float = 0.0
-    exp_num: np.ndarray | None = None
-    exp_den: np.ndarray | None = None
-    jtj: np.ndarray | None = None
-    jtr: np.ndarray | None = None
-    alpha_min: float = np.inf
-    alpha_max: float = -np.inf
-    n_obs: int = 0
-
-    def __post_init__(self):
-        if self.jtj is None:
-            self.jtj = np.zeros((self.n_params + 1, self.n_params + 1))
-        if self.jtr is None:
-            self.jtr = np.zeros(self.n_params + 1)
 
 
 #: Version of the cache layout above (2: pixel-major observations; 3: the DEM and weight-sum
@@ -123,11 +99,11 @@ def tile_model(scene: Scene, obs, state: SolveState):
     mask (eq. 1), and the exposures of the block's local images (float32; ``obs["run_image"]``
     numbers them), which :func:`.finalise_kernels.finalise_runs` takes.
     """
-    s = scene.settings
+    s, model = scene.settings, scene.model
     texp = state.exposure[obs["index"]].astype(np.float32)
-    r = np.asarray(s.model.reflectance_from(obs, state.params), dtype=np.float32)
+    r = np.asarray(model.reflectance_from(obs, state.params), dtype=np.float32)
     w = obs["weight"]
-    if s.shadow_type in (shadows.LAMBERT_RATIO, shadows.LUNAR_LAMBERT_RATIO) and s.model.needs_geometry:
+    if s.shadow_type in (shadows.LAMBERT_RATIO, shadows.LUNAR_LAMBERT_RATIO) and model.needs_geometry:
         rr = obs["cos_i"] if (s.shadow_type == shadows.LAMBERT_RATIO and "cos_i" in obs) else r
         t_obs = texp[runs.observation_images(obs)]
         w = np.where(shadows.dynamic_lit(obs["image"], rr, t_obs, s.shadow_thresh), w, 0.0).astype(np.float32)
@@ -135,10 +111,10 @@ def tile_model(scene: Scene, obs, state: SolveState):
 
 
 #: The observations of the blocks this process iterates stay in memory within this
-#: budget (bytes; environment variable ``LUNARALBEDO_STACK_MEMORY_MB``, default 512); blocks
+#: budget (bytes; the run's ``Runtime.stack_memory_mb``, default 512 MiB, set by each iterate task); blocks
 #: beyond it are read from the memory-mapped cache every iteration (no reordering: the cache
 #: holds the iteration's order).
-STACKS = MemoryCache(int(float(os.environ.get("LUNARALBEDO_STACK_MEMORY_MB", "512")) * 2**20))
+STACKS = MemoryCache(int(STACK_MEMORY_MB * 2**20))
 
 
 def pixel_stack(folder: Path, cache_root: Path) -> dict:
@@ -146,7 +122,7 @@ def pixel_stack(folder: Path, cache_root: Path) -> dict:
     return STACKS.get(folder, lambda arrays, meta: _split(arrays)[0], group=cache_root)
 
 
-def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> TileSums:
+def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> updates.PassSums:
     """Partial sums of one iteration over tile ``t`` (eqs. 1, 3, 4, 5): its blocks' sums added in block order.
 
     Each block's observations, in chunk-major runs, come from :data:`STACKS` (kept in memory
@@ -157,42 +133,30 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
     if meta is None:
         raise FileNotFoundError(f"{folder}: the prepared tile's meta.json is missing")
     idx = np.asarray(meta["index"], np.int32)
-    model = scene.settings.model
+    STACKS.budget = scene.runtime.stack_bytes  # this run's budget (a process serves one run at a time)
+    model = scene.model
     phase = want_phase and bool(model.parameters)
-    out = TileSums(index=idx, n_params=len(model.parameters), exp_num=np.zeros(len(idx)), exp_den=np.zeros(len(idx)))
-    pos = {k: i for i, k in enumerate(idx.tolist())}
+    out = updates.PassSums(len(idx), len(model.parameters), index=idx)
     for i, (b0, b1) in enumerate(meta["blocks"]):
         arrays = pixel_stack(folder / f"block_{i:04d}", cache_root)
         if not len(arrays["index"]):
             continue
-        part = TileSums(index=arrays["index"], n_params=out.n_params, exp_num=np.zeros(len(arrays["index"])),
-                        exp_den=np.zeros(len(arrays["index"])))
-        iterate_block(arrays, scene.settings, state, phase, part)
-        at = np.array([pos[k] for k in part.index.tolist()], np.intp)
-        out.q += part.q
-        out.exp_num[at] += part.exp_num
-        out.exp_den[at] += part.exp_den
-        if phase:
-            out.jtj += part.jtj
-            out.jtr += part.jtr
-            out.alpha_min, out.alpha_max = min(out.alpha_min, part.alpha_min), max(out.alpha_max, part.alpha_max)
-        out.n_obs += part.n_obs
-    if not phase:
-        out.jtj, out.jtr = np.zeros((out.n_params + 1,) * 2), np.zeros(out.n_params + 1)
+        part = updates.PassSums(len(arrays["index"]), out.n_params, index=arrays["index"])
+        iterate_block(arrays, scene.settings, model, state, phase, part)
+        out.add(part)  # blocks in order; without the phase step the normal equations stay zero
     return out
 
 
-def iterate_block(arrays: dict, s, state: SolveState, phase: bool, out: TileSums) -> None:
+def iterate_block(arrays: dict, s, model, state: SolveState, phase: bool, out: updates.PassSums) -> None:
     """Add one block of observations in chunk-major runs (all of a tile, or rows of it) to ``out``.
 
-    The model's ``point`` runs inside the kernel (:data:`.kernels.POINT_KINDS`); a model without
+    The model's ``point`` runs inside the kernel (its ``point_kind``, :func:`.kernels.point_kind`); a model without
     one gives R and its derivatives as NumPy arrays (also when it fits more than two parameters:
     then the normal equations are NumPy sums).
     """
-    model = s.model
     n_par = len(model.parameters) if phase else 0
     params = np.asarray(state.params, np.float32)
-    kind = kernels.point_kind(model.point) if (model.point is not None and len(model.parameters) <= 2) else None
+    kind = kernels.point_kind(model) if len(model.parameters) <= 2 else None
     if kind is not None:
         layers = [arrays[n] for n in model.point_layers]
     else:

@@ -177,7 +177,12 @@ def error_map(image, a, tr, w_shadow, w_blend):
 
 @dataclass
 class PassSums:
-    """Global sums one iteration needs, accumulated tile by tile (float64)."""
+    """Sums one iteration needs (float64): the global ones, accumulated tile by tile, or a tile's or a block's own.
+
+    ``index``: the global numbers of the images whose exposure sums these are, sorted (a tile's or a block's
+    images); None: all ``n_images`` in order (the global sums).  ``jtj``/``jtr`` are the normal equations of
+    the P fitted parameters plus the global scale.
+    """
 
     n_images: int
     n_params: int = 0
@@ -189,8 +194,12 @@ class PassSums:
     alpha_min: float = np.inf
     alpha_max: float = -np.inf
     n_obs: int = 0
+    index: np.ndarray | None = None
 
     def __post_init__(self):
+        if self.index is not None:
+            self.index = np.asarray(self.index)
+            self.n_images = len(self.index)
         if self.exp_num is None:
             self.exp_num = np.zeros(self.n_images)
         if self.exp_den is None:
@@ -204,11 +213,13 @@ class PassSums:
         """Accumulate one tile's sums (``part.index`` maps its images to global ones).
 
         Call in a fixed tile order: float64 addition is then reproducible, so results
-        are identical for any number of workers.
+        are identical for any number of workers.  Into sums with an ``index`` (a tile's), the
+        part's images must be among them.
         """
+        at = part.index if self.index is None else np.searchsorted(self.index, part.index)
         self.q += part.q
-        np.add.at(self.exp_num, part.index, part.exp_num)
-        np.add.at(self.exp_den, part.index, part.exp_den)
+        np.add.at(self.exp_num, at, part.exp_num)
+        np.add.at(self.exp_den, at, part.exp_den)
         self.jtj += part.jtj
         self.jtr += part.jtr
         self.alpha_min = min(self.alpha_min, part.alpha_min)

@@ -41,13 +41,14 @@ def connect(address: str):
         raise ClusterError(f"cannot connect to Dask scheduler {address}: {exc}") from None
 
 
-def local_cluster(workers: int, memory_limit: str | None, preload: tuple = (), start: str = "spawn"):
+def local_cluster(workers: int, memory_limit: str | None, preload: tuple = (), start: str = "spawn", tuned: bool = True):
     """``workers`` local worker processes of one thread each; ``preload``: modules each worker imports as it starts;
-    ``start``: how they start (:func:`.forkserver.ready` gives it: ``forkserver`` once that server is running)."""
+    ``start``: how they start (:func:`.forkserver.ready` gives it: ``forkserver`` once that server is running);
+    ``tuned``: spawned workers get :func:`~.workers.worker_env`'s malloc and NumPy settings."""
     import dask
     from distributed import Client, LocalCluster
 
-    with worker_config(), dask.config.set({"distributed.worker.multiprocessing-method": start}):
+    with worker_config(tuned), dask.config.set({"distributed.worker.multiprocessing-method": start}):
         cluster = LocalCluster(
             n_workers=workers,
             threads_per_worker=1,

@@ -23,6 +23,7 @@ from tqdm.auto import tqdm
 from ..errors import ClusterError, LunarAlbedoError, typed_error
 from . import clusters, forkserver
 from .nodefile import nodefile_client, pbs_nodes
+from ..runtime import Runtime
 from .workers import available_cpus, tune_malloc, tune_numpy
 
 
@@ -323,6 +324,7 @@ def make_executor(
     local: str = "processes",
     background: bool = False,
     preload: tuple = (),
+    runtime: Runtime | None = None,
 ):
     """Choose an executor; the same rules for ``ingest``, ``solve`` and ``export-kml``.
 
@@ -330,7 +332,7 @@ def make_executor(
     * ``scheduler="tcp://host:port"``: connect to an existing ``dask.distributed`` scheduler;
     * ``cluster="pbs"|"slurm"``: start workers as batch jobs with dask-jobqueue
       (``cluster_options``: queue, cores, memory, walltime, jobs, account, ...);
-    * ``$PBS_NODEFILE`` set (inside a PBS job, as the legacy program used it):
+    * ``runtime.nodefile`` given (a PBS job's ``$PBS_NODEFILE``, as the legacy program used it):
       ``workers`` processes on every node it lists (see :mod:`.nodefile`);
     * otherwise ``workers`` local workers (1: in-process, no Dask): processes of a
       local Dask cluster, or with ``local="threads"`` a thread pool of this process
@@ -341,8 +343,11 @@ def make_executor(
     workers import as they start, so that the first tasks do not wait for the imports.
     The solver overlaps the ~1-2 s of that start with building its scene (docs/scaling.md).
     Local workers are forked from a server that has imported ``preload`` once (:mod:`.forkserver`;
-    ``LUNARALBEDO_WORKER_START=spawn``: each a fresh interpreter, Dask's default).
+    ``runtime.worker_start="spawn"``: each a fresh interpreter, Dask's default).  ``runtime``
+    (:class:`lunaralbedo.runtime.Runtime`) also says whether workers and this process are tuned; by
+    default this process is left as it is.
     """
+    runtime = runtime or Runtime()
     if client is not None:
         return DaskExecutor(client, "Dask client", progress, own_client=False)
     if scheduler:
@@ -351,24 +356,26 @@ def make_executor(
     if cluster:
         client, owned = _starting(f"{cluster} cluster", clusters.jobqueue_client, cluster, dict(cluster_options or {}))
         return DaskExecutor(client, f"{cluster} cluster", progress, owned=owned)
-    hosts = pbs_nodes()
+    hosts = pbs_nodes(runtime.nodefile)
     if hosts:
-        client, owned = nodefile_client(hosts, max(1, workers))
+        client, owned = nodefile_client(hosts, max(1, workers), remote_shell=runtime.remote_shell,
+                                        tuned=runtime.tune_workers)
         return DaskExecutor(client, f"PBS_NODEFILE ({len(hosts)} nodes x {max(1, workers)} processes)", progress, owned=owned)
-    tune_malloc()  # for tasks run in this process (one worker, threads); Dask workers get WORKER_ENV
-    tune_numpy()
+    if runtime.tune_process:  # for tasks run in this process (one worker, threads); workers are tuned apart
+        tune_malloc()
+        tune_numpy()
     if workers <= 1:
         return SerialExecutor(progress)
     if local == "processes":
         what, description = f"local cluster of {workers} processes", f"local cluster ({workers} processes)"
-        # in this thread: the server's environment is set in os.environ for a moment
-        start = _starting("server of local workers", forkserver.ready, preload)
+        start = _starting("server of local workers", forkserver.ready, preload, runtime.worker_start, runtime.tune_workers)
         if background:
             pool = ThreadPoolExecutor(1, thread_name_prefix="lunaralbedo-cluster-start")
-            pending = pool.submit(_starting, what, clusters.local_cluster, workers, memory_limit, preload, start)
+            pending = pool.submit(_starting, what, clusters.local_cluster, workers, memory_limit, preload, start,
+                                  runtime.tune_workers)
             pool.shutdown(wait=False)  # the start goes on; its thread ends with it
             return DaskExecutor(pending, description, progress, workers=workers)
-        client, owned = _starting(what, clusters.local_cluster, workers, memory_limit, preload, start)
+        client, owned = _starting(what, clusters.local_cluster, workers, memory_limit, preload, start, runtime.tune_workers)
         return DaskExecutor(client, description, progress, owned=owned)
     if local == "threads":
         return LocalPoolExecutor(workers, progress)

@@ -4,8 +4,10 @@ PhotometryTK ran GNU parallel over ssh to every host listed in ``PBS_NODEFILE``
 (seed 000 section 4), NUM_PROCESSES processes per node.  Here the same file
 starts a Dask scheduler on this node and ``NUM_PROCESSES`` Dask worker processes on
 every listed node: the local node directly, the others through a remote shell
-(``ssh -o BatchMode=yes`` by default; set ``LUNARALBEDO_REMOTE_SHELL`` to another
-launcher such as ``rsh`` or ``ssh -i KEY``; it is called as ``SHELL HOST COMMAND...``).
+(``ssh -o BatchMode=yes`` by default; ``Runtime.remote_shell``, on the command line
+``LUNARALBEDO_REMOTE_SHELL``, names another launcher such as ``rsh`` or ``ssh -i KEY``; it is
+called as ``SHELL HOST COMMAND...``).  The node file is used only when asked for
+(``Runtime.nodefile``; ``solve --nodefile "$PBS_NODEFILE"``), never because the variable is set.
 The nodes must share the file system, as the legacy program required.
 """
 from __future__ import annotations
@@ -18,15 +20,15 @@ import sys
 from pathlib import Path
 
 from ..errors import LunarAlbedoError
-from .workers import WORKER_ENV, worker_config
+from ..runtime import REMOTE_SHELL
+from .workers import worker_config, worker_env
 
-REMOTE_SHELL_ENV = "LUNARALBEDO_REMOTE_SHELL"
 _LOCAL_NAMES = {"localhost", "127.0.0.1", socket.gethostname(), socket.getfqdn()}
 
 
-def pbs_nodes(nodefile: str | os.PathLike | None = None) -> list[str]:
-    """Unique host names of ``$PBS_NODEFILE`` (one per line, as PBS writes it), in order."""
-    path = nodefile or os.environ.get("PBS_NODEFILE")
+def pbs_nodes(nodefile: str | os.PathLike | None) -> list[str]:
+    """Unique host names of a PBS node file (one per line, as PBS writes it), in order; none without a file."""
+    path = nodefile
     if not path:
         return []
     try:
@@ -53,17 +55,19 @@ class _WorkerProcesses:
                 p.kill()
 
 
-def nodefile_client(hosts: list[str], processes_per_node: int, timeout: float = 120.0):
-    """Start a scheduler here and workers on ``hosts``; return ``(client, [owned objects])``."""
+def nodefile_client(hosts: list[str], processes_per_node: int, timeout: float = 120.0, remote_shell: str = REMOTE_SHELL,
+                    tuned: bool = True):
+    """Start a scheduler here and workers on ``hosts`` (``remote_shell HOST COMMAND...`` for the others than this
+    one); return ``(client, [owned objects])``.  ``tuned``: the workers get :func:`~.workers.worker_env`'s tuning."""
     from distributed import Client, LocalCluster
 
-    with worker_config():  # the scheduler's settings (the workers get theirs from WORKER_ENV)
+    with worker_config(tuned):  # the scheduler's settings (the workers get theirs from worker_env)
         cluster = LocalCluster(n_workers=0, host="0.0.0.0", scheduler_port=0, dashboard_address=None, silence_logs=40)
     port = cluster.scheduler_address.rsplit(":", 1)[1]
     address = f"tcp://{socket.getfqdn()}:{port}"
-    shell = shlex.split(os.environ.get(REMOTE_SHELL_ENV, "ssh -o BatchMode=yes"))
+    shell = shlex.split(remote_shell)
     worker = [
-        "env", *(f"{k}={v}" for k, v in WORKER_ENV.items()),
+        "env", *(f"{k}={v}" for k, v in worker_env(tuned).items()),
         sys.executable, "-m", "distributed.cli.dask_worker", address,
         "--nworkers", str(processes_per_node), "--nthreads", "1",
         "--no-dashboard", "--death-timeout", "60",
@@ -82,8 +86,8 @@ def nodefile_client(hosts: list[str], processes_per_node: int, timeout: float = 
         client.close()
         cluster.close()
         raise LunarAlbedoError(
-            f"workers on the PBS_NODEFILE nodes did not start within {timeout:.0f} s"
+            f"workers on the node file's hosts did not start within {timeout:.0f} s"
             f"{' (launcher exited on: ' + ', '.join(failed) + ')' if failed else ''}: {exc}; "
-            f"check that `{' '.join(shell)} HOST` works without a password, or set {REMOTE_SHELL_ENV}"
+            f"check that `{' '.join(shell)} HOST` works without a password, or set LUNARALBEDO_REMOTE_SHELL"
         ) from None
     return client, [owned, cluster]

@@ -61,14 +61,15 @@ def tune_malloc() -> bool:
     the C library has no ``mallopt`` (not glibc) or the user set one of its variables: nothing
     changes then.
 
-    Called for in-process runs (one worker, thread pools); worker processes get
-    :data:`MALLOC_ENV` in their environment, which glibc reads at start.  Process-wide: a
-    notebook that ran a solve keeps up to 256 MiB of freed memory for reuse.
+    Called where the run's :class:`~lunaralbedo.runtime.Runtime` asks for it: in worker processes
+    (``tune_workers``: the forkserver of local workers, :mod:`.worker_server`; spawned and remote
+    workers get :data:`MALLOC_ENV` in their environment, which glibc reads at start) and in this
+    process (``tune_process``, for one-worker runs and thread pools; the command line's choice:
+    process-wide, a notebook that ran a solve would keep up to 256 MiB of freed memory for reuse).
+    Whether the user set malloc variables of their own is the caller's to check.
     """
     import ctypes
 
-    if any(k in os.environ for k in MALLOC_ENV):  # the user's own settings win, as with Dask's nanny
-        return False
     try:
         mallopt = ctypes.CDLL(None).mallopt
     except (OSError, AttributeError, TypeError):  # no mallopt (macOS), no CDLL(None) (Windows)
@@ -82,10 +83,8 @@ def tune_malloc() -> bool:
 
 def tune_numpy() -> bool:
     """Apply :data:`NUMPY_ENV` to this process for tile tasks run in it (NumPy reads the variable only
-    when imported); False where the user set ``NUMPY_MADVISE_HUGEPAGE`` (theirs stays in force) or
-    this NumPy has no such switch.  Process-wide, like :func:`tune_malloc`."""
-    if any(k in os.environ for k in NUMPY_ENV):
-        return False
+    when imported); False where this NumPy has no such switch.  Process-wide, like :func:`tune_malloc`
+    (whose callers also decide whether the user's own ``NUMPY_MADVISE_HUGEPAGE`` stands)."""
     import numpy as np
 
     core = getattr(np, "_core", None) or getattr(np, "core", None)  # NumPy 2 / 1
@@ -114,12 +113,18 @@ def trim_malloc() -> bool:
     return bool(trim(0))
 
 
-def worker_config():
+def worker_env(tuned: bool = True) -> dict:
+    """Environment variables of worker processes: :data:`WORKER_ENV`, or only Dask's settings when the
+    workers are not to be tuned (the user's own malloc and NumPy variables then reach them unchanged)."""
+    return dict(WORKER_ENV) if tuned else {k: v for k, v in WORKER_ENV.items() if k not in {**MALLOC_ENV, **NUMPY_ENV}}
+
+
+def worker_config(tuned: bool = True):
     """A ``dask.config.set`` context for starting a scheduler and nanny-started workers: :data:`DASK_CONFIG`
-    (a nanny hands its configuration to its worker) and :data:`WORKER_ENV` in the workers' environment."""
+    (a nanny hands its configuration to its worker) and :func:`worker_env` in the workers' environment."""
     import dask
 
-    return dask.config.set({**DASK_CONFIG, **{f"distributed.nanny.pre-spawn-environ.{k}": v for k, v in WORKER_ENV.items()}})
+    return dask.config.set({**DASK_CONFIG, **{f"distributed.nanny.pre-spawn-environ.{k}": v for k, v in worker_env(tuned).items()}})
 
 
 def available_cpus() -> int:

@@ -4,7 +4,7 @@ Kernels come from two places:
 
 * the label's ``Kernels`` group (what ``spiceinit`` chose), with ISIS variables
   ``$ISISDATA``, ``$base``, ``$<mission>`` resolved against the ISIS data area
-  (``--isisdata`` or the ``ISISDATA`` environment variable: ``$lro/x`` is
+  (``--isisdata``, by default the ``ISISDATA`` environment variable: ``$lro/x`` is
   ``<ISISDATA>/lro/x``); relative paths resolve against the label's folder;
 * ``--kernels`` arguments: kernel files, folders (searched recursively) or
   meta-kernels (``.tm``).
@@ -15,7 +15,6 @@ and on exit so that nothing leaks from one cube (or test) to the next.
 from __future__ import annotations
 
 import contextlib
-import os
 import re
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
@@ -38,9 +37,9 @@ _VAR_RE = re.compile(r"^\$(\{)?([A-Za-z0-9_]+)(?(1)\})")
 
 
 def isisdata_dir(isisdata: str | Path | None = None) -> Path | None:
-    """The ISIS data area: ``isisdata`` if given, else ``$ISISDATA``, else None."""
-    value = isisdata or os.environ.get("ISISDATA")
-    return Path(value).expanduser() if value else None
+    """The ISIS data area ``isisdata`` as a path (None when not given; the command line's ``--isisdata``
+    defaults to ``$ISISDATA``)."""
+    return Path(isisdata).expanduser() if isisdata else None
 
 
 def resolve_isis_path(text: str, isisdata: Path | None, relative_to: Path) -> Path | None:

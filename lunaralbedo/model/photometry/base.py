@@ -70,6 +70,10 @@ class PhotometricModel:
     #: of the layers ``point_layers``; None: the engine uses ``reflectance_from``/``derivatives_from``.
     point: Callable | None = None
     point_layers: tuple[str, ...] = ()
+    #: The iterate kernel's branch that inlines ``point`` (:func:`lunaralbedo.engine.kernels._point` calls the
+    #: model's ``point`` for this number; a numba function cannot be passed as an argument without compiling
+    #: the kernel again in every process); 0: the kernel takes R and dR/dp as arrays.
+    point_kind: int = 0
     #: Files a forward-model scene writes for this model: settings KEY -> (file name, text).
     examples: dict[str, tuple[str, str]] = field(default_factory=dict)
 

@@ -152,6 +152,7 @@ MODEL = PhotometricModel(
     derivatives_from=derivatives_from,
     point=point,
     point_layers=("geometric", "alpha"),
+    point_kind=1,
     settings={"PHASE_COEFF_C1": (float, 1.4, None), "PHASE_COEFF_C2": (float, 0.5, None)},
     initial_keys=("PHASE_COEFF_C1", "PHASE_COEFF_C2"),
     curve=lambda alpha, params: phase_factor(alpha, params[0], params[1]),  # R / G: the phase factor
