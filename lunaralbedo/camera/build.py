@@ -80,6 +80,11 @@ def build_camera(label: IsisLabel, ephemeris, code: int, band: int = 1) -> Camer
         return build_pushframe(label, ephemeris, band)
     if kind == "radar":
         raise IsisError(f"{label.path}: {kind} geometry is not supported for orthoprojection (positions are)")
+    from .lunar import build_lunar_camera
+
+    lunar = build_lunar_camera(label, ephemeris, code)  # Kaguya MI/TC, Clementine UVVIS, Chandrayaan-2 TMC-2
+    if lunar is not None:
+        return lunar
     _b, lines, samples = label.shape
     if is_ideal(label.instrument):  # noproj/nacmosaic output: focal plane from the label, LE frame and timing
         focal, det = spec_from_label(label.instrument).focal_plane(), DetectorMap()
