@@ -185,3 +185,19 @@ def test_camera_vs_raw_ale_differences(realdata, generic, name):
     else:
         offset, tol = ALE_OFFSETS[name]
         assert centre == pytest.approx(offset, abs=tol)
+
+
+def test_backplanes_on_the_mi_label(realdata, generic, tmp_path):
+    """`backplanes` on the MI label (no pixels) with its kernels: at the centre pixel, JAXA's own scene-centre
+    angles from the label (IncidenceAngle 23.386, EmissionAngle 1.891, PhaseAngle 22.528) within 0.01 degree."""
+    import rasterio
+
+    out = tmp_path / "bp.tif"
+    res = CliRunner().invoke(main, ["backplanes", str(MI_LABEL), "--ellipsoid", "--band", "3", "--kernels", str(generic),
+                                    "--kernels", str(MI), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    with rasterio.open(out) as ds:
+        a = ds.read()
+    phase, emission, incidence = (float(a[k, 160, 160]) for k in range(3))
+    assert (incidence, emission, phase) == pytest.approx((23.386, 1.891, 22.528), abs=0.01)
+    assert np.isfinite(a).all()
