@@ -201,3 +201,44 @@ def test_backplanes_on_the_mi_label(realdata, generic, tmp_path):
     phase, emission, incidence = (float(a[k, 160, 160]) for k in range(3))
     assert (incidence, emission, phase) == pytest.approx((23.386, 1.891, 22.528), abs=0.01)
     assert np.isfinite(a).all()
+
+
+def test_ingest_mi_label_one_drg_per_band(realdata, generic, tmp_path):
+    """A synthetic cube of the MI label's size (its Instrument, BandBin and Kernels groups; a ramp of
+    known values per band) through `ingest`: one DRG per band with its wavelength, and at the ground
+    points that the ISD sees at chosen pixels (read as ISIS does), each DRG holds that pixel's value."""
+    import rasterio
+    from rasterio.transform import Affine
+    from scipy.ndimage import map_coordinates
+
+    from lunaralbedo.io.geotiff import write_geotiff
+    from lunaralbedo.io.rasters import MOON_CRS
+    from lunaralbedo.isis import read_label
+    from lunaralbedo.isis.write import write_cube
+    from lunaralbedo.model.geometry import lonlat_height
+
+    label = read_label(MI_LABEL)
+    nb, nl, ns = label.shape
+    yy, xx = np.mgrid[1:nl + 1, 1:ns + 1]
+    ramp = lambda b, s, l: 0.1 + 0.02 * b + 1e-4 * s + 2e-4 * l  # noqa: E731 - value of ISIS pixel (s, l) of band b
+    write_cube(tmp_path / "MNA_2B2_01_04192S136E3573.cub", np.stack([ramp(b, xx, yy) for b in range(nb)]),
+               {g: label.group(g) for g in ("Instrument", "BandBin", "Kernels")})
+    write_geotiff(tmp_path / "dem.tif", np.zeros((120, 160), np.float32), Affine(0.01, 0, -3.5, 0, -0.01, -12.9), MOON_CRS,
+                  nodata=-32767.0, dtype="float32")
+    res = CliRunner().invoke(main, ["ingest", str(tmp_path / "MNA_2B2_01_04192S136E3573.cub"), "--dem", str(tmp_path / "dem.tif"),
+                                    "-o", str(tmp_path / "w"), "--mpp", "50", "--kernels", str(generic), "--kernels", str(MI)])
+    assert res.exit_code == 0, res.output
+    isd = load_isd(MI / "kaguyami_isis_isd.json.gz")
+    pixels = [(40.0, 50.0), (250.0, 90.0), (120.0, 280.0), (300.0, 300.0)]  # ISIS (sample, line)
+    lonlat = [lonlat_height(ground_point(isd, l - 0.5, s - 0.5, True)[0][None])[:2] for s, l in pixels]
+    for b, centre in enumerate((1000, 1049, 1248, 1548)):
+        with rasterio.open(tmp_path / "w" / "DRG" / f"MNA_2B2_B{b + 1:02d}.tif") as ds:
+            assert ds.tags(1)["band_center_nm"] == f"{centre}"
+            img, t = ds.read(1), ds.transform
+            cr = [(((float(lo[0]) - 360.0 if lo[0] > 180 else float(lo[0])) - t.c) / t.a, (float(la[0]) - t.f) / t.e)
+                  for lo, la in lonlat]
+            got = map_coordinates(img, [[r - 0.5 for _c, r in cr], [c - 0.5 for c, _r in cr]], order=1)  # bilinear
+        want = [ramp(b, s, l) for s, l in pixels]
+        # 1e-4 per sample, 2e-4 per line: 0.1 px of geolocation would be 2e-5
+        print(f"band {b + 1}: |DRG - pixel value| max {np.abs(np.array(got) - want).max():.2e}")
+        assert np.abs(np.array(got) - want).max() < 2e-5, (got, want)
