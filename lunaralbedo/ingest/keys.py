@@ -35,7 +35,8 @@ def make_keys(paths: Sequence[str | Path]) -> list[str]:
 
 def _bands(path: Path) -> list[float | None]:
     """Band centres (nm) of a Level-1 push-frame or multi-band camera cube (e.g. Kaguya MI; one DRG each),
-    else ``[None]`` (band 1 only)."""
+    ``[centre]`` of a single-band cube of an instrument of ``camera.instruments`` (e.g. a Clementine UVVIS
+    filter), else ``[None]`` (band 1 only)."""
     from ..camera.instruments import MULTIBAND, band_centers_nm, instrument_of
     from ..camera.timing import camera_kind
     from ..errors import LunarAlbedoError
@@ -45,8 +46,9 @@ def _bands(path: Path) -> list[float | None]:
         label = read_label(path)
         if label.is_map_projected or not label.has("Instrument"):
             return [None]
-        if camera_kind(label) != "pushframe" and instrument_of(label) not in MULTIBAND:
-            return [None]
+        name = instrument_of(label)
+        if camera_kind(label) != "pushframe" and name not in MULTIBAND:
+            return band_centers_nm(label)[:1] if name is not None else [None]
         centers = band_centers_nm(label)
         return centers if len(centers) == label.shape[0] else [None]
     except (LunarAlbedoError, KeyError, ValueError, TypeError):

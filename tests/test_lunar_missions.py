@@ -1,8 +1,9 @@
-"""A Kaguya-MI-like forward-model mission through ingest -> solve -> export-kml, recovering the truth.
+"""Kaguya-MI-like (line scanner) and Clementine-UVVIS-like (frame) forward-model missions through ingest -> solve.
 
-The cubes (four NIR bands, MI labels and IK) are rendered by the IK's own line-of-sight formula
-(``simulate.kaguya_mission.ik_look``), not by the camera code that ingest uses (ISIS's
-KaguyaMiCamera chain: CENTER origin, TRANSX/Y, KaguyaMiDistortion, StartTime timing).
+The MI cubes (four NIR bands, MI labels and IK) are rendered by the IK's own line-of-sight formula
+(``simulate.lunar_missions.ik_look``), not by the camera code that ingest uses (ISIS's
+KaguyaMiCamera chain: CENTER origin, TRANSX/Y, KaguyaMiDistortion, StartTime timing); the MI scene
+goes on to export-kml.
 """
 from __future__ import annotations
 
@@ -16,13 +17,13 @@ from lunaralbedo.camera.intersect import ray_sphere
 from lunaralbedo.cli import main
 from lunaralbedo.ingest.observation import open_observation
 from lunaralbedo.simulate import score
-from lunaralbedo.simulate.kaguya_mission import BANDS_NM, GAINS, build, ik_look
+from lunaralbedo.simulate.lunar_missions import BANDS_NM, GAINS, build, ik_look
 
 
 @pytest.fixture(scope="module")
 def mission(tmp_path_factory):
     out = tmp_path_factory.mktemp("kaguya") / "scene"
-    truth = build(out, n_images=3)
+    truth = build(out, "kaguya_mi", n_images=3)
     return out, truth
 
 
@@ -76,3 +77,28 @@ def test_kaguya_mi_ingest_solve_export(mission, tmp_path):
     r = CliRunner().invoke(main, ["export-kml", str(res)])
     assert r.exit_code == 0, r.output
     assert (res / "kml" / "doc.kml").is_file() and (res / "albedo_mosaic.tif").is_file()
+
+
+@pytest.mark.slow
+def test_clementine_uvvis_ingest_solve(tmp_path):
+    """Five UVVIS-like frames (filters A and B: own IK codes, focal lengths, boresights; PP/OD_K/DECENTER
+    distortion): one DRG each with the filter's wavelength; the solve recovers albedo and exposures.
+
+    Measured: albedo relative RMSE 0.25 %, worst exposure error 0.008 % (0.5 % noise).
+    """
+    out = tmp_path / "scene"
+    truth = build(out, "clementine_uvvis", n_images=5)
+    work, res = tmp_path / "work", tmp_path / "res"
+    r = CliRunner().invoke(main, ["ingest", *map(str, sorted((out / "cubes").glob("*.cub"))), "--dem", str(out / "dem"),
+                                  "-o", str(work), "--tile-size", "1"])
+    assert r.exit_code == 0, r.output
+    for key, im in truth["images"].items():
+        with rasterio.open(work / "DRG" / f"{key}.tif") as ds:
+            assert ds.tags(1)["band_center_nm"] == f"{im['band_center_nm']:g}"
+    r = CliRunner().invoke(main, ["solve", str(work / "settings.txt"), "-o", str(res)])
+    assert r.exit_code == 0, r.output
+    sc = score(res, out)
+    print(sc)
+    assert sc["images_compared"] == 5
+    assert sc["albedo_rel_rmse"] < 0.005
+    assert sc["exposure_max_rel_err"] < 0.002
