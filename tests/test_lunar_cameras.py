@@ -8,7 +8,8 @@ raw ale differences are pinned to their documented size.
 """
 from __future__ import annotations
 
-import struct
+
+import shutil
 
 import numpy as np
 import pytest
@@ -242,3 +243,29 @@ def test_ingest_mi_label_one_drg_per_band(realdata, generic, tmp_path):
         # 1e-4 per sample, 2e-4 per line: 0.1 px of geolocation would be 2e-5
         print(f"band {b + 1}: |DRG - pixel value| max {np.abs(np.array(got) - want).max():.2e}")
         assert np.abs(np.array(got) - want).max() < 2e-5, (got, want)
+
+
+# -- bad input ----------------------------------------------------------------------------------
+
+def test_bad_transfer_kernel_is_named(realdata, generic, tmp_path):
+    """A transfer-format SPK cut short: exit 2, one line naming the file, no positions written."""
+    from bad_input_common import assert_clean_failure, cli, truncate
+
+    kdir = tmp_path / "k"
+    shutil.copytree(MI, kdir)
+    bad = kdir / "MNA_2B2_01_04192S136E3573_1.xsp"
+    truncate(bad, 0.5)
+    res = cli("positions", MI_LABEL, "--kernels", generic, "--kernels", kdir, "--sun", tmp_path / "s.txt",
+              "--spacecraft", tmp_path / "c.txt")
+    assert_clean_failure(res, 2, bad.name, "transfer file", absent=tmp_path / "s.txt")
+
+
+def test_mi_without_its_ik_names_the_keyword(realdata, generic, tmp_path):
+    """The MI label with its kernels but without the JAXA IK: backplanes exits 2 naming the missing IK value."""
+    from bad_input_common import assert_clean_failure, cli
+
+    kdir = tmp_path / "k"
+    shutil.copytree(MI, kdir)
+    (kdir / "SEL_MI_V01.TI").unlink()
+    res = cli("backplanes", MI_LABEL, "--ellipsoid", "--kernels", generic, "--kernels", kdir, "-o", tmp_path / "bp.tif")
+    assert_clean_failure(res, 2, MI_LABEL.name, "-131341", absent=tmp_path / "bp.tif")

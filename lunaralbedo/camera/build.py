@@ -9,6 +9,7 @@ from __future__ import annotations
 from ..errors import IsisError, SpiceError
 from ..isis.labels import IsisLabel, value_of
 from .ideal import is_ideal, spec_from_label
+from .lunar import build_lunar_camera
 from .model import CameraModel, DetectorMap
 from .optics import ApolloMetricDistortion, FocalPlane, LroNacDistortion, NoDistortion, RadialOdk
 from .timing import camera_kind, frame_et, is_line_scanner, line_timing, naif_value
@@ -80,8 +81,6 @@ def build_camera(label: IsisLabel, ephemeris, code: int, band: int = 1) -> Camer
         return build_pushframe(label, ephemeris, band)
     if kind == "radar":
         raise IsisError(f"{label.path}: {kind} geometry is not supported for orthoprojection (positions are)")
-    from .lunar import build_lunar_camera
-
     lunar = build_lunar_camera(label, ephemeris, code)  # Kaguya MI/TC, Clementine UVVIS, Chandrayaan-2 TMC-2
     if lunar is not None:
         return lunar
