@@ -94,12 +94,13 @@ def test_write_daf_readable_by_spice(tmp_path):
 
 # -- positions --------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("name", ["kaguya_mi", "clementine_uvvis"])
+@pytest.mark.parametrize("name", ["kaguya_mi", "clementine_uvvis", "chandrayaan2_tmc2"])
 def test_positions_match_ale_isd(realdata, generic, name):
     """Spacecraft within 0.5 km and Sun direction within 1e-4 rad of the ISD at the centre time.
 
     Measured: MI spacecraft 1.6e-12 km, Sun 1.5e-8 rad; UVVIS spacecraft 6.3 m, Sun 2.8e-6 rad
-    (the ISD's body frame is DE403's mean Earth frame, ours MOON_ME of DE421).
+    (the ISD's body frame is DE403's mean Earth frame, ours MOON_ME of DE421); TMC-2 (IAU_MOON
+    both) 2e-10 km, 2e-8 rad.
     """
     label, kernels, isd_path, _ = _cases(realdata, generic)[name]
     isd = load_isd(isd_path)
@@ -269,3 +270,53 @@ def test_mi_without_its_ik_names_the_keyword(realdata, generic, tmp_path):
     (kdir / "SEL_MI_V01.TI").unlink()
     res = cli("backplanes", MI_LABEL, "--ellipsoid", "--kernels", generic, "--kernels", kdir, "-o", tmp_path / "bp.tif")
     assert_clean_failure(res, 2, MI_LABEL.name, "-131341", absent=tmp_path / "bp.tif")
+
+
+def _ik_floats(text: str, key: str) -> list[float]:
+    import re
+
+    m = re.search(re.escape(key) + r"\s*=\s*\(([^)]*)\)", text)
+    return [float(v) for v in m.group(1).replace(",", " ").split()]
+
+
+def test_mi_vis_head_follows_the_ik_formula(realdata, generic, tmp_path):
+    """The VIS head (3 distortion coefficients, 13 um pixels, LISM_MI_V_HEAD): our rays are the JAXA IK's
+    line of sight ``(BORESIGHT_X + sum a_k r^k, BORESIGHT_Y + r + sum b_k r^k, BORESIGHT_Z)`` with
+    ``r = -(n - CENTER) * PIXEL_SIZE`` (values read from the IK text here), to 1e-8 rad, 5e-5 VIS pixels (the camera interpolates
+    its pointing between knots)."""
+    text = MI_LABEL.read_text()
+    for old, new in (("Samples = 320", "Samples = 962"), ("InstrumentId                 = MI-NIR",
+                                                            "InstrumentId                 = MI-VIS"),
+                     ("NaifFrameCode             = -131341", "NaifFrameCode             = -131335")):
+        assert old in text
+        text = text.replace(old, new)
+    label = tmp_path / "MVA_vis.lbl"
+    label.write_text(text)
+    ik = (MI / "SEL_MI_V01.TI").read_text()
+    ax, ay = _ik_floats(ik, "INS-131335_DISTORTION_COEF_X"), _ik_floats(ik, "INS-131335_DISTORTION_COEF_Y")
+    bore = _ik_floats(ik, "INS-131335_BORESIGHT")
+    centre, size = _ik_floats(ik, "INS-131335_CENTER")[0], _ik_floats(ik, "INS-131335_PIXEL_SIZE")[0]
+    assert len(ax) == 3 and size == 0.013
+    with open_observation(label, "V", expand_kernel_args([generic, MI]), source="kernels") as obs:
+        cam = build_camera(obs.label, obs.ephemeris, obs.code)
+        n = np.array([1.0, 200.0, 484.0, 700.0, 962.0])
+        _o, d = cam.rays(n, np.full(5, 100.0))
+        head = np.einsum("ji,nj->ni", obs.ephemeris.camera_to_body(cam.pixel_et(n, np.full(5, 100.0))[0]), d)
+    r = -(n - centre) * size
+    v = np.stack([bore[0] + sum(c * r**k for k, c in enumerate(ax)), bore[1] + r + sum(c * r**k for k, c in enumerate(ay)),
+                  np.full(5, bore[2])], axis=-1)
+    np.testing.assert_allclose(head, v / np.linalg.norm(v, axis=-1, keepdims=True), rtol=0, atol=1e-8)
+
+
+def test_tc_swath_mode_start_sample(realdata, generic, tmp_path):
+    """KaguyaTcCamera's first detector samples: NOMINAL swath pixel s looks where FULL swath pixel s + 296 does."""
+    tc = realdata / "kaguya_tc"
+    text = (tc / "TC1S2B0_01_06691S820E0465_isis3.lbl").read_text()
+    assert "SwathModeId                       = FULL" in text
+    nominal = tmp_path / "nominal.lbl"
+    nominal.write_text(text.replace("SwathModeId                       = FULL", "SwathModeId                       = NOMINAL"))
+    rays = {}
+    for name, path, s in (("full", tc / "TC1S2B0_01_06691S820E0465_isis3.lbl", 396.0), ("nominal", nominal, 100.0)):
+        with open_observation(path, "T", expand_kernel_args([generic, tc]), source="kernels") as obs:
+            rays[name] = build_camera(obs.label, obs.ephemeris, obs.code).rays(np.array([s]), np.array([50.0]))[1]
+    np.testing.assert_allclose(rays["nominal"], rays["full"], rtol=0, atol=1e-12)
