@@ -65,11 +65,7 @@ def detector_map(label: IsisLabel) -> DetectorMap:
     summing = float(value_of(inst.get("SpatialSumming", inst.get("Summing", inst.get("SampleSumming", 1))) or 1))
     line_summing = float(value_of(inst.get("LineSumming", 1)) or 1) if "LineExposureDuration" not in inst else 1.0
     start = float(value_of(inst.get("SampleFirstPixel", 0)) or 0) + 1.0
-    a = label.alpha_cube()
-    if a is None:
-        return DetectorMap(sample_summing=summing, line_summing=line_summing, start_sample=start)
-    s0, l0, s1, l1, ns, nl = a
-    return DetectorMap((s0, (s1 - s0) / ns), (l0, (l1 - l0) / nl), summing, line_summing, start, 1.0)
+    return DetectorMap.from_alpha_cube(label.alpha_cube(), summing, line_summing, start)
 
 
 def build_camera(label: IsisLabel, ephemeris, code: int, band: int = 1) -> CameraModel:

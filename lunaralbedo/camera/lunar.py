@@ -62,11 +62,7 @@ class _Ik:
 
 
 def _detector(label: IsisLabel, start_sample: float = 1.0, summing: float = 1.0) -> DetectorMap:
-    a = label.alpha_cube()
-    if a is None:
-        return DetectorMap(sample_summing=summing, start_sample=start_sample)
-    s0, l0, s1, l1, ns, nl = a
-    return DetectorMap((s0, (s1 - s0) / ns), (l0, (l1 - l0) / nl), summing, 1.0, start_sample, 1.0)
+    return DetectorMap.from_alpha_cube(label.alpha_cube(), summing, 1.0, start_sample)
 
 
 def _line_camera(label, ephemeris, code, focal, det):
