@@ -8,7 +8,7 @@
   through the SCLK kernel when one is loaded (a one-field clock written as a decimal
   number, e.g. Kaguya's ``922997380.174174``, as fractional ticks through ``sct2e``, as ale
   reads it), else ``StartTime``; Kaguya MI as ISIS ``KaguyaMiCamera``: ``StartTime`` and
-  ``CorrectedSamplingInterval``; - except for LRO NAC, which ISIS times from the
+  ``CorrectedSamplingInterval``; Chandrayaan-2 TMC-2 always from ``StartTime``; - except for LRO NAC, which ISIS times from the
   ``SpacecraftClockPrerollCount`` plus ``ADDITIONAL_PREROLL`` lines, with the IK's
   ``MULTIPLI_LINE_ERROR``/``ADDITIVE_LINE_ERROR``/``CONSTANT_TIME_OFFSET``; an ISIS ideal camera
   from its ``EphemerisTime``.
@@ -24,7 +24,7 @@ import spiceypy
 from ..errors import IsisError, SpiceError
 from ..isis.labels import IsisLabel, time_string, value_of
 from ..spice.kernels import pool_value, spice_errors
-from .instruments import KAGUYA_MI, instrument_of
+from .instruments import CHANDRAYAAN2_TMC2, KAGUYA_MI, instrument_of
 from .model import LineTiming
 
 
@@ -116,8 +116,10 @@ def line_timing(label: IsisLabel, code: int | None) -> LineTiming:
     rate = _seconds(inst[next(k for k in LINE_RATE_KEYS if k in inst)], "s" if camera_kind(label) == "radar" else "ms")
     ik = (lambda name, d=0.0: float(naif_value(label, f"INS{code}_{name}", d))) if code is not None else None
     preroll = inst.get("SpacecraftClockPrerollCount")
-    if instrument_of(label) == KAGUYA_MI:  # ISIS KaguyaMiCamera (and ale): StartTime, CorrectedSamplingInterval
-        rate = _seconds(inst.get("CorrectedSamplingInterval", inst[next(k for k in LINE_RATE_KEYS if k in inst)]))
+    name = instrument_of(label)
+    if name in (KAGUYA_MI, CHANDRAYAAN2_TMC2):  # ISIS KaguyaMiCamera, Chandrayaan2TmcCamera: StartTime
+        if name == KAGUYA_MI:
+            rate = _seconds(inst.get("CorrectedSamplingInterval", inst[next(k for k in LINE_RATE_KEYS if k in inst)]))
         et0 = utc_to_et(label, "StartTime")
     elif ik is not None and preroll is not None and naif_value(label, f"INS{code}_ADDITIONAL_PREROLL") is not None:
         rate = rate * (1.0 + ik("MULTIPLI_LINE_ERROR")) + ik("ADDITIVE_LINE_ERROR")
