@@ -9,6 +9,7 @@ from __future__ import annotations
 from ..errors import IsisError, SpiceError
 from ..isis.labels import IsisLabel, value_of
 from .ideal import is_ideal, spec_from_label
+from .lunar import build_lunar_camera
 from .model import CameraModel, DetectorMap
 from .optics import ApolloMetricDistortion, FocalPlane, LroNacDistortion, NoDistortion, RadialOdk
 from .timing import camera_kind, frame_et, is_line_scanner, line_timing, naif_value
@@ -64,11 +65,7 @@ def detector_map(label: IsisLabel) -> DetectorMap:
     summing = float(value_of(inst.get("SpatialSumming", inst.get("Summing", inst.get("SampleSumming", 1))) or 1))
     line_summing = float(value_of(inst.get("LineSumming", 1)) or 1) if "LineExposureDuration" not in inst else 1.0
     start = float(value_of(inst.get("SampleFirstPixel", 0)) or 0) + 1.0
-    a = label.alpha_cube()
-    if a is None:
-        return DetectorMap(sample_summing=summing, line_summing=line_summing, start_sample=start)
-    s0, l0, s1, l1, ns, nl = a
-    return DetectorMap((s0, (s1 - s0) / ns), (l0, (l1 - l0) / nl), summing, line_summing, start, 1.0)
+    return DetectorMap.from_alpha_cube(label.alpha_cube(), summing, line_summing, start)
 
 
 def build_camera(label: IsisLabel, ephemeris, code: int, band: int = 1) -> CameraModel:
@@ -80,6 +77,9 @@ def build_camera(label: IsisLabel, ephemeris, code: int, band: int = 1) -> Camer
         return build_pushframe(label, ephemeris, band)
     if kind == "radar":
         raise IsisError(f"{label.path}: {kind} geometry is not supported for orthoprojection (positions are)")
+    lunar = build_lunar_camera(label, ephemeris, code)  # Kaguya MI/TC, Clementine UVVIS, Chandrayaan-2 TMC-2
+    if lunar is not None:
+        return lunar
     _b, lines, samples = label.shape
     if is_ideal(label.instrument):  # noproj/nacmosaic output: focal plane from the label, LE frame and timing
         focal, det = spec_from_label(label.instrument).focal_plane(), DetectorMap()

@@ -31,6 +31,15 @@ class DetectorMap:
     start_sample: float = 1.0
     start_line: float = 1.0
 
+    @classmethod
+    def from_alpha_cube(cls, alpha_cube, sample_summing: float = 1.0, line_summing: float = 1.0,
+                        start_sample: float = 1.0) -> "DetectorMap":
+        """The map of a cube whose label's AlphaCube is ``alpha_cube`` (``IsisLabel.alpha_cube()``, None: no crop)."""
+        if alpha_cube is None:
+            return cls(sample_summing=sample_summing, line_summing=line_summing, start_sample=start_sample)
+        s0, l0, s1, l1, ns, nl = alpha_cube
+        return cls((s0, (s1 - s0) / ns), (l0, (l1 - l0) / nl), sample_summing, line_summing, start_sample, 1.0)
+
     def alpha(self, sample, line):
         return (self.sample_alpha[0] + (np.asarray(sample) - 0.5) * self.sample_alpha[1],
                 self.line_alpha[0] + (np.asarray(line) - 0.5) * self.line_alpha[1])

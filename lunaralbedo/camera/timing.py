@@ -5,7 +5,10 @@
 * Line scanner: line ``L`` (parent/alpha line, 1-based) is exposed at
   ``et0 + (L - 0.5) * rate`` with ``rate = LineExposureDuration`` or
   ``LineSamplingInterval`` (ms -> s); ``et0`` is ``SpacecraftClockStartCount``
-  through the SCLK kernel when one is loaded, else ``StartTime`` - except for LRO NAC, which ISIS times from the
+  through the SCLK kernel when one is loaded (a one-field clock written as a decimal
+  number, e.g. Kaguya's ``922997380.174174``, as fractional ticks through ``sct2e``, as ale
+  reads it), else ``StartTime``; Kaguya MI as ISIS ``KaguyaMiCamera``: ``StartTime`` and
+  ``CorrectedSamplingInterval``; Chandrayaan-2 TMC-2 always from ``StartTime``; - except for LRO NAC, which ISIS times from the
   ``SpacecraftClockPrerollCount`` plus ``ADDITIONAL_PREROLL`` lines, with the IK's
   ``MULTIPLI_LINE_ERROR``/``ADDITIVE_LINE_ERROR``/``CONSTANT_TIME_OFFSET``; an ISIS ideal camera
   from its ``EphemerisTime``.
@@ -21,6 +24,7 @@ import spiceypy
 from ..errors import IsisError, SpiceError
 from ..isis.labels import IsisLabel, time_string, value_of
 from ..spice.kernels import pool_value, spice_errors
+from .instruments import CHANDRAYAAN2_TMC2, KAGUYA_MI, instrument_of
 from .model import LineTiming
 
 
@@ -76,7 +80,22 @@ def _sclk_et(label: IsisLabel, count: str, code: int) -> float:
     if hexval is not None:
         return struct.unpack("<d", bytes.fromhex(str(hexval)))[0]
     with spice_errors(f"{label.path}: cannot convert clock count {count} of spacecraft {sc} (is its SCLK kernel loaded?)"):
+        if _decimal_ticks(sc, count):  # e.g. Kaguya: one-field clock counted in seconds, "922997380.174174"
+            return float(spiceypy.sct2e(sc, float(count)))
         return float(spiceypy.scs2e(sc, count))
+
+
+def _decimal_ticks(sc: int, count: str) -> bool:
+    """A one-field clock (``SCLK01_N_FIELDS`` = 1) given as a decimal number: ticks with a fraction (ale's reading)."""
+    from ..spice.kernels import pool_value
+
+    if pool_value(f"SCLK01_N_FIELDS_{abs(sc)}") != 1.0:
+        return False
+    try:
+        float(count)
+    except ValueError:
+        return False
+    return "." in count
 
 
 def _has_sclk(sc: int) -> bool:
@@ -97,7 +116,12 @@ def line_timing(label: IsisLabel, code: int | None) -> LineTiming:
     rate = _seconds(inst[next(k for k in LINE_RATE_KEYS if k in inst)], "s" if camera_kind(label) == "radar" else "ms")
     ik = (lambda name, d=0.0: float(naif_value(label, f"INS{code}_{name}", d))) if code is not None else None
     preroll = inst.get("SpacecraftClockPrerollCount")
-    if ik is not None and preroll is not None and naif_value(label, f"INS{code}_ADDITIONAL_PREROLL") is not None:
+    name = instrument_of(label)
+    if name in (KAGUYA_MI, CHANDRAYAAN2_TMC2):  # ISIS KaguyaMiCamera, Chandrayaan2TmcCamera: StartTime
+        if name == KAGUYA_MI:
+            rate = _seconds(inst.get("CorrectedSamplingInterval", inst[next(k for k in LINE_RATE_KEYS if k in inst)]))
+        et0 = utc_to_et(label, "StartTime")
+    elif ik is not None and preroll is not None and naif_value(label, f"INS{code}_ADDITIONAL_PREROLL") is not None:
         rate = rate * (1.0 + ik("MULTIPLI_LINE_ERROR")) + ik("ADDITIVE_LINE_ERROR")
         et0 = _sclk_et(label, str(value_of(preroll)), code) + ik("CONSTANT_TIME_OFFSET") + ik("ADDITIONAL_PREROLL") * rate
     elif "EphemerisTime" in inst:  # ISIS ideal camera (noproj, nacmosaic): ET of the first line's start

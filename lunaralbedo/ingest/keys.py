@@ -34,17 +34,22 @@ def make_keys(paths: Sequence[str | Path]) -> list[str]:
 
 
 def _bands(path: Path) -> list[float | None]:
-    """Band centres (nm) of a Level-1 push-frame cube (one DRG each), else ``[None]`` (band 1 only)."""
+    """Band centres (nm) of a Level-1 push-frame or multi-band camera cube (e.g. Kaguya MI; one DRG each),
+    ``[centre]`` of a single-band cube of an instrument of ``camera.instruments`` (e.g. a Clementine UVVIS
+    filter), else ``[None]`` (band 1 only)."""
+    from ..camera.instruments import MULTIBAND, band_centers_nm, instrument_of
     from ..camera.timing import camera_kind
     from ..errors import LunarAlbedoError
-    from ..isis.labels import read_label, value_of
+    from ..isis.labels import read_label
 
     try:
         label = read_label(path)
-        if label.is_map_projected or not label.has("Instrument") or camera_kind(label) != "pushframe":
+        if label.is_map_projected or not label.has("Instrument"):
             return [None]
-        c = value_of(label.group("BandBin")["Center"])
-        centers = [float(value_of(x)) for x in (c if isinstance(c, (list, tuple)) else [c])]
+        name = instrument_of(label)
+        if camera_kind(label) != "pushframe" and name not in MULTIBAND:
+            return band_centers_nm(label)[:1] if name is not None else [None]
+        centers = band_centers_nm(label)
         return centers if len(centers) == label.shape[0] else [None]
     except (LunarAlbedoError, KeyError, ValueError, TypeError):
         return [None]  # the cube's own task reports what is wrong with it

@@ -53,20 +53,25 @@ def _group(name: str, values: Mapping[str, Any], indent: str = "  ") -> str:
 
 
 def write_cube(path: str | Path, data: np.ndarray, groups: Mapping[str, Mapping[str, Any]]) -> None:
-    """Write a one-band float32 cube with extra label groups (e.g. Instrument, Kernels), atomically."""
+    """Write a float32 cube, ``(lines, samples)`` or ``(bands, lines, samples)``, with extra label groups
+    (e.g. Instrument, Kernels, BandBin), atomically."""
     data = np.asarray(data, dtype="<f4")
-    write_cube_rows(path, data.shape, groups, [data])
+    if data.ndim == 3:
+        write_cube_rows(path, data.shape[1:], groups, list(data), bands=data.shape[0])
+    else:
+        write_cube_rows(path, data.shape, groups, [data])
 
 
 def write_cube_rows(path: str | Path, shape: tuple[int, int], groups: Mapping[str, Mapping[str, Any]],
-                    blocks: Iterable[np.ndarray]) -> None:
-    """:func:`write_cube` from consecutive blocks of lines (``(n, samples)`` arrays, ``shape[0]`` lines in all),
-    so that the image never has to be in memory; atomic (temp file + rename) like :func:`write_cube`."""
+                    blocks: Iterable[np.ndarray], bands: int = 1) -> None:
+    """:func:`write_cube` from consecutive blocks of lines (``(n, samples)`` arrays, ``shape[0]`` lines in all,
+    band after band when ``bands`` > 1), so that the image never has to be in memory; atomic (temp file +
+    rename) like :func:`write_cube`."""
     lines, samples = shape
     core = (
         "Object = IsisCube\n  Object = Core\n"
         f"    StartByte   = {_LABEL_BYTES + 1}\n    Format      = BandSequential\n"
-        + _group("Dimensions", {"Samples": samples, "Lines": lines, "Bands": 1}, "    ")
+        + _group("Dimensions", {"Samples": samples, "Lines": lines, "Bands": bands}, "    ")
         + _group("Pixels", {"Type": "Real", "ByteOrder": "Lsb", "Base": 0.0, "Multiplier": 1.0}, "    ")
         + "  End_Object\n"
     )
@@ -85,5 +90,5 @@ def write_cube_rows(path: str | Path, shape: tuple[int, int], groups: Mapping[st
                 raise ValueError(f"{path}: block of shape {block.shape}, expected (n, {samples})")
             f.write(np.where(np.isfinite(block), block, ISIS_NULL_REAL).astype("<f4").tobytes())
             written += block.shape[0]
-        if written != lines:
-            raise ValueError(f"{path}: {written} lines written, {lines} expected")
+        if written != lines * bands:
+            raise ValueError(f"{path}: {written} lines written, {lines * bands} expected")

@@ -219,6 +219,11 @@ def render(scene: Scene, shot: Shot, p0, vel, m, sun_km, rng, noise: float) -> n
         dirs = _pinhole_dirs(m, ss, np.zeros_like(ll), shot.samples, 0.0)
         t = (ll - 0.5) * shot.line_rate - shot.lines * shot.line_rate / 2.0  # centre line at t = 0
         origins = p0 + vel * t[..., None]
+    return to_radiance(surface_signal(scene, origins, dirs, p0, sun_km, shot.exposure), noise, rng)
+
+
+def surface_signal(scene: Scene, origins, dirs, p0, sun_km, exposure: float) -> np.ndarray:
+    """Noiseless A * T * R(Lunar-Lambert) where rays ``origins + t dirs`` (body-fixed km) meet the scene's DEM."""
     pts = ray_dem(origins, dirs, lambda lo, la: np.nan_to_num(scene.height(lo, la)), tol_m=1e-4)
     lon, lat, _ = lonlat_height(pts)
     g = scene.grid.transform
@@ -229,8 +234,7 @@ def render(scene: Scene, shot: Shot, p0, vel, m, sun_km, rng, noise: float) -> n
     # Photometry with the single per-image spacecraft position (p0) that the solver assumes;
     # only the ray geometry of a line scanner follows the moving spacecraft.
     cos_i, cos_e, alpha = illumination(pts, n, sun_km, p0)
-    img = exposure_signal(bilinear(scene.albedo, col, row), shot.exposure, MODEL.reflectance(cos_i, cos_e, alpha, (C1, C2)))
-    return to_radiance(img, noise, rng)
+    return exposure_signal(bilinear(scene.albedo, col, row), exposure, MODEL.reflectance(cos_i, cos_e, alpha, (C1, C2)))
 
 
 def truth_on_grid(scene: Scene, exposure: float, sun_km, sc_km) -> np.ndarray:

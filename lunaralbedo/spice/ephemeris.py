@@ -150,6 +150,8 @@ class KernelEphemeris(Ephemeris):
         if code is None:
             raise SpiceError(f"{self.where}: no instrument frame (label Kernels group lacks NaifFrameCode)")
         name = spiceypy.frmnam(int(code)) if isinstance(code, int) else str(code)
+        if not name and isinstance(code, int):  # an instrument code that is no frame: its IK's FOV frame (Kaguya MI)
+            name = str(pool_value(f"INS{code}_FOV_FRAME", "")).strip()
         if not name or spiceypy.namfrm(name) == 0:
             raise SpiceError(
                 f"{self.where}: unknown instrument frame {code} (load the frames kernel that defines it; {self.describe})"
@@ -180,8 +182,28 @@ class KernelEphemeris(Ephemeris):
     def sun(self, et):
         return interp.apply(self.body_rotation(et), self._position("SUN", et))
 
+    def corrections(self) -> tuple[str, bool]:
+        """ISIS's aberration correction of the spacecraft position: the IAK's ``INS<code>_LIGHTTIME_CORRECTION``
+        and ``INS<code>_SWAP_OBSERVER_TARGET`` (ISIS ``SpicePosition``), else ``LT+S`` seen from the Moon."""
+        code = self._instrument_frame
+        if not isinstance(code, int):
+            return "LT+S", False
+        corr = str(pool_value(f"INS{code}_LIGHTTIME_CORRECTION", "LT+S")).strip().upper()
+        swap = str(pool_value(f"INS{code}_SWAP_OBSERVER_TARGET", "FALSE")).strip().upper() == "TRUE"
+        return corr, swap
+
     def spacecraft(self, et):
-        return interp.apply(self.body_rotation(et), self._position(self.spacecraft_id, et))
+        corr, swap = self.corrections()
+        if not swap and corr == "LT+S":
+            return interp.apply(self.body_rotation(et), self._position(self.spacecraft_id, et))
+
+        def one(t):
+            with spice_errors(self._ctx(f"{self.spacecraft_id} position relative to MOON ({corr})", t)):
+                if swap:  # the Moon seen from the spacecraft, reversed
+                    return -np.asarray(spiceypy.spkpos("MOON", t, "J2000", corr, self.spacecraft_id)[0])
+                return np.asarray(spiceypy.spkpos(self.spacecraft_id, t, "J2000", corr, "MOON")[0])
+
+        return interp.apply(self.body_rotation(et), self._each(et, one, (3,)))
 
     def _rotation(self, frame: str, et):
         def one(t):

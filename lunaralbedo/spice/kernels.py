@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import re
+import tempfile
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
 
@@ -25,7 +26,8 @@ from spiceypy.utils.exceptions import SpiceyError
 from ..errors import SpiceError
 
 #: Load order for a folder of kernels: text kernels first, then binary ones.
-_ORDER = {".tls": 0, ".tpc": 1, ".tsc": 2, ".tf": 3, ".ti": 4, ".bpc": 5, ".bsp": 6, ".bc": 7, ".tm": 8}
+_ORDER = {".tls": 0, ".tpc": 1, ".tsc": 2, ".tf": 3, ".ti": 4, ".bpc": 5, ".bsp": 6, ".bc": 7, ".tm": 8,
+          ".xpc": 5, ".xsp": 6, ".xc": 7, ".xbc": 7, ".xfr": 7}  # transfer files: converted when loaded
 KERNEL_SUFFIXES = tuple(_ORDER)
 #: Kernels group keywords that name kernels (in ISIS's load order).
 LABEL_KEYS = (
@@ -115,21 +117,42 @@ def spice_errors(context: str) -> Iterator[None]:
 
 
 class KernelPool:
-    """Context manager: a cleared spiceypy pool with ``kernels`` furnished, cleared again on exit."""
+    """Context manager: a cleared spiceypy pool with ``kernels`` furnished, cleared again on exit.
+
+    DAF transfer files (``.xsp``, ``.xc``, ... as ale's test data and NAIF's archives ship them)
+    are converted to binary in a temporary folder for the pool's lifetime (``spice.transfer``).
+    """
 
     def __init__(self, kernels: Sequence[Path], missing: Sequence[str] = ()):
         self.kernels = list(kernels)
         self.missing = list(missing)
+        self._tmp = None
+
+    def _loadable(self, k: Path) -> Path:
+        from .transfer import is_transfer_file, transfer_to_binary
+
+        if not is_transfer_file(k):
+            return k
+        if self._tmp is None:
+            self._tmp = tempfile.TemporaryDirectory(prefix="lunaralbedo-kernels-")
+        return transfer_to_binary(k, Path(self._tmp.name) / f"{len(os.listdir(self._tmp.name))}_{k.stem}.bin")
 
     def __enter__(self) -> "KernelPool":
         spiceypy.kclear()
-        for k in self.kernels:
-            with spice_errors(f"{k}: cannot load kernel"):
-                spiceypy.furnsh(str(k))
+        try:
+            for k in self.kernels:
+                with spice_errors(f"{k}: cannot load kernel"):
+                    spiceypy.furnsh(str(self._loadable(Path(k))))
+        except BaseException:
+            self.__exit__()
+            raise
         return self
 
     def __exit__(self, *exc) -> None:
         spiceypy.kclear()
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
 
     def describe(self) -> str:
         """For error messages: which kernels are loaded and which label kernels were not found."""
