@@ -22,7 +22,6 @@ except ValueError as exc:  # a bad LUNARALBEDO_VECTOR_BITS: say so, and leave nu
     warnings.warn(str(exc), stacklevel=2)
 
 from .errors import LunarAlbedoError  # noqa: E402
-from .settings import Settings, load_settings  # noqa: E402
 
 __all__ = ["__version__", "LunarAlbedoError", "Settings", "load_settings", "solve"]
 
@@ -32,3 +31,13 @@ def solve(*args, **kwargs):
     from .engine.solve import solve as _solve
 
     return _solve(*args, **kwargs)
+
+
+def __getattr__(name: str):
+    """``Settings`` and ``load_settings`` are imported when first used (the photometric registry
+    they read compiles numba kernels; ``lunaralbedo --help`` needs none of it)."""
+    if name in ("Settings", "load_settings"):
+        from . import settings
+
+        return getattr(settings, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ..engine.solve import DEFAULT_TOLERANCE, METHODS
+from ..engine.options import DEFAULT_TOLERANCE, METHODS
 from ._common import parallel_options, reports_errors
 
 

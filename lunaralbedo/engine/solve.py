@@ -35,18 +35,16 @@ from ..parallel import local_workers, make_executor
 from ..parallel.workers import trim_malloc
 from .response import check_resume, known_exposures, lut_digest, move_outputs, report_parts, resolve_response
 from .observations import ROW_PIXEL_BYTES, block_budget
+from .options import DEFAULT_TOLERANCE, METHODS
 from .scene import Scene, build_scene
 from .prepare import WRITER, prepare_tile
 from .tilework import SolveState, finalize_tile, iterate_tile
 
-METHODS = ("overlap", "seed")
 #: Modules local workers import as they start (the tile tasks' own, with NumPy, numba, rasterio).
 WORKER_PRELOAD = ("lunaralbedo.engine.prepare", "lunaralbedo.engine.tilework")
 #: A tile task's fixed cost in observations (~2 ms of a worker's time at ~9 ns per observation),
 #: for sharing the tiles' iterations evenly among workers (:meth:`~lunaralbedo.parallel.DaskExecutor.place`).
 TASK_OBSERVATIONS = 250_000
-#: Early stop: after the first iteration whose Q is within this fraction of the previous Q (docs/solver.md).
-DEFAULT_TOLERANCE = 1e-5
 CHECKPOINT_DIR = "checkpoint"  # everything --resume needs; removed when the run succeeds
 STATE_FILE = f"{CHECKPOINT_DIR}/state.json"
 CACHE_DIR = f"{CHECKPOINT_DIR}/cache"
