@@ -15,7 +15,9 @@ from lunaralbedo.cli import main
 from lunaralbedo.model.grid import Grid
 from lunaralbedo.ingest.keys import make_keys
 from lunaralbedo.ingest.run import ingest
-from lunaralbedo.simulate.mission import Scene, build, truth_on_grid
+from lunaralbedo.model.geometry import body_fixed, dem_normals, illumination
+from lunaralbedo.simulate.forward import exposure_signal
+from lunaralbedo.simulate.mission import C1, C2, MODEL, Scene, build
 from lunaralbedo.io.positions import read_positions
 from lunaralbedo.settings import load_settings
 
@@ -37,6 +39,13 @@ def _scene(sample: Path) -> Scene:
     with rasterio.open(sample / "dem/dem.tif") as ds:
         dem = ds.read(1).astype(float)
     return Scene(Grid(t, alb.shape), dem, alb)
+
+
+def truth_on_grid(scene: Scene, exposure: float, sun_km, sc_km) -> np.ndarray:
+    """A * T * R at the DEM pixel centres (what an ideal DRG holds): eq. 1 on the scene's own albedo and DEM."""
+    pts = body_fixed(*scene.grid.lonlat(), scene.heights)
+    cos_i, cos_e, alpha = illumination(pts, dem_normals(pts), sun_km, sc_km)
+    return exposure_signal(scene.albedo, exposure, MODEL.reflectance(cos_i, cos_e, alpha, (C1, C2)))
 
 
 def _drg_errors(sample: Path, work: Path, key: str, im: dict):

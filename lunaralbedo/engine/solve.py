@@ -77,7 +77,7 @@ def default_out_dir(settings: Settings) -> Path:
     return Path.cwd() / f"albedo_{stem}"
 
 
-def _check_out_dir(out: Path, settings: Settings, resume: bool) -> bool:
+def _check_out_dir(out: Path, settings: Settings) -> bool:
     """Validate OUTDIR; return True when this call creates it."""
     for d in (settings.drg_dir, settings.dem_dir):
         if d is not None and (out == d.resolve() or d.resolve() in out.parents):
@@ -92,9 +92,9 @@ def _check_out_dir(out: Path, settings: Settings, resume: bool) -> bool:
 
 def _clear_previous_run(out: Path) -> None:
     """Remove an earlier run's outputs and checkpoint (called once the inputs are known to be good)."""
-    for name in (*_OUTPUT_DIRS, CHECKPOINT_DIR, ".cache"):
+    for name in (*_OUTPUT_DIRS, CHECKPOINT_DIR):
         shutil.rmtree(out / name, ignore_errors=True)
-    for name in (*_RESULT_FILES, ".state.json"):
+    for name in _RESULT_FILES:
         (out / name).unlink(missing_ok=True)
 
 
@@ -178,7 +178,7 @@ def solve(
     out = Path(out).resolve() if out is not None else default_out_dir(settings)
     max_iter = settings.max_num_iter if max_iter is None else max_iter
     workers = local_workers(workers, settings.num_processes)
-    created = _check_out_dir(out, settings, resume)
+    created = _check_out_dir(out, settings)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     # local workers start while the scene is built (their imports included): ~1.5 s off a 2-worker run

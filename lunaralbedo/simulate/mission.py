@@ -233,13 +233,6 @@ def render(scene: Scene, shot: Shot, p0, vel, m, sun_km, rng, noise: float) -> n
     return to_radiance(img, noise, rng)
 
 
-def truth_on_grid(scene: Scene, exposure: float, sun_km, sc_km) -> np.ndarray:
-    """A * T * R at the DEM pixel centres (what an ideal DRG holds), for round-trip checks."""
-    pts = body_fixed(*scene.grid.lonlat(), scene.heights)
-    cos_i, cos_e, alpha = illumination(pts, dem_normals(pts), sun_km, sc_km)
-    return exposure_signal(scene.albedo, exposure, MODEL.reflectance(cos_i, cos_e, alpha, (C1, C2)))
-
-
 def default_shots(rng, n_frames: int = 5, with_line: bool = False) -> list[Shot]:
     shots = []
     for k in range(n_frames):
