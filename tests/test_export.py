@@ -197,7 +197,7 @@ def test_parallel_output_equals_serial(tmp_path):
 
 
 def test_distributed_client_gives_the_same_output(tmp_path):
-    distributed = pytest.importorskip("distributed")
+    import distributed
     a = make_result(tmp_path / "a" / "run", SIX, n=40)
     b = make_result(tmp_path / "b" / "run", SIX, n=40)
     export_kml(a, tile_size=32, workers=1)
