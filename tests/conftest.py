@@ -62,7 +62,7 @@ def demo_results(tmp_path_factory) -> Path:
 def dask_cluster():
     """One local Dask cluster of 2 single-threaded worker processes, shared by the tests that
     run the engine on real workers (``--scheduler`` its address); closed at the end."""
-    distributed = pytest.importorskip("distributed")
+    import distributed  # a dependency of the package (pyproject): missing, the install is broken and the tests fail
     from lunaralbedo.parallel.workers import worker_config
 
     with worker_config():

@@ -169,3 +169,30 @@ def test_an_unknown_worker_start_method(scene, monkeypatch):
     res, out = solve(scene, ["--workers", "2"])
     msg = assert_clean_failure(res, 2, "LUNARALBEDO_WORKER_START", "'fork'", absent=out)
     assert "forkserver, spawn" in msg
+
+
+def test_dem_cut_short_under_two_local_workers_prints_one_line_and_no_worker_log(scene, tmp_path):
+    """``lunaralbedo solve --workers 2`` in its own process, as a user runs it: the workers' stderr is the
+    terminal's, so a worker's "Compute Failed ... Traceback" log of the typed error (or Dask's warning about
+    a dashboard port held by another cluster, held here on purpose) would show before our line."""
+    import socket
+    import subprocess
+    import sys
+
+    bad = next((scene / "DEM").glob("*.tif"))
+    truncate(bad, 0.5)
+    holder = socket.socket()
+    try:
+        holder.bind(("", 8787))  # Dask's default HTTP port, as another cluster on the machine would hold it
+        holder.listen()
+    except OSError:
+        pass  # already held by something else: the same situation
+    try:
+        proc = subprocess.run([sys.executable, "-m", "lunaralbedo", "solve", str(scene / "settings.txt"), "-o",
+                               str(tmp_path / "out"), "--quiet", "--workers", "2"],
+                              capture_output=True, text=True, timeout=300)
+    finally:
+        holder.close()
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.splitlines() == [proc.stderr.strip()] and proc.stderr.startswith(f"error: {bad}: "), proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout and not (tmp_path / "out").exists()

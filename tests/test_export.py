@@ -43,16 +43,14 @@ def test_kml_reads_back_through_gdal_with_bounds_size_and_values(six):
 
 
 def test_pyramid_pngs_are_compressed_at_the_fast_zlib_level(six):
-    """Every PNG of the pyramid is zlib level PNG_ZLEVEL (3: the "fast" class of the zlib header's FLEVEL
-    bits; GDAL's default 6 is the "default" class), and decodes to the exact RGBA the KML test reads."""
+    """Every PNG of the pyramid, as written, carries the "fast" class of zlib levels (2-5) in its stream
+    header's FLEVEL bits, not the "default" class (6) of GDAL's default level, and is one complete stream."""
     import struct
     import zlib
 
-    from lunaralbedo.export.tiling import PNG_ZLEVEL
-
     root, _ = six
     pngs = sorted((root / "kml").rglob("*.png"))
-    assert pngs and PNG_ZLEVEL == 3
+    assert pngs
     for png in pngs:
         data = png.read_bytes()
         pos, idat = 8, b""
@@ -197,7 +195,7 @@ def test_parallel_output_equals_serial(tmp_path):
 
 
 def test_distributed_client_gives_the_same_output(tmp_path):
-    distributed = pytest.importorskip("distributed")
+    import distributed
     a = make_result(tmp_path / "a" / "run", SIX, n=40)
     b = make_result(tmp_path / "b" / "run", SIX, n=40)
     export_kml(a, tile_size=32, workers=1)

@@ -15,7 +15,9 @@ from lunaralbedo.cli import main
 from lunaralbedo.model.grid import Grid
 from lunaralbedo.ingest.keys import make_keys
 from lunaralbedo.ingest.run import ingest
-from lunaralbedo.simulate.mission import Scene, build, truth_on_grid
+from lunaralbedo.model.geometry import body_fixed, dem_normals, illumination
+from lunaralbedo.simulate.forward import exposure_signal
+from lunaralbedo.simulate.mission import C1, C2, MODEL, Scene, build
 from lunaralbedo.io.positions import read_positions
 from lunaralbedo.settings import load_settings
 
@@ -37,6 +39,13 @@ def _scene(sample: Path) -> Scene:
     with rasterio.open(sample / "dem/dem.tif") as ds:
         dem = ds.read(1).astype(float)
     return Scene(Grid(t, alb.shape), dem, alb)
+
+
+def truth_on_grid(scene: Scene, exposure: float, sun_km, sc_km) -> np.ndarray:
+    """A * T * R at the DEM pixel centres (what an ideal DRG holds): eq. 1 on the scene's own albedo and DEM."""
+    pts = body_fixed(*scene.grid.lonlat(), scene.heights)
+    cos_i, cos_e, alpha = illumination(pts, dem_normals(pts), sun_km, sc_km)
+    return exposure_signal(scene.albedo, exposure, MODEL.reflectance(cos_i, cos_e, alpha, (C1, C2)))
 
 
 def _drg_errors(sample: Path, work: Path, key: str, im: dict):
@@ -89,8 +98,8 @@ def test_sample_data_round_trip(tmp_path):
     assert s.simulation_box == pytest.approx((boxes[:, 0].min(), boxes[:, 2].max(), boxes[:, 1].min(), boxes[:, 3].max()),
                                              abs=1e-5)
     assert "DRG" in (work / "settings.txt").read_text() and str(work) not in (work / "settings.txt").read_text()
-    with rasterio.open(work / "DEM/dem.tif") as ds:
-        assert ds.nodata == -32767 and ds.res == pytest.approx((0.01, 0.01))
+    with rasterio.open(SAMPLE / "dem/dem.tif") as given, rasterio.open(work / "DEM/dem.tif") as ds:
+        assert ds.nodata == -32767 and ds.res == pytest.approx(given.res)  # the DEM's own grid
 
 
 def test_line_scanner_round_trip(tmp_path):
@@ -109,9 +118,14 @@ def test_line_scanner_round_trip(tmp_path):
 
 
 def test_real_nac_crop_orthoprojected_on_ldem(realdata, tmp_path):
-    """The real NAC crop on the LOLA DEM cube (radius values) at 1 m/px: footprint ~0.22 km, I/F preserved."""
+    """The real NAC crop on the LOLA DEM cube (radius values) at 1 m/px: footprint ~0.22 km, I/F preserved
+    (the DRG's mean is the cube's as GDAL reads it: measured 0.10367 against 0.10371), and the settings' box
+    is the DRG's extent."""
+    cube = realdata / "isis/M143947267L.cal.echo.crop.cub"
+    with rasterio.open(cube) as ds:  # GDAL's ISIS3 driver masks the special pixels
+        cube_mean = float(ds.read(1, masked=True).astype(np.float64).mean())
     work = tmp_path / "nac"
-    result = CliRunner().invoke(main, ["ingest", str(realdata / "isis/M143947267L.cal.echo.crop.cub"),
+    result = CliRunner().invoke(main, ["ingest", str(cube),
                                        "--dem", str(realdata / "isis/ldem_4_reduced.cub"), "-o", str(work), "--mpp", "1"])
     assert result.exit_code == 0, result.output
     assert "values are radius" in result.output and "line scanner" in result.output
@@ -119,10 +133,12 @@ def test_real_nac_crop_orthoprojected_on_ldem(realdata, tmp_path):
         v = ds.read(1)
         assert ds.res[0] == pytest.approx(np.degrees(1.0 / 1737400.0))
         w, s, e, n = ds.bounds
+        px = ds.res[0]
     assert 102.59 < w < e < 102.61 and 35.97 < s < n < 35.99
     assert 40000 < np.isfinite(v).sum() < 90000  # ~ 220 m x 240 m at 1 m/px
-    assert np.nanmean(v) == pytest.approx(0.10371, rel=0.01)
-    assert load_settings(work / "settings.txt").simulation_box[0] == pytest.approx(102.5958, abs=1e-3)
+    assert np.nanmean(v) == pytest.approx(cube_mean, rel=0.005)
+    box = load_settings(work / "settings.txt").simulation_box  # lon_min, lon_max, lat_min, lat_max
+    assert np.allclose(box, (w, e, s, n), rtol=0, atol=px)
 
 
 def test_skipped_cubes_are_reported_and_failures_write_nothing(realdata, tmp_path):

@@ -1,13 +1,15 @@
 """ISIS3 labels, tables and pixels of the real cubes in ../shared/realdata (read in place)."""
 from __future__ import annotations
 
+import datetime
+
 import numpy as np
 import pytest
 import rasterio
 
 from lunaralbedo.errors import IsisError
 from lunaralbedo.isis import read_label, read_table
-from lunaralbedo.isis.labels import parse_pvl_file
+from lunaralbedo.isis.pvlfile import read_pvl
 from lunaralbedo.isis.pixels import read_band, read_dem_cube
 from lunaralbedo.model.geometry import radius_to_height
 from lunaralbedo.isis.tables import has_table
@@ -40,15 +42,64 @@ def test_every_real_label_parses(realdata, name):
     assert (label.data_path is None) == name.endswith(".lbl")
 
 
-def test_split_words_and_endgroup_spellings_are_repaired(realdata):
+def _gdal_label(path):
+    """The label as GDAL's ISIS3 driver reads it (its own PVL parser), from its ``json:ISIS3`` metadata."""
+    import json
+
+    with rasterio.open(path) as ds:
+        (head, rest), = ds.tags(ns="json:ISIS3").items()  # one JSON text, split by rasterio at its first ':'
+        return json.loads(f"{head}:{rest}"), (ds.count, ds.height, ds.width)
+
+
+def _same(ours, gdal) -> bool:
+    if isinstance(gdal, dict) and "value" in gdal:  # a value with units
+        gdal = gdal["value"]
+    if isinstance(gdal, list):
+        return isinstance(ours, (list, tuple)) and len(ours) == len(gdal) and all(map(_same, ours, gdal))
+    ours = getattr(ours, "value", ours)
+    if isinstance(ours, (datetime.date, datetime.time)):  # pvl reads ISIS times as datetimes, GDAL keeps the text
+        kind = type(ours)
+        return ours.replace(tzinfo=None) == kind.fromisoformat(str(gdal).removesuffix("Z")).replace(tzinfo=None)
+    if isinstance(gdal, (int, float)) and isinstance(ours, (int, float)):
+        return ours == pytest.approx(gdal, rel=1e-12)
+    return str(ours) == str(gdal)
+
+
+@pytest.mark.parametrize("name", sorted(n for n in CUBES if n.endswith(".cub")))
+def test_labels_read_as_gdal_reads_them(realdata, name):
+    """The package's one PVL reader against GDAL's ISIS3 driver on each real cube: the size of the pixels GDAL
+    opens, and every text or number keyword of the Dimensions, Pixels, Instrument, Kernels and Mapping groups
+    (GDAL writes ISIS's Null as the text 'Null', yes/no words as text, keeps the line breaks of a quoted
+    text and flattens nested sets: those keywords are left out)."""
+    label = read_label(realdata / name)
+    gdal, shape = _gdal_label(realdata / name)
+    assert label.shape == shape
+    compared = 0
+    for group in ("Dimensions", "Pixels", "Instrument", "Kernels", "Mapping"):
+        theirs = gdal["IsisCube"].get("Core", {}).get(group) or gdal["IsisCube"].get(group)
+        if theirs is None:
+            assert not label.has(group)
+            continue
+        ours = label.group(group)
+        for key, value in theirs.items():
+            nested = isinstance(ours.get(key), list) and any(isinstance(v, list) for v in ours[key])
+            if (key.startswith("_") or value == "Null" or "\n" in str(value) or "\\n" in str(value)
+                    or str(value).upper() in ("TRUE", "FALSE") or nested):
+                continue
+            assert _same(ours[key], value), (group, key, ours[key], value)
+            compared += 1
+    assert compared >= 7  # the test pattern's Dimensions and Pixels; 21-44 for the others
+
+
+def test_split_words_and_endgroup_spellings_are_read_by_the_grammar(realdata):
     nac = read_label(realdata / NAC)
     spk = nac.group("Kernels")["InstrumentPosition"]
     assert spk == ["Table", "$lro/kernels/spk/fdf29r_2010305_2010335_v01.bsp"]
     a15 = read_label(realdata / "apollo15_metric/AS15-M-1450_isis3.lbl")
     assert "$apollo15/kernels/tspk/moon_pa_de421_1900-2050.bpc" in a15.group("Kernels")["TargetPosition"]
-    hapke = parse_pvl_file(realdata / "isis/hapke_full_reformatted.pvl")  # EndGroup / EndObject
+    hapke = read_pvl(realdata / "isis/hapke_full_reformatted.pvl")  # EndGroup / EndObject
     assert hapke["PhotometricModel"]["Algorithm"]["Name"] == "HapkeLROC"
-    assert parse_pvl_file(realdata / "isis/NAC_PHO_LROC_Empirical.0003.pvl")
+    assert read_pvl(realdata / "isis/NAC_PHO_LROC_Empirical.0003.pvl")
 
 
 def test_nac_spice_tables(realdata):
@@ -127,3 +178,14 @@ def test_written_cube_reads_back_through_gdal(tmp_path):
     np.testing.assert_allclose(back[~np.isnan(data)], data[~np.isnan(data)], rtol=1e-7)
     with rasterio.open(path) as ds:
         assert ds.driver == "ISIS3" and ds.shape == (3, 4)
+
+
+def test_a_label_that_is_not_pvl_is_one_error_naming_the_file(tmp_path, realdata):
+    """A label cut inside a quoted text: IsisError naming the file; a missing file likewise."""
+    text = (realdata / NAC).read_bytes()[:2000]  # the label, cut off in its first groups
+    bad = tmp_path / "cut.cub"
+    bad.write_bytes(text + b'\n  Name = "a quote that never closes\nEnd\n')
+    with pytest.raises(IsisError, match=r"cut\.cub: cannot parse the ISIS label as PVL"):
+        read_label(bad)
+    with pytest.raises(IsisError, match=r"nothing\.cub: ISIS label not found"):
+        read_label(tmp_path / "nothing.cub")

@@ -539,7 +539,7 @@ def test_discarded_entries_go_at_once_and_are_deleted_in_the_background(tmp_path
     """discard() takes entries out of the cache at once (renamed into the trash folder), deletes them on this
     process's background thread, deletes in place when the trash cannot be made, and never recreates a
     removed run folder."""
-    from lunaralbedo.io.cache import discard, wait_for_discarded
+    from lunaralbedo.io.cache import _deleter, discard
 
     root = tmp_path / "cache"
     blocks = [root / "tile_0E0N" / f"block_{i:04d}" for i in range(3)]
@@ -548,7 +548,7 @@ def test_discarded_entries_go_at_once_and_are_deleted_in_the_background(tmp_path
         save_stack(b, {"x": np.arange(1000, dtype=np.float32)}, {"i": b.name})
     discard([*blocks[:2], root / "tile_0E0N" / "block_0009"], root / ".discarded")  # a missing one is skipped
     assert [p.name for p in (root / "tile_0E0N").iterdir()] == ["block_0002"]
-    wait_for_discarded()
+    _deleter().submit(lambda: None).result()  # the deletions queued before it are done
     assert list((root / ".discarded").iterdir()) == []
     discard([blocks[2]], tmp_path / "gone" / ".discarded")  # no parent for the trash: deleted here and now
     assert not blocks[2].exists() and not (tmp_path / "gone").exists()

@@ -147,3 +147,22 @@ def test_missing_position_names_key_and_file(tmp_path):
     s = parse_legacy(text, tmp_path / "settings.txt")
     with pytest.raises(MissingPositionError, match="AAAA-M-0001.*sun.txt|sun.txt.*AAAA-M-0001"):
         solve_legacy(s, tmp_path / "out", progress=False)
+
+
+@pytest.mark.parametrize("options, named", [
+    (["--method", "seed"], "--method"), (["--workers", "2"], "--workers 2"), (["--resume"], "--resume"),
+    (["--response", "estimate"], "--response"), (["--max-iter", "3", "--tolerance", "0"], "--max-iter, --tolerance"),
+])
+def test_legacy_refuses_options_it_cannot_honour(tmp_path, options, named):
+    """``solve --legacy`` with a solver option PhotometryTK's pipeline has no counterpart of: exit 2, one line
+    naming the option, before anything is read or written (the settings file here does not even exist)."""
+    from click.testing import CliRunner
+
+    from lunaralbedo.cli import main
+
+    res = CliRunner().invoke(main, ["solve", str(tmp_path / "none.txt"), "--legacy", "-o", str(tmp_path / "o"), *options])
+    assert res.exit_code == 2, res.output
+    assert res.output.startswith(f"error: --legacy runs PhotometryTK's pipeline in one process and cannot honour {named}:")
+    assert len(res.output.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
+    ok = CliRunner().invoke(main, ["solve", str(tmp_path / "none.txt"), "--legacy", "--workers", "1"])
+    assert ok.exit_code == 2 and "none.txt" in ok.output and "cannot honour" not in ok.output  # 1 worker is what it does

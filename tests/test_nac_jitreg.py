@@ -12,8 +12,14 @@ from lunaralbedo.cli import main
 from lunaralbedo.io.geotiff import write_geotiff
 from lunaralbedo.isis.write import write_cube
 from lunaralbedo.nac.jitreg import register
-from lunaralbedo.nac.synthetic import WaveTexture, jitter_pair, sinusoid
+from lunaralbedo.nac.synthetic import WaveTexture, jitter_pair
 from rasterio.transform import Affine
+
+
+def sinusoid(lines, mean: float, amplitude: float, period: float, phase: float = 0.0) -> np.ndarray:
+    """A jitter series ``mean + amplitude * sin(2 pi line / period + phase)`` (pixels)."""
+    return mean + amplitude * np.sin(2 * np.pi * np.asarray(lines, dtype=np.float64) / period + phase)
+
 
 LINES, SAMPLES, OVERLAP = 1200, 280, 100
 

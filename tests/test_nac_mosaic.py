@@ -22,6 +22,15 @@ def pair(tmp_path_factory):
     return d, build_pair(d, boresight_error=ERROR, noise=NOISE)
 
 
+@pytest.fixture(scope="module")
+def mosaic_cube(pair):
+    """``nacmosaic`` of the pair (``m.cub`` and ``m-jitreg.json`` beside it), made once for the tests that read it."""
+    d, p = pair
+    res = CliRunner().invoke(main, ["nacmosaic", str(p.le), str(p.re), "-o", str(d / "m.cub")])
+    assert res.exit_code == 0, res.output
+    return d / "m.cub"
+
+
 def _rms_by_region(mosaic, truth, cols, overlap):
     d = (mosaic[:, cols] / truth - 1.0)[12:-12]  # first/last lines: the along-track offset leaves RE short
     rms = np.sqrt(np.nanmean(d ** 2, axis=0))
@@ -29,10 +38,8 @@ def _rms_by_region(mosaic, truth, cols, overlap):
     return rms[cols < a].mean(), rms[(cols >= a) & (cols < b)].mean(), rms[cols >= b].mean()
 
 
-def test_mosaic_is_seamless_and_matches_the_rendered_truth(pair):
+def test_mosaic_is_seamless_and_matches_the_rendered_truth(pair, mosaic_cube):
     d, p = pair
-    res = CliRunner().invoke(main, ["nacmosaic", str(p.le), str(p.re), "-o", str(d / "m.cub")])
-    assert res.exit_code == 0, res.output
     reg = json.loads((d / "m-jitreg.json").read_text())
     # the measured offset is the rendered boresight error (small-angle: pixels of angle = pixels of offset)
     assert reg["sample_offset"] == pytest.approx(ERROR[0], abs=0.1)
@@ -64,11 +71,9 @@ def test_mosaic_is_seamless_and_matches_the_rendered_truth(pair):
     assert re0 > 3 * re_rms
 
 
-def test_mosaic_cube_is_one_observation_for_the_camera_model_and_ingest(pair, tmp_path):
+def test_mosaic_cube_is_one_observation_for_the_camera_model_and_ingest(pair, mosaic_cube, tmp_path):
     """build_camera reads the ideal label; ingest orthoprojects the mosaic like any line scanner."""
     d, p = pair
-    if not (d / "m.cub").exists():
-        pytest.skip("needs the mosaic of the previous test")
     from lunaralbedo.camera.build import build_camera
     from lunaralbedo.camera.intersect import ray_dem
     from lunaralbedo.ingest.observation import open_observation
@@ -105,12 +110,10 @@ def test_ingest_mosaics_the_pair_and_aligns_the_dem(pair, tmp_path):
     assert rep["translation_at_dem_centre"]["horizontal"] < 5.0 and abs(rep["translation_at_dem_centre"]["down"]) < 1.0
 
 
-def test_backplanes_of_the_mosaic_match_the_rendered_geometry(pair, tmp_path):
+def test_backplanes_of_the_mosaic_match_the_rendered_geometry(pair, mosaic_cube, tmp_path):
     """`backplanes` reads the ideal-camera label: angles and lat/lon of every mosaic pixel equal the forward
     model's (the true LE frame and spacecraft path, rays to the same DEM) within 0.001 deg (~0.2 pixel)."""
     d, p = pair
-    if not (d / "m.cub").exists():
-        pytest.skip("needs the mosaic of the first test")
     from lunaralbedo.backplanes.angles import BAND_NAMES, angles, neighbour_normals, planetocentric
     from lunaralbedo.camera.ideal import spec_from_label
     from lunaralbedo.camera.intersect import ray_dem

@@ -73,3 +73,30 @@ def test_the_cast_shadow_dem_of_a_tile_opens_each_dem_file_once(tmp_path, monkey
     whole = read_dem_onto_grid(scene.dems, shadows.transform, shadows.dem.shape, scene.crs,
                                scene.settings.no_dem_data_val)
     assert np.array_equal(shadows.dem, whole, equal_nan=True)
+
+
+def test_open_quietly_reads_an_image_without_a_georeference_silently_and_names_a_bad_file(tmp_path):
+    """``io.guard.open_quietly``: no NotGeoreferencedWarning for a Level-1 image; an unreadable file is
+    one typed error naming it and what it should have been."""
+    import warnings
+
+    import rasterio
+
+    from lunaralbedo.errors import InputError, IsisError
+    from lunaralbedo.io.guard import open_quietly
+
+    plain = tmp_path / "level1.tif"
+    with rasterio.open(plain, "w", driver="GTiff", width=5, height=4, count=1, dtype="float32") as ds:
+        ds.write(np.arange(20, dtype=np.float32).reshape(1, 4, 5))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with open_quietly(plain) as ds:
+            assert ds.read(1)[3, 4] == 19.0
+    bad = tmp_path / "not_a_raster.tif"
+    bad.write_bytes(b"II*\x00" + b"\x00" * 20)
+    with pytest.raises(InputError, match=r"not_a_raster\.tif: cannot open DEM: "):
+        with open_quietly(bad, "DEM"):
+            pass
+    with pytest.raises(IsisError, match="cannot open cube"):
+        with open_quietly(tmp_path / "missing.cub", "cube", IsisError):
+            pass

@@ -173,11 +173,11 @@ def test_pixels_on_grid_are_the_only_ones_the_reader_makes_valid(tmp_path):
 @pytest.mark.parametrize("sun_deg, lat, nan", [((80.0, 4.7), 5.0, True), ((20.3, -60.0), 5.0, True),
                                                ((40.0, 30.0), 5.0, True), ((80.0, 4.7), 5.0, False),
                                                ((70.0, 15.0), 55.0, False), ((-70.0, -10.0), -40.0, True)])
-def test_cast_shadow_pixels_and_skipping_march_equal_the_full_march(sun_deg, lat, nan):
+def test_pixel_march_and_skipping_march_equal_the_full_march(sun_deg, lat, nan):
     """Low Suns from the east, south and west, higher ones, rough terrain, at 5-55 degrees of latitude, with and
     without a hole (the global slope bound applies only without): the same mask as every step of every ray with
     each sample's lon/lat from atan2/asin."""
-    from lunaralbedo.model.cast_shadows import MarchGrid, _skip_steps, cast_shadow_mask, cast_shadow_pixels
+    from lunaralbedo.model.cast_shadows import MarchGrid, _skip_steps, cast_shadow_mask
 
     rng = np.random.default_rng(6)
     tr = Affine(0.01, 0, 20.0, 0, -0.01, lat)
@@ -191,9 +191,9 @@ def test_cast_shadow_pixels_and_skipping_march_equal_the_full_march(sun_deg, lat
     assert np.array_equal(cast_shadow_mask(dem, tr, sun, win, skip=False), full)  # the series lon/lat
     assert np.array_equal(cast_shadow_mask(dem, tr, sun, win), full)
     rows, cols = np.mgrid[10:140, 10:140]
-    assert np.array_equal(cast_shadow_pixels(dem, tr, sun, rows.ravel(), cols.ravel()), full.ravel())
+    assert np.array_equal(MarchGrid(dem, tr).march(sun, rows.ravel(), cols.ravel()), full.ravel())  # pixel by pixel
     d32 = dem.astype(np.float32)  # the solver marches float32 heights: the answers of their float64 values
-    assert np.array_equal(cast_shadow_pixels(d32, tr, sun, rows.ravel(), cols.ravel()),
+    assert np.array_equal(MarchGrid(d32, tr).march(sun, rows.ravel(), cols.ravel()),
                           cast_shadow_mask(d32.astype(np.float64), tr, sun, win, skip=False, exact=True).ravel())
     grid = MarchGrid(dem, tr)
     assert (grid.slope > 0) == (not nan)  # a hole voids the global bound; the pyramid's cells away from it keep theirs

@@ -139,7 +139,6 @@ def test_residual_analysis_describes_the_fit(fit_known, stack):
 
 
 def test_at_least_as_good_as_opencv_where_photon_noise_matters():
-    pytest.importorskip("cv2")
     s = render_stack(n_images=4, exposure_ratio=10.0, shape=(200, 200), seed=1)
     ours = fit_response(R.observations_from_stack(s["dn"], np.ones(s["dn"].shape, bool)), s["exposure"])
     e_ours = curve_error(ours.lut(), s["curve"])[0]

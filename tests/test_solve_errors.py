@@ -8,7 +8,7 @@ import pytest
 from click.testing import CliRunner
 
 from lunaralbedo.cli import main
-from lunaralbedo.simulate import SceneSpec, render_scene
+from lunaralbedo.simulate import SceneSpec, render_scene, score
 
 
 @pytest.fixture(scope="module")
@@ -41,9 +41,13 @@ def assert_fails(res, out, *words):
 
 
 def test_good_scene_runs(scene):
+    """The control of every case below: the scene they break solves, and to its truth (measured: albedo 1.2 %,
+    exposures 0.05 %, 93 % of the truth's pixels after the scene's 2 passes)."""
     res, out = run(scene)
     assert res.exit_code == 0, res.output
-    assert (out / "report.json").exists()
+    sc = score(out, scene)
+    assert sc["images_compared"] == 3 and sc["coverage"] > 0.9, sc
+    assert sc["albedo_rel_rmse"] < 0.025 and sc["exposure_max_rel_err"] < 0.01, sc
 
 
 def test_duplicate_lookup_key_names_both_files(scene):

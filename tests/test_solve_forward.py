@@ -32,11 +32,16 @@ def test_default_method_recovers_truth_within_10_iterations(scene, tmp_path):
     assert sc["exposure_max_rel_err"] < EXPOSURE_TOL, sc
 
 
-def test_seed_method_does_not_reach_the_accuracy_in_10_iterations(scene, tmp_path):
-    solve(scene / "settings.txt", out=tmp_path / "out", method="seed", workers=1, plots=False)
+@pytest.mark.parametrize("scene", [1], ids=["lambert"], indirect=True)
+def test_seed_method_recovers_truth_given_the_passes_it_needs(scene, tmp_path):
+    """The PhotometryTK manual's plain updates (``--method seed``) reach the same truth, slowly: measured
+    albedo 2.6 %, exposures 4.3 % after 10 passes; 1.1 % and 0.08 % after 100.  (With Lunar-Lambert's
+    fitted phase coefficients they settle about 2 % from the truth: 1.9 % and 2.0 % after 200 passes.)"""
+    solve(scene / "settings.txt", out=tmp_path / "out", method="seed", workers=1, plots=False, max_iter=100,
+          tolerance=0.0)
     sc = score(tmp_path / "out", scene)
-    assert sc["albedo_rel_rmse"] > ALBEDO_TOL, sc
-    assert sc["exposure_max_rel_err"] > EXPOSURE_TOL, sc
+    assert sc["albedo_rel_rmse"] < ALBEDO_TOL, sc
+    assert sc["exposure_max_rel_err"] < EXPOSURE_TOL, sc
 
 
 def test_normalized_cost_function_also_converges(tmp_path):

@@ -29,7 +29,7 @@ FLAGS = ("--headless --no-sandbox --disable-gpu --disable-quic --no-first-run --
 
 @pytest.fixture(scope="module")
 def browser():
-    webdriver = pytest.importorskip("selenium.webdriver", reason="needs selenium (pip install '.[test]')")
+    from selenium import webdriver  # a test dependency (pyproject's `test` extra, installed by `make test`)
     from selenium.webdriver.chrome.service import Service
 
     if not CHROMIUM or not CHROMEDRIVER:

@@ -4,7 +4,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-import numpy as np
 
 from ._common import reports_errors
 
@@ -25,6 +24,8 @@ def command(cube, band, dem, ellipsoid, kernels, isisdata, out):
 
     Degrees; planetocentric latitude, longitude 0-360 east; NaN off the body.
     """
+    import numpy as np
+
     from ..backplanes.run import write_backplanes
     from ..errors import InputError
     from ..spice.kernels import expand_kernel_args

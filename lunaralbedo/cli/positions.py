@@ -4,7 +4,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-import numpy as np
 
 from ._common import reports_errors
 
@@ -27,6 +26,8 @@ def command(cubes, kernels, isisdata, source, sun_file, sc_file):
     Positions are at the centre pixel's time, as ISIS campt reports them; KEY is the
     first 11 characters of the file name.  Works on detached labels without pixels.
     """
+    import numpy as np
+
     from ..ingest.positions import compute_positions, write_position_files
 
     results = compute_positions(list(cubes), kernels, isisdata, source)

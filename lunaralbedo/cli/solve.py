@@ -6,8 +6,30 @@ from pathlib import Path
 
 import click
 
-from ..engine.solve import DEFAULT_TOLERANCE, METHODS
+from ..engine.options import DEFAULT_TOLERANCE, METHODS
 from ._common import cli_runtime, parallel_options, reports_errors
+
+
+#: The solver's options that PhotometryTK's pipeline (``--legacy``) has no counterpart of: it runs in one
+#: process with its own updates, MAX_NUM_ITER passes and linear DN, and keeps no checkpoint.
+NOT_LEGACY = ("method", "scheduler", "cluster", "queue", "cores", "memory", "walltime", "jobs", "account", "nodefile", "resume",
+              "skip_missing", "max_iter", "tolerance", "response", "exposure_times")
+
+
+def _check_legacy_options(workers) -> None:
+    """InputError (exit 2) naming each option given with ``--legacy`` that it would silently ignore."""
+    from click.core import ParameterSource
+
+    from ..errors import InputError
+
+    ctx = click.get_current_context()
+    given = [max(p.opts, key=len) for p in ctx.command.params
+             if p.name in NOT_LEGACY and ctx.get_parameter_source(p.name) is ParameterSource.COMMANDLINE]
+    if workers not in (None, 1):
+        given.insert(0, f"--workers {workers}")
+    if given:
+        raise InputError(f"--legacy runs PhotometryTK's pipeline in one process and cannot honour {', '.join(given)}: "
+                         "leave it out or drop --legacy")
 
 
 def _print_summary(result) -> None:
@@ -73,6 +95,8 @@ def command(settings, out, method, legacy, workers, scheduler, cluster, queue, c
     """Solve for the albedo of SETTINGS (legacy PhotometryTK settings file or TOML)."""
     from ..settings import load_settings
 
+    if legacy:
+        _check_legacy_options(workers)
     runtime = cli_runtime(nodefile=str(nodefile) if nodefile else None)  # its variables checked before any work
     s = load_settings(settings)
     if legacy:

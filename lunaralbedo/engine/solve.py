@@ -36,18 +36,16 @@ from ..parallel.workers import trim_malloc
 from ..runtime import Runtime
 from .response import check_resume, known_exposures, lut_digest, move_outputs, report_parts, resolve_response
 from .observations import ROW_PIXEL_BYTES, block_budget
+from .options import DEFAULT_TOLERANCE, METHODS
 from .scene import Scene, build_scene
 from .prepare import WRITER, prepare_tile
 from .tilework import SolveState, finalize_tile, iterate_tile
 
-METHODS = ("overlap", "seed")
 #: Modules local workers import as they start (the tile tasks' own, with NumPy, numba, rasterio).
 WORKER_PRELOAD = ("lunaralbedo.engine.prepare", "lunaralbedo.engine.tilework")
 #: A tile task's fixed cost in observations (~2 ms of a worker's time at ~9 ns per observation),
 #: for sharing the tiles' iterations evenly among workers (:meth:`~lunaralbedo.parallel.DaskExecutor.place`).
 TASK_OBSERVATIONS = 250_000
-#: Early stop: after the first iteration whose Q is within this fraction of the previous Q (docs/solver.md).
-DEFAULT_TOLERANCE = 1e-5
 CHECKPOINT_DIR = "checkpoint"  # everything --resume needs; removed when the run succeeds
 STATE_FILE = f"{CHECKPOINT_DIR}/state.json"
 CACHE_DIR = f"{CHECKPOINT_DIR}/cache"
@@ -80,7 +78,7 @@ def default_out_dir(settings: Settings) -> Path:
     return Path.cwd() / f"albedo_{stem}"
 
 
-def _check_out_dir(out: Path, settings: Settings, resume: bool) -> bool:
+def _check_out_dir(out: Path, settings: Settings) -> bool:
     """Validate OUTDIR; return True when this call creates it."""
     for d in (settings.drg_dir, settings.dem_dir):
         if d is not None and (out == d.resolve() or d.resolve() in out.parents):
@@ -95,9 +93,9 @@ def _check_out_dir(out: Path, settings: Settings, resume: bool) -> bool:
 
 def _clear_previous_run(out: Path) -> None:
     """Remove an earlier run's outputs and checkpoint (called once the inputs are known to be good)."""
-    for name in (*_OUTPUT_DIRS, CHECKPOINT_DIR, ".cache"):
+    for name in (*_OUTPUT_DIRS, CHECKPOINT_DIR):
         shutil.rmtree(out / name, ignore_errors=True)
-    for name in (*_RESULT_FILES, ".state.json"):
+    for name in _RESULT_FILES:
         (out / name).unlink(missing_ok=True)
 
 
@@ -184,7 +182,7 @@ def solve(
     out = Path(out).resolve() if out is not None else default_out_dir(settings)
     max_iter = settings.max_num_iter if max_iter is None else max_iter
     workers = local_workers(workers, settings.num_processes)
-    created = _check_out_dir(out, settings, resume)
+    created = _check_out_dir(out, settings)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     # local workers start while the scene is built (their imports included): ~1.5 s off a 2-worker run

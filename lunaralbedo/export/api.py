@@ -3,8 +3,9 @@
 Task graph (plain functions, run on a local thread/process pool or on a
 ``distributed.Client``):
 
-1. one task per albedo tile samples its valid values -> the shared percentile stretch
-   (skipped with ``value_range``);
+1. the plan shared with ``export-web`` (:func:`.plan.plan_export`): one task per albedo tile
+   samples its valid values -> the shared percentile stretch (skipped with ``value_range``),
+   the data grid and its pyramid;
 2. one task per PNG tile per level: finest-level tiles read the albedo tiles they
    cover, each coarser tile waits only for its (up to 4) children and averages
    them, so a level's tiles run in parallel and the albedo is read once; one task
@@ -22,14 +23,11 @@ import os
 import shutil
 import tempfile
 import time
-import warnings
 from pathlib import Path
 from typing import Iterator, Sequence
 
 import dask
-import numpy as np
 from rasterio.enums import Resampling
-from rasterio.errors import NotGeoreferencedWarning
 
 from ..errors import InputError
 from ..io.atomic import TMP_PREFIX, atomic_write_text, make_readable
@@ -37,14 +35,12 @@ from ..model.grid import Grid
 from ..parallel import local_workers, make_executor
 from .kml import ROOT_NAME, KmlTileWriter
 from .mosaic import assemble_cog, block_grids, write_mosaic_block, write_sub4
-from .extent import clip, crop_grid, scan_tile, simulation_box, union
-from .pyramid import plan_pyramid, present_nodes
+from .extent import clip, crop_grid
+from .plan import albedo_sources, plan_export
 from .sources import Source, find_sources, native_grid
-from .stretch import stretch_from_range, stretch_from_values
-from .tiling import covering, level_resampling, pyramid_children, pyramid_tasks
+from .tiling import compute_tasks, covering, pyramid_tasks
 
 STRETCH_FILE = "stretch.json"
-SAMPLE_BUDGET = 20_000_000  # at most about this many albedo values enter the percentiles
 
 
 @contextlib.contextmanager
@@ -82,17 +78,6 @@ def remove_stale_staging(results_dir: Path) -> int:
     return len(stale)
 
 
-def compute_tasks(tasks: list, executor) -> list:
-    """Compute dask.delayed ``tasks`` on ``executor`` (:func:`lunaralbedo.parallel.make_executor`)."""
-    if not tasks:
-        return []
-    with warnings.catch_warnings():
-        # rasterio silences this warning for its in-memory arrays with catch_warnings,
-        # which is not thread-safe: with threads it leaks out.
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        return executor.compute(tasks)
-
-
 def _mosaic_task(sources: Sequence[Source], grid: Grid, path: Path, scratch: str):
     """One task per 2048-px block of the mosaic, then one that assembles the COG."""
     task = dask.delayed(pure=False)
@@ -101,50 +86,6 @@ def _mosaic_task(sources: Sequence[Source], grid: Grid, path: Path, scratch: str
         for i, (r0, c0, g) in enumerate(block_grids(grid))
     ]
     return task(assemble_cog)(blocks, grid, sources[0].crs_wkt, path)
-
-
-def check_pixel_size(sources: Sequence[Source], folder: Path) -> None:
-    rx, ry = sources[0].res
-    for s in sources[1:]:
-        if abs(s.res[0] - rx) > 1e-6 * rx or abs(s.res[1] - ry) > 1e-6 * ry:
-            raise InputError(
-                f"{folder}: tiles must share one pixel size; {sources[0].path.name} has {rx:g} x {ry:g} "
-                f"degrees but {s.path.name} has {s.res[0]:g} x {s.res[1]:g}"
-            )
-
-
-def scan_sources(sources: Sequence[Source], folder: Path, executor, percentiles=(2.0, 98.0), value_range=None,
-                 what: str = "albedo"):
-    """One task per tile: its valid-data bounds and a sample of its values -> ``(stretch, scans)``.
-
-    The stretch is the one 8-bit stretch of all tiles: ``value_range`` when given, else the
-    percentiles of the valid values (at most about :data:`SAMPLE_BUDGET` of them).
-    ``scans`` are :func:`.extent.scan_tile`'s ``(values, bounds)`` per tile, in order.
-    """
-    budget = 0 if value_range is not None else max(10_000, SAMPLE_BUDGET // len(sources))  # values per tile
-    scans = compute_tasks([dask.delayed(scan_tile, pure=False)(s, budget) for s in sources], executor)
-    if all(b is None for _, b in scans):
-        raise InputError(f"{folder}: the {what} tiles hold no valid pixel (all no-data); nothing to export")
-    if value_range is not None:
-        return stretch_from_range(*value_range), scans
-    return stretch_from_values(np.concatenate([v for v, _ in scans]), tuple(percentiles)), scans
-
-
-def data_grid(results_dir: Path, sources: Sequence[Source], scans) -> tuple[Grid, list[Source], tuple]:
-    """The native grid cropped to the data extent (see :mod:`.extent`), the tiles holding data, the extent.
-
-    Legacy (uint8 + alpha) results keep PhotometryTK's whole-tile bounds.
-    """
-    grid = native_grid(sources)
-    if any(s.legacy for s in sources):
-        return grid, list(sources), grid.bounds
-    extent = union([b for _, b in scans if b is not None])
-    box = simulation_box(results_dir, extent[0])
-    if box is not None:
-        extent = clip(extent, box) or extent
-    grid = crop_grid(grid, extent)
-    kept = [s for s, (_, b) in zip(sources, scans) if b is not None and clip(s.bounds, grid.bounds) is not None]
-    return grid, kept, grid.bounds
 
 
 def _file_grid(src: Source, bounds) -> Grid | None:
@@ -187,19 +128,15 @@ def export_kml(
         raise InputError(f"sub4 resampling must be 'average' or 'nearest', got {sub4_resampling!r}") from None
     t0 = time.perf_counter()
     results_dir = Path(results_dir).expanduser().resolve()
-    albedo_dir = results_dir / "albedo"
-    sources = find_sources(albedo_dir, "albedo")
-    check_pixel_size(sources, albedo_dir)
+    sources = albedo_sources(results_dir)
     error_dir = results_dir / "error"
     errors = find_sources(error_dir, "error") if any(error_dir.glob("tile_*.tif")) else []
     remove_stale_staging(results_dir)
     task = dask.delayed(pure=False)
     with contextlib.closing(make_executor(local_workers(workers), scheduler, client=client, local=pool)) as executor:
-        st, scans = scan_sources(sources, albedo_dir, executor, stretch, value_range)
-        grid, sources, extent = data_grid(results_dir, sources, scans)
-        pyr = plan_pyramid(grid.bounds, grid.shape, tile_size, levels)
-        present = present_nodes(pyr, [clip(s.bounds, grid.bounds) for s in sources])
-        children = pyramid_children(pyr, present)
+        plan = plan_export(results_dir, sources, executor, levels=levels, tile_size=tile_size, stretch=stretch,
+                           value_range=value_range)
+        st, grid, sources, extent, pyr, present = plan.stretch, plan.grid, plan.sources, plan.extent, plan.pyramid, plan.present
 
         label = name or results_dir.name
         with (
@@ -207,8 +144,7 @@ def export_kml(
             staged_dir(results_dir / "albedo_sub4") as sub4_dir,
             tempfile.TemporaryDirectory(prefix=f"{TMP_PREFIX}mosaic-", dir=results_dir) as scratch,
         ):
-            resampling = level_resampling(pyr, pyr.levels - 1, grid)
-            pyramid = pyramid_tasks(kml_dir, pyr, present, children, sources, KmlTileWriter(st, label), resampling)
+            pyramid = pyramid_tasks(kml_dir, plan, sources, KmlTileWriter(st, label))
             sub4 = [task(write_sub4)(s, sub4_dir / s.path.name, sub4_rs, _file_grid(s, grid.bounds)) for s in sources]
             mosaics = [_mosaic_task(sources, grid, results_dir / "albedo_mosaic.tif", scratch)]
             if errors:

@@ -94,18 +94,6 @@ def assemble_cog(blocks: Sequence[dict], grid: Grid, crs_wkt: str, path: str | P
     return {"path": str(path), "width": grid.width, "height": grid.height, "valid_pixels": valid, "overviews": overviews}
 
 
-def write_cog_mosaic(sources: Sequence[Source], grid: Grid, path: str | Path) -> dict:
-    """Mosaic ``sources`` onto ``grid`` and write a COG at ``path``, serially (the API runs the blocks as tasks)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix=TMP_PREFIX, dir=path.parent) as scratch:
-        blocks = [
-            write_mosaic_block(sources, r0, c0, g, Path(scratch) / f"block-{i}.tif")
-            for i, (r0, c0, g) in enumerate(block_grids(grid))
-        ]
-        return assemble_cog(blocks, grid, sources[0].crs_wkt, path)
-
-
 def sub4_shape(height: int, width: int) -> tuple[int, int]:
     """Size of a 1/4-resolution tile (legacy: ``floor(n / 4)``, at least 1)."""
     return max(1, height // 4), max(1, width // 4)

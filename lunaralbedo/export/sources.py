@@ -15,7 +15,6 @@ placed in the widest longitude gap between tiles.  Latitudes are clipped to
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -24,13 +23,12 @@ import numpy as np
 import rasterio
 from rasterio.crs import CRS
 from rasterio.enums import Resampling
-from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 from rasterio.transform import Affine
 from rasterio.warp import reproject
 from rasterio.windows import Window, from_bounds
 
 from ..errors import InputError
-from ..io.guard import raster_errors
+from ..io.guard import open_quietly, raster_errors
 from ..io.rasters import intersects  # noqa: F401  (used here and by the other export modules)
 from ..model.grid import Bounds, Grid
 from ..model.longitude import longitude_shifts  # noqa: F401  (re-exported)
@@ -71,27 +69,15 @@ class Source:
 
 
 def _header(path: Path) -> Source:
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(path) as ds:
-                t = ds.transform
-                if t == Affine.identity() or t.b != 0 or t.d != 0 or t.a <= 0 or t.e >= 0:
-                    raise InputError(f"{path}: tile is not a north-up georeferenced raster")
-                if ds.crs is not None and not ds.crs.is_geographic:
-                    raise InputError(f"{path}: tile CRS must be geographic (lon/lat degrees), got {ds.crs}")
-                legacy = ds.count >= 2 and ds.dtypes[0] == "uint8"
-                return Source(
-                    path=path,
-                    width=ds.width,
-                    height=ds.height,
-                    transform=t,
-                    crs_wkt=ds.crs.to_wkt() if ds.crs is not None else "",
-                    legacy=legacy,
-                    nodata=ds.nodata,
-                )
-    except RasterioIOError as exc:
-        raise InputError(f"{path}: cannot open tile: {exc}") from None
+    with open_quietly(path, "tile") as ds:
+        t = ds.transform
+        if t == Affine.identity() or t.b != 0 or t.d != 0 or t.a <= 0 or t.e >= 0:
+            raise InputError(f"{path}: tile is not a north-up georeferenced raster")
+        if ds.crs is not None and not ds.crs.is_geographic:
+            raise InputError(f"{path}: tile CRS must be geographic (lon/lat degrees), got {ds.crs}")
+        legacy = ds.count >= 2 and ds.dtypes[0] == "uint8"
+        return Source(path=path, width=ds.width, height=ds.height, transform=t,
+                      crs_wkt=ds.crs.to_wkt() if ds.crs is not None else "", legacy=legacy, nodata=ds.nodata)
 
 
 def find_sources(folder: str | Path, what: str = "albedo") -> list[Source]:

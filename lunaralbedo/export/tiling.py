@@ -14,10 +14,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable, Sequence
 
+import warnings
+
 import dask
 import numpy as np
 import rasterio
 from rasterio.enums import ColorInterp, Resampling
+from rasterio.errors import NotGeoreferencedWarning
 
 from ..io.atomic import atomic_path
 from .pyramid import Node, Pyramid
@@ -122,17 +125,30 @@ def level_resampling(pyr: Pyramid, level: int, grid: Grid) -> Resampling:
     return Resampling.nearest if width >= grid.width and height >= grid.height else Resampling.average
 
 
+def compute_tasks(tasks: list, executor) -> list:
+    """Compute dask.delayed ``tasks`` on ``executor`` (:func:`lunaralbedo.parallel.make_executor`)."""
+    if not tasks:
+        return []
+    with warnings.catch_warnings():
+        # rasterio silences this warning for its in-memory arrays with catch_warnings,
+        # which is not thread-safe: with threads it leaks out.
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        return executor.compute(tasks)
+
+
 def covering(sources: Sequence[Source], bounds) -> list[Source]:
     """The sources that overlap ``bounds``."""
     return [s for s in sources if intersects(s.bounds, bounds)]
 
 
-def pyramid_tasks(out_dir, pyr: Pyramid, present, children, sources: Sequence[Source], write: TileWriter, resampling) -> list:
-    """One dask task per written tile: finest level from the sources, each coarser tile from its children.
+def pyramid_tasks(out_dir, plan, sources: Sequence[Source], write: TileWriter) -> list:
+    """One dask task per written tile of ``plan`` (:class:`.plan.ExportPlan`): finest level from the
+    sources, each coarser tile from its children.
 
     Returns ``[root task]``: every written tile is below the root, so computing the
     root computes all of them, and each tile's arrays are freed once its parent has used them.
     """
+    pyr, present, children, resampling = plan.pyramid, plan.present, plan.children, plan.resampling
     task = dask.delayed(pure=False)
     done: dict = {}
     for level in range(pyr.levels - 1, -1, -1):

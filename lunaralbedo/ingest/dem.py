@@ -6,19 +6,17 @@ geographic or projected; lookups go through lon/lat (degrees).
 """
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-import rasterio
 from rasterio.crs import CRS
-from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 from rasterio.transform import Affine
 from rasterio.warp import transform as warp_transform
 
 from ..errors import InputError
+from ..io.guard import open_quietly
 from ..io.rasters import MOON_CRS
 from ..isis.pixels import read_dem_cube
 from ..model.geometry import merge_dem_layers, radius_to_height
@@ -69,14 +67,9 @@ class DemSource:
 
 
 def _read_geotiff(path: Path, mode: str) -> DemSource:
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(path) as ds:
-                arr = ds.read(1, masked=True).astype(np.float64).filled(np.nan)
-                transform, crs = ds.transform, ds.crs
-    except RasterioIOError as exc:
-        raise InputError(f"{path}: cannot open DEM: {exc}") from None
+    with open_quietly(path, "DEM") as ds:
+        arr = ds.read(1, masked=True).astype(np.float64).filled(np.nan)
+        transform, crs = ds.transform, ds.crs
     heights, was_radius = radius_to_height(arr, mode)
     return DemSource(path, heights, transform, crs, was_radius)
 

@@ -60,12 +60,6 @@ def atomic_write_text(path: str | Path, text: str) -> None:
         tmp.write_text(text)
 
 
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically."""
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
-
-
 def remove_stale_temporaries(folder: str | Path) -> int:
     """Delete leftover ``.tmp-*`` files and folders below ``folder`` (from a killed run); return how many."""
     n = 0

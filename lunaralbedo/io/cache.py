@@ -189,11 +189,6 @@ def discard(folders, trash: str | Path) -> None:
             _deleter().submit(shutil.rmtree, gone, ignore_errors=True)
 
 
-def wait_for_discarded() -> None:
-    """Wait until this process's background deletions (:func:`discard`) are done."""
-    _deleter().submit(lambda: None).result()
-
-
 def _stamp(folder: str | Path):
     """Identity of a cache entry on disk (a re-saved entry is a new folder and ``meta.json``), or None."""
     try:

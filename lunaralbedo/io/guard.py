@@ -1,5 +1,9 @@
 """Typed errors where they happen: raster failures naming the file, and output folders checked up front.
 
+``with open_quietly(path, "DEM") as ds:`` is the one way to open a raster for reading: no
+``NotGeoreferencedWarning`` for an image without a georeference (a Level-1 cube, a backplane),
+and a file GDAL cannot open or read becomes one typed error naming it.
+
 ``with raster_errors(path):`` around a read (or ``raster_errors(path, "write")`` around a
 write) turns a truncated or corrupt raster into :class:`~lunaralbedo.errors.InputError`,
 a full disk into :class:`~lunaralbedo.errors.DiskFullError` and any other write failure
@@ -8,10 +12,12 @@ into :class:`~lunaralbedo.errors.OutputError`, each naming ``path``.
 from __future__ import annotations
 
 import contextlib
+import warnings
 from pathlib import Path
 from typing import Iterator
 
-from rasterio.errors import RasterioError
+import rasterio
+from rasterio.errors import NotGeoreferencedWarning, RasterioError, RasterioIOError
 
 from ..errors import DiskFullError, InputError, LunarAlbedoError, OutputError, typed_error
 
@@ -30,6 +36,20 @@ def raster_errors(path: str | Path, action: str = "read") -> Iterator[None]:
         raise
     except (RasterioError, CPLE_BaseError, OSError) as exc:
         raise _raster_error(exc, Path(path), action) from None
+
+
+@contextlib.contextmanager
+def open_quietly(path: str | Path, what: str = "raster", error: type[LunarAlbedoError] = InputError) -> Iterator:
+    """``rasterio.open(path)`` for reading, for the ``with`` block, without GDAL's warning about a missing
+    georeference; a file GDAL cannot open (or a read in the block that fails) raises
+    ``error("<path>: cannot open <what>: <GDAL's reason>")``."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as ds:
+                yield ds
+    except RasterioIOError as exc:
+        raise error(f"{path}: cannot open {what}: {exc}") from None
 
 
 def _raster_error(exc: BaseException, path: Path, action: str) -> LunarAlbedoError:

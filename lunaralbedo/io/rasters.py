@@ -8,7 +8,6 @@ longitudes say -180..-170 is read through the grid moved by 360°.
 """
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -17,7 +16,6 @@ import numpy as np
 import rasterio
 from rasterio.crs import CRS
 from rasterio.enums import Resampling
-from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 from rasterio.transform import Affine
 from rasterio.warp import reproject, transform_bounds
 from rasterio.windows import Window, from_bounds
@@ -25,7 +23,7 @@ from rasterio.windows import Window, from_bounds
 from ..constants import KEY_LENGTH
 from ..errors import DuplicateKeyError, InputError
 from ..model.longitude import overlap_shifts
-from .guard import raster_errors
+from .guard import open_quietly, raster_errors
 from .opened import open_raster
 
 #: GDAL's block cache is per process and by default grows to 5 % of RAM; a solve reads
@@ -105,30 +103,15 @@ def bounds_in(src_crs: CRS | None, dst_crs: CRS | None, bounds) -> tuple[float, 
 def raster_info(path: str | Path, key: str | None = None) -> RasterInfo:
     """Read the header of ``path``; :class:`InputError` naming the file when GDAL cannot open it."""
     path = Path(path)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(path) as ds:
-                if ds.transform == Affine.identity():
-                    raise InputError(f"{path}: raster has no georeferencing (identity transform)")
-                geo = None
-                if ds.crs is not None and not ds.crs.is_geographic:
-                    geo = bounds_in(ds.crs, geographic_crs(ds.crs), ds.bounds)
-                return RasterInfo(
-                    key=key if key is not None else path.name[:KEY_LENGTH],
-                    path=path,
-                    width=ds.width,
-                    height=ds.height,
-                    transform=ds.transform,
-                    crs=ds.crs,
-                    bounds=tuple(ds.bounds),
-                    count=ds.count,
-                    dtype=ds.dtypes[0],
-                    nodata=ds.nodata,
-                    geo_bounds=geo,
-                )
-    except RasterioIOError as exc:
-        raise InputError(f"{path}: cannot open raster: {exc}") from None
+    with open_quietly(path) as ds:
+        if ds.transform == Affine.identity():
+            raise InputError(f"{path}: raster has no georeferencing (identity transform)")
+        geo = None
+        if ds.crs is not None and not ds.crs.is_geographic:
+            geo = bounds_in(ds.crs, geographic_crs(ds.crs), ds.bounds)
+        return RasterInfo(key=key if key is not None else path.name[:KEY_LENGTH], path=path, width=ds.width,
+                          height=ds.height, transform=ds.transform, crs=ds.crs, bounds=tuple(ds.bounds),
+                          count=ds.count, dtype=ds.dtypes[0], nodata=ds.nodata, geo_bounds=geo)
 
 
 def list_rasters(folder: str | Path, what: str = "raster") -> list[Path]:

@@ -1,15 +1,11 @@
 """ISIS3 labels: attached (label at byte 0 of a ``.cub``) or detached (``.lbl``).
 
-Parsed with pvl, after two repairs of what ISIS writes and pvl 1.3 rejects:
-
-* ``EndGroup`` / ``EndObject`` spellings (ISIS accepts them) become ``End_Group`` / ``End_Object``;
-* long unquoted words that ISIS splits with a trailing ``-`` at the end of a line
-  (e.g. ``$lro/kernels/spk/fdf29r_..._v01.b-`` / ``sp``) are joined again.
+Read with the package's one PVL reader, :func:`.pvlfile.read_pvl` (pvl's ISIS grammar, the
+text unedited); :class:`IsisLabel` gives the facts the rest of the package needs.
 """
 from __future__ import annotations
 
 import datetime as _dt
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,32 +13,7 @@ from typing import Any
 import pvl
 
 from ..errors import IsisError
-
-_END_RE = re.compile(rb"^End\s*$", re.MULTILINE)
-_ENDAGG_RE = re.compile(r"^(\s*)End(Group|Object)\b", re.MULTILINE | re.IGNORECASE)
-_HYPHEN_RE = re.compile(r"(?<=[^\s=,(])-\r?\n\s+")
-_MAX_LABEL_BYTES = 4 * 1024 * 1024
-
-
-def repair_pvl_text(text: str) -> str:
-    """Apply the two ISIS-to-pvl repairs described in the module docstring."""
-    text = _ENDAGG_RE.sub(lambda m: f"{m.group(1)}End_{m.group(2).capitalize()}", text)
-    return _HYPHEN_RE.sub("", text)
-
-
-def parse_pvl_file(path: str | Path) -> pvl.PVLModule:
-    """Parse a PVL file (ISIS label, photometric parameter file, ...) tolerantly."""
-    path = Path(path)
-    if not path.is_file():
-        raise IsisError(f"{path}: file not found")
-    with open(path, "rb") as f:
-        head = f.read(_MAX_LABEL_BYTES)
-    m = _END_RE.search(head)
-    raw = head[: m.end()] if m else head
-    try:
-        return pvl.loads(repair_pvl_text(raw.decode("latin-1")))
-    except Exception as exc:  # pvl raises several lexer/parser exception types
-        raise IsisError(f"{path}: cannot parse PVL label: {exc}") from None
+from .pvlfile import read_pvl, value_of  # noqa: F401  (value_of: re-exported for the label's readers)
 
 
 def _find(module: Any, name: str) -> Any | None:
@@ -58,11 +29,6 @@ def _find(module: Any, name: str) -> Any | None:
             if hit is not None:
                 return hit
     return None
-
-
-def value_of(v: Any) -> Any:
-    """Strip pvl units (``Quantity``) and return the bare value."""
-    return getattr(v, "value", v)
 
 
 def time_string(v: Any) -> str:
@@ -197,7 +163,7 @@ class IsisLabel:
 def read_label(path: str | Path) -> IsisLabel:
     """Read the label of an ISIS3 cube (attached) or of a detached ``.lbl`` file."""
     path = Path(path)
-    module = parse_pvl_file(path)
+    module = read_pvl(path, "ISIS label")
     if "IsisCube" not in module:
         raise IsisError(f"{path}: not an ISIS3 cube label (no IsisCube object)")
     return IsisLabel(path=path, pvl=module)

@@ -10,14 +10,12 @@ metres above the 1737.4 km sphere.
 """
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
-import rasterio
-from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 
 from ..errors import IsisError
+from ..io.guard import open_quietly
 from ..model.geometry import radius_to_height
 from .labels import IsisLabel, read_label
 
@@ -58,17 +56,12 @@ def read_rows(label: IsisLabel | str | Path, start: int | None, stop: int | None
     data_path = label.data_path
     if data_path is None:
         raise IsisError(f"{label.path}: label only, the cube has no pixels to read")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(data_path) as ds:
-                if not 1 <= band <= ds.count:
-                    raise IsisError(f"{data_path}: band {band} out of range 1..{ds.count}")
-                window = None if start is None and stop is None else \
-                    Window(0, start or 0, ds.width, (ds.height if stop is None else stop) - (start or 0))
-                stored = ds.read(band, window=window, masked=False)
-    except RasterioIOError as exc:
-        raise IsisError(f"{data_path}: GDAL cannot read the cube: {exc}") from None
+    with open_quietly(data_path, "the cube's pixels", IsisError) as ds:
+        if not 1 <= band <= ds.count:
+            raise IsisError(f"{data_path}: band {band} out of range 1..{ds.count}")
+        window = None if start is None and stop is None else \
+            Window(0, start or 0, ds.width, (ds.height if stop is None else stop) - (start or 0))
+        stored = ds.read(band, window=window, masked=False)
     base, mult = label.base_multiplier
     out = base + mult * stored.astype(np.float64)
     out[special_mask(stored, label.pixel_type)] = np.nan
@@ -77,10 +70,8 @@ def read_rows(label: IsisLabel | str | Path, start: int | None, stop: int | None
 
 def cube_georeference(path: str | Path):
     """``(transform, crs)`` GDAL derives from a map-projected cube's Mapping group."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.open(path) as ds:
-            return ds.transform, ds.crs
+    with open_quietly(path, "cube", IsisError) as ds:
+        return ds.transform, ds.crs
 
 
 def read_dem_cube(path: str | Path, mode: str = "auto"):

@@ -1,13 +1,17 @@
-"""PVL parameter files (ISIS ``PHOPAR``-style) parsed with a grammar that accepts what ISIS writes.
+"""The one PVL reader of the package: ISIS3 labels (attached or detached) and parameter files
+(ISIS ``PHOPAR``-style), parsed with a grammar that accepts what ISIS writes.
 
-ISIS's own PVL reader accepts ``EndGroup`` / ``EndObject`` as well as ``End_Group`` /
-``End_Object``; pvl's strict grammars reject the former.  Rather than editing the
-text, the file is parsed with pvl's :class:`~pvl.grammar.ISISGrammar` and, when that
-fails, with :class:`EndAggregationGrammar` (pvl's permissive ``OmniGrammar`` whose
-aggregation blocks close with ``EndGroup`` / ``EndObject``).
+The text is not edited.  It is parsed with pvl's :class:`~pvl.grammar.ISISGrammar` (which joins
+the long unquoted words ISIS splits with a trailing ``-`` at the end of a line, e.g. a kernel path
+``$lro/kernels/spk/fdf29r_..._v01.b-`` / ``sp``) and, when that fails, with
+:class:`EndAggregationGrammar` (pvl's permissive ``OmniGrammar`` whose aggregation blocks close
+with ``EndGroup`` / ``EndObject``, the spellings ISIS's own reader accepts besides ``End_Group`` /
+``End_Object``).  Of a cube with an attached label only the label is read: the bytes up to its
+``End`` line, at most :data:`MAX_LABEL_BYTES`.
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +19,16 @@ import pvl
 from pvl.grammar import ISISGrammar, OmniGrammar
 
 from ..errors import IsisError
-from .labels import value_of
+
+#: An attached label ends at a line ``End``; the pixels (or tables) follow.
+_END_LINE = re.compile(rb"^End\s*$", re.MULTILINE)
+#: Most bytes read for a label (ISIS labels with their history are a few tens of kB).
+MAX_LABEL_BYTES = 4 * 1024 * 1024
+
+
+def value_of(v: Any) -> Any:
+    """Strip pvl units (``Quantity``) and return the bare value."""
+    return getattr(v, "value", v)
 
 
 class EndAggregationGrammar(OmniGrammar):
@@ -32,19 +45,23 @@ class EndAggregationGrammar(OmniGrammar):
 GRAMMARS = (ISISGrammar, EndAggregationGrammar)
 
 
-def read_pvl(path: str | Path) -> pvl.PVLModule:
-    """Parse a PVL parameter file; :class:`IsisError` naming the file when no grammar accepts it."""
+def read_pvl(path: str | Path, what: str = "PVL file") -> pvl.PVLModule:
+    """Parse a PVL file (an ISIS label, a parameter file); :class:`IsisError` naming the file when it is
+    missing or no grammar accepts it (``what`` names the kind of file in the message)."""
     path = Path(path)
     if not path.is_file():
-        raise IsisError(f"{path}: parameter file not found")
-    text = path.read_text(encoding="latin-1")
+        raise IsisError(f"{path}: {what} not found")
+    with open(path, "rb") as f:
+        head = f.read(MAX_LABEL_BYTES)
+    end = _END_LINE.search(head)
+    text = (head[: end.end()] if end else head).decode("latin-1")
     errors = []
     for grammar in GRAMMARS:
         try:
             return pvl.loads(text, grammar=grammar())
         except Exception as exc:  # pvl raises several lexer/parser exception types
             errors.append(f"{grammar.__name__}: {exc}")
-    raise IsisError(f"{path}: cannot parse PVL ({'; '.join(errors)})")
+    raise IsisError(f"{path}: cannot parse the {what} as PVL ({'; '.join(errors)})")
 
 
 def find_object(module: Any, name: str, where: str):

@@ -5,19 +5,17 @@ Every reader turns an unreadable or unsuitable file into an
 """
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import rasterio
 from rasterio.crs import CRS
-from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 from rasterio.transform import Affine
 
 from ..errors import InputError
 from ..io.atomic import atomic_write_text
 from ..io.geotiff import write_geotiff
+from ..io.guard import open_quietly
 from .vwgeo import Geo
 
 TIF_SUFFIX = ".tif"
@@ -46,19 +44,10 @@ def list_tifs(folder: Path, what: str) -> list[Path]:
     return files
 
 
-def _open(path: Path):
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            return rasterio.open(path)
-    except RasterioIOError as exc:
-        raise InputError(f"{path}: cannot open raster: {exc}") from None
-
-
 def read_header(path: Path) -> Header:
     """Georeference and format of ``path``; InputError if it is not a north-up georeferenced raster."""
     path = Path(path)
-    with _open(path) as ds:
+    with open_quietly(path) as ds:
         if ds.transform == Affine.identity():
             raise InputError(f"{path}: raster has no georeferencing")
         try:
@@ -75,7 +64,7 @@ def read_drg(path: Path) -> tuple[np.ndarray, np.ndarray]:
     is the alpha mask (0 = invalid), and a nodata value, if any, is invalid too.
     """
     path = Path(path)
-    with _open(path) as ds:
+    with open_quietly(path) as ds:
         if ds.dtypes[0] != "uint8":
             raise InputError(f"{path}: the legacy program requires uint8 DRG images, this one is {ds.dtypes[0]}")
         data = ds.read(1)
@@ -90,7 +79,7 @@ def read_drg(path: Path) -> tuple[np.ndarray, np.ndarray]:
 def read_dem(path: Path, default_nodata: float) -> tuple[np.ndarray, float]:
     """``(heights float32, nodata)``; the file's own nodata wins over the settings value."""
     path = Path(path)
-    with _open(path) as ds:
+    with open_quietly(path) as ds:
         if ds.dtypes[0] not in ("int16", "float32", "float64", "int32", "uint16"):
             raise InputError(f"{path}: DEM must be int16 or float, this one is {ds.dtypes[0]}")
         nodata = float(ds.nodata) if ds.nodata is not None else float(default_nodata)

@@ -336,17 +336,3 @@ def cast_shadow_mask(dem_m, transform, sun_km, window=None, *, max_reach_km: flo
     rows, cols = np.mgrid[r0:r1, c0:c1]
     grid = MarchGrid(dem_m, transform, max_reach_km=max_reach_km, step_px=step_px, tolerance_m=tolerance_m)
     return grid.march(sun_km, rows.ravel(), cols.ravel(), skip=skip, exact=exact).reshape(r1 - r0, c1 - c0)
-
-
-def cast_shadow_pixels(dem_m, transform, sun_km, rows, cols, *, grid: MarchGrid | None = None,
-                       max_reach_km: float = MAX_REACH_KM, step_px: float = STEP_PX,
-                       tolerance_m: float = TOLERANCE_M) -> np.ndarray:
-    """:func:`cast_shadow_mask` of the DEM pixels ``(rows[o], cols[o])`` only (1-D bool).
-
-    The same march pixel by pixel, so the answers equal the mask's at those pixels; the
-    solver asks only for pixels that would otherwise be observations.  ``grid``: the
-    :class:`MarchGrid` of ``dem_m`` when the caller keeps one (``dem_m`` and ``transform`` are then unused).
-    """
-    if grid is None:
-        grid = MarchGrid(dem_m, transform, max_reach_km=max_reach_km, step_px=step_px, tolerance_m=tolerance_m)
-    return grid.march(sun_km, rows, cols)

@@ -65,21 +65,6 @@ def seed_exposure(tr_const, r_sum, r_count, dtype=np.float64):
     return np.where(np.isfinite(mean_r) & (mean_r > 0), tr_const / mean_r, float(tr_const))
 
 
-def log_ratio_sums(image, r, usable, index):
-    """Pairwise ``{(j, k): (n, sum d_jk)}`` of one tile's image stacks ``(K, H, W)``, global image ids ``index``.
-
-    ``usable`` marks pixels with positive image value and reflectance that are
-    valid, lit and weighted.  Only pairs with ``j < k`` (global order) are returned.
-    The stacks are reduced to compact observations and passed to :func:`pair_sums`.
-    """
-    image, r, usable = np.asarray(image), np.asarray(r), np.asarray(usable)
-    parts = [np.flatnonzero(u) for u in usable]
-    pix = np.concatenate(parts) if parts else np.zeros(0, np.int64)
-    start = np.concatenate([[0], np.cumsum([len(p) for p in parts])])
-    flat = usable.reshape(len(usable), -1)
-    return pair_sums(pix, start, image.reshape(flat.shape)[flat], r.reshape(flat.shape)[flat], index)
-
-
 def pair_sums(pix, start, image, r, index, width=None):
     """Pairwise ``{(j, k): (n, sum d_jk)}`` from compact usable observations.
 

@@ -1,7 +1,6 @@
 """Read one image band (GeoTIFF or ISIS3 cube) as float64 with NaN where there is no data."""
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -11,8 +10,7 @@ from ..errors import InputError
 
 def read_image(path: str | Path) -> np.ndarray:
     """Band 1 of ``path``: ISIS special pixels and GDAL nodata become NaN (InputError when unreadable)."""
-    import rasterio
-    from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
+    from ..io.guard import open_quietly
 
     path = Path(path)
     if not path.is_file():
@@ -21,10 +19,5 @@ def read_image(path: str | Path) -> np.ndarray:
         from ..isis.pixels import read_band
 
         return read_band(path, 1)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(path) as ds:
-                return ds.read(1, masked=True).astype(np.float64).filled(np.nan)
-    except RasterioIOError as exc:
-        raise InputError(f"{path}: cannot read the image: {exc}") from None
+    with open_quietly(path, "image") as ds:
+        return ds.read(1, masked=True).astype(np.float64).filled(np.nan)

@@ -39,11 +39,6 @@ class WaveTexture:
         return out
 
 
-def sinusoid(lines, mean: float, amplitude: float, period: float, phase: float = 0.0) -> np.ndarray:
-    """A jitter series ``mean + amplitude * sin(2 pi line / period + phase)`` (pixels)."""
-    return mean + amplitude * np.sin(2 * np.pi * np.asarray(lines, dtype=np.float64) / period + phase)
-
-
 def jitter_pair(texture: WaveTexture, lines: int, samples: int, overlap: int, sample_offset, line_offset,
                 noise: float = 0.01, rng=None):
     """LE (left part) and RE (right part) of one ground texture; NaN outside each CCD.

@@ -56,7 +56,10 @@ def local_cluster(workers: int, memory_limit: str | None, preload: tuple = (), s
             dashboard_address=None,
             memory_limit=memory_limit or "auto",
             silence_logs=40,
-            preload=list(preload),
+            preload=[*preload, "lunaralbedo.parallel.workers"],  # its dask_setup: the workers' log filter
+            # no dashboard, and its HTTP server (health, metrics) on a free port: Dask's default 8787 warns
+            # on stderr when another cluster holds it
+            scheduler_kwargs={"dashboard_address": ":0"},
         )
     return Client(cluster), [cluster]
 

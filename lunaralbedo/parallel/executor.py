@@ -24,7 +24,7 @@ from ..errors import ClusterError, LunarAlbedoError, typed_error
 from . import clusters, forkserver
 from .nodefile import nodefile_client, pbs_nodes
 from ..runtime import Runtime
-from .workers import available_cpus, tune_malloc, tune_numpy
+from .workers import WorkerLogFilter, available_cpus, tune_malloc, tune_numpy
 
 
 #: Tasks per worker of a map whose items have homes (see :meth:`DaskExecutor._submit`).
@@ -279,7 +279,8 @@ def run_task(fn: Callable, item, **kwargs):
     """Run one task on a worker; a failure comes back as its typed error, without its chain.
 
     Dask pickles a task's exception with its ``__context__`` chain, and GDAL's exception
-    classes do not survive that: the client would get a bare ``Exception(repr)``.
+    classes do not survive that: the client would get a bare ``Exception(repr)``.  The worker's
+    own log of a typed error (:class:`~.workers.WorkerLogFilter`) is left out: the command reports it.
     """
     try:
         return fn(item, **kwargs)
@@ -287,6 +288,7 @@ def run_task(fn: Callable, item, **kwargs):
         error = typed_error(exc) or exc
     if isinstance(error, LunarAlbedoError):
         error.__cause__ = error.__context__ = None
+        WorkerLogFilter.install()
     raise error
 
 

@@ -1,7 +1,10 @@
 """Settings of worker processes, shared by every way of starting them (local, PBS_NODEFILE, batch jobs)."""
 from __future__ import annotations
 
+import logging
 import os
+
+from ..errors import LunarAlbedoError
 
 #: Dask settings of the scheduler, nannies and workers.  Dask's defaults serve its dashboard,
 #: which these runs do not start: a statistical profiler sampling every worker's task thread
@@ -141,3 +144,59 @@ def local_workers(requested: int | None, default: int | None = None) -> int:
         return max(1, int(requested))
     cpus = os.cpu_count() or 1
     return max(1, min(default, cpus)) if default is not None else cpus
+
+
+class WorkerLogFilter(logging.Filter):
+    """Leaves out of a Dask worker's log what only repeats, or follows from, the command's own one-line report.
+
+    * the "Compute Failed" record (the task, its exception and a traceback) of a task whose exception is
+      one of ours (:class:`~lunaralbedo.errors.LunarAlbedoError`): the client raises it and the command
+      prints it on one line (the records of any other failure, a bug, are kept);
+    * on a local cluster (``local``), "Failed to communicate with scheduler during heartbeat": its
+      scheduler lives in the command's own process, so it is gone only when the command ends (a worker's
+      heartbeat racing the cluster's close after an error).
+
+    Installed on the ``distributed.worker`` logger of a worker process: by :func:`dask_setup` as a local
+    worker starts, by :func:`~.executor.run_task` when a task first fails with a typed error.
+    """
+
+    LOGGER = "distributed.worker"
+    HEARTBEAT = "Failed to communicate with scheduler during heartbeat"
+
+    def __init__(self, local: bool = False):
+        super().__init__()
+        self.local = local
+
+    @classmethod
+    def install(cls, local: bool = False) -> None:
+        logger = logging.getLogger(cls.LOGGER)
+        for f in logger.filters:
+            if isinstance(f, cls):
+                f.local = f.local or local
+                return
+        logger.addFilter(cls(local))
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        msg = str(record.msg)
+        if self.local and msg.startswith(self.HEARTBEAT):
+            return False
+        args = record.args if isinstance(record.args, tuple) else ()
+        if not (msg.startswith("Compute Failed") and len(args) > 3):
+            return True
+        name = str(args[3]).split("(", 1)[0]  # the exception's repr: Name('message')
+        return name not in _typed_error_names()
+
+
+def dask_setup(worker) -> None:
+    """Dask's preload hook, run in each worker of a local cluster as it starts (:func:`.clusters.local_cluster`)."""
+    WorkerLogFilter.install(local=True)
+
+
+def _typed_error_names() -> set[str]:
+    """The class names of :class:`~lunaralbedo.errors.LunarAlbedoError` and all its subclasses."""
+    names, todo = set(), [LunarAlbedoError]
+    while todo:
+        cls = todo.pop()
+        names.add(cls.__name__)
+        todo.extend(cls.__subclasses__())
+    return names

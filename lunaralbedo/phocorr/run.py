@@ -12,13 +12,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import rasterio
 from rasterio.errors import NotGeoreferencedWarning
 from rasterio.transform import Affine
 
 from ..backplanes.run import camera_geometry
 from ..errors import InputError, IsisError
 from ..io.geotiff import write_geotiff
+from ..io.guard import open_quietly
 from ..isis.labels import read_label
 from ..isis.pixels import read_band
 from ..isis.parameter_map import read_parameter_map
@@ -61,20 +61,15 @@ def read_backplane(path: str | Path, ground: bool = True) -> dict[str, np.ndarra
     prefer the "Local" bands (what ISIS's ``lrowacphomap`` and ``lronacpho`` read).
     """
     path = Path(path)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        try:
-            with rasterio.open(path) as ds:
-                names = list(ds.descriptions)
-        except rasterio.errors.RasterioIOError as exc:
-            raise InputError(f"{path}: cannot open backplane: {exc}") from None
+    with open_quietly(path, "backplane") as ds:
+        names = list(ds.descriptions)
     if path.suffix.lower() == ".cub":
         label = read_label(path)
         bb = label.group("BandBin", required=False)
         names = [str(n) for n in (bb.get("Name") if bb is not None and "Name" in bb else [])]
         bands = {n: read_band(label, k + 1) for k, n in enumerate(names)}
     else:
-        with rasterio.open(path) as ds:
+        with open_quietly(path, "backplane") as ds:
             bands = {n: ds.read(k + 1).astype(np.float64) for k, n in enumerate(names) if n}
     pick = {}
     wanted = [("phase", ["Phase Angle"]), ("emission", ["Local Emission Angle", "Emission Angle"]),

@@ -237,13 +237,6 @@ def surface_signal(scene: Scene, origins, dirs, p0, sun_km, exposure: float) -> 
     return exposure_signal(bilinear(scene.albedo, col, row), exposure, MODEL.reflectance(cos_i, cos_e, alpha, (C1, C2)))
 
 
-def truth_on_grid(scene: Scene, exposure: float, sun_km, sc_km) -> np.ndarray:
-    """A * T * R at the DEM pixel centres (what an ideal DRG holds), for round-trip checks."""
-    pts = body_fixed(*scene.grid.lonlat(), scene.heights)
-    cos_i, cos_e, alpha = illumination(pts, dem_normals(pts), sun_km, sc_km)
-    return exposure_signal(scene.albedo, exposure, MODEL.reflectance(cos_i, cos_e, alpha, (C1, C2)))
-
-
 def default_shots(rng, n_frames: int = 5, with_line: bool = False) -> list[Shot]:
     shots = []
     for k in range(n_frames):

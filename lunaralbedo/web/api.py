@@ -8,8 +8,8 @@ Layout of the site (``RESULTS_DIR/web/`` by default)::
     tiles/<layer>/<z>/<x>/<y>.png  albedo, error, hillshade: the KML pyramid's layout (export/tiling.py)
     data/*.js                      meta, report, footprints, per-tile values (see :mod:`.data`)
 
-The tiles of every layer are the quadtree of :mod:`..export.pyramid` over the albedo
-tiles (level 0 = one tile of at most ``tile_size`` px; row 0 at the north edge), with
+The tiles of every layer are the quadtree that :func:`..export.plan.plan_export` plans for
+``export-kml`` too (:mod:`..export.pyramid`) over the albedo tiles (level 0 = one tile of at most ``tile_size`` px; row 0 at the north edge), with
 one stretch per layer for all its tiles.  The site is built in a ``.tmp-*`` sibling
 and swapped in at the end.
 """
@@ -25,11 +25,10 @@ import dask
 
 from .. import __version__
 from ..constants import MOON_RADIUS_M
-from ..export.api import check_pixel_size, compute_tasks, data_grid, remove_stale_staging, scan_sources, staged_dir
-from ..export.extent import clip
-from ..export.pyramid import plan_pyramid, present_nodes
+from ..export.api import remove_stale_staging, staged_dir
+from ..export.plan import albedo_sources, plan_export, scan_sources
 from ..export.sources import find_sources
-from ..export.tiling import level_resampling, pyramid_children, pyramid_tasks
+from ..export.tiling import compute_tasks, pyramid_tasks
 from ..io.atomic import atomic_write_text
 from ..parallel import local_workers, make_executor
 from .data import footprints, js_assign, read_exposures, read_report, write_values
@@ -84,8 +83,7 @@ def export_web(
     results_dir = Path(results_dir).expanduser().resolve()
     out = Path(out).expanduser().resolve() if out is not None else results_dir / "web"
     report = read_report(results_dir / "report.json")
-    albedo = find_sources(results_dir / "albedo", "albedo")
-    check_pixel_size(albedo, results_dir / "albedo")
+    albedo = albedo_sources(results_dir)
     errors = _optional_sources(results_dir / "error", "error")
     dem = _optional_sources(results_dir / "DEM", "DEM")
     exposures = read_exposures(results_dir / "exposure.csv")
@@ -94,12 +92,9 @@ def export_web(
     executor = make_executor(local_workers(workers), scheduler, client=client, local=pool)
     with contextlib.closing(executor):
         # the same extent (the data, not whole solver tiles), pyramid and stretch as export-kml
-        st, scans = scan_sources(albedo, results_dir / "albedo", executor, stretch, value_range)
-        grid, albedo, _ = data_grid(results_dir, albedo, scans)
-        pyr = plan_pyramid(grid.bounds, grid.shape, tile_size, levels)
-        present = present_nodes(pyr, [clip(s.bounds, grid.bounds) for s in albedo])
-        children = pyramid_children(pyr, present)
-        resampling = level_resampling(pyr, pyr.levels - 1, grid)
+        plan = plan_export(results_dir, albedo, executor, levels=levels, tile_size=tile_size, stretch=stretch,
+                           value_range=value_range)
+        st, grid, albedo, pyr, present, resampling = plan.stretch, plan.grid, plan.sources, plan.pyramid, plan.present, plan.resampling
         layers = [("albedo", "Albedo", albedo, GrayTiles(st, pyr.tile_size), st)]
         if errors:
             st_err, _ = scan_sources(errors, results_dir / "error", executor, (2.0, 98.0), None, "error")
@@ -113,7 +108,7 @@ def export_web(
         with staged_dir(out) as site:
             tasks = []
             for layer, _, sources, writer, _ in layers:
-                tasks += pyramid_tasks(site / "tiles" / layer, pyr, present, children, sources, writer, resampling)
+                tasks += pyramid_tasks(site / "tiles" / layer, plan, sources, writer)
             value_layers = {"albedo": albedo, "error": errors}
             finest = present[pyr.levels - 1]
             tasks += [task(write_values)(site, node, value_layers, resampling) for node in finest]

@@ -111,12 +111,6 @@ def phase_factor(alpha_rad, c1, c2):
     return _phase(alpha_rad, c1, c2, 1)[0]
 
 
-def phase_factor_derivatives(alpha_rad, c1):
-    r""":math:`(\partial P/\partial c_1, \partial P/\partial c_2) = (-\alpha e^{-c_1\alpha}, 1)` (for eq. 5)."""
-    d1 = _phase(alpha_rad, c1, 0.0, 2)[1]
-    return d1, np.ones_like(d1)
-
-
 def layers(cos_i, cos_e, alpha, lon=None, lat=None):
     """Cached per observation: the bracket of eq. 2 (``geometric``, float32 as cached) and the phase angle (``alpha``,
     radians)."""
