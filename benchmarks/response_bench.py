@@ -21,11 +21,12 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # response_compare: the OpenCV reference
 
-from lunaralbedo.model.response import observations_from_stack  # noqa: E402
-from lunaralbedo.model.response_fit import fit_response  # noqa: E402
-from lunaralbedo.response.compare import curve_error, opencv_response  # noqa: E402
+from lunaralbedo.response.fit import fit_response  # noqa: E402
+from lunaralbedo.response.model import observations_from_stack  # noqa: E402
 from lunaralbedo.response.synthetic import render_stack  # noqa: E402
+from response_compare import curve_error, opencv_response  # noqa: E402
 
 STACKS = {
     "8 exp. x32, 3000 ph": dict(),
@@ -45,7 +46,7 @@ def accuracy(figures: Path | None) -> None:
         print(f"{name:34s} " + " ".join(f"{100 * e:7.2f}%" for e in errs), flush=True)
         if figures and i == 0:
             plot(figures / "response_vs_opencv.png", s, fit, cv)
-            from lunaralbedo.io.response import plot_loglik
+            from lunaralbedo.response.io import plot_loglik
 
             plot_loglik(figures / "response_loglik.png", fit.loglik, fit.n_juggle)
 
@@ -94,7 +95,7 @@ def apollo(photk: Path, figures: Path | None, work: Path = Path("/tmp/response_a
     """Response of the settings-1 DRGs: fit figures, then the albedo solved with and without it."""
     import shutil
 
-    from lunaralbedo.engine.response import response_observations
+    from lunaralbedo.engine.observations import response_observations
     from lunaralbedo.engine.scene import build_scene
     from lunaralbedo.engine.solve import solve
     from lunaralbedo.parallel import make_executor

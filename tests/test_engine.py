@@ -599,7 +599,7 @@ def test_a_cluster_started_in_the_background_runs_early_work_here_and_the_rest_o
 
     scope: dict = {}
     exec(PID_AND_MODULES, scope)
-    fn, module, other = scope["pid_and_modules"], "lunaralbedo.model.exposure_init", "lunaralbedo.model.response_fit"
+    fn, module, other = scope["pid_and_modules"], "lunaralbedo.model.exposure_init", "lunaralbedo.response.fit"
     t0 = time.perf_counter()
     ex = make_executor(2, background=True, preload=(module,))
     returned_after = time.perf_counter() - t0

@@ -9,11 +9,11 @@ from rasterio.transform import Affine
 from lunaralbedo.cli import main
 from lunaralbedo.io.rasters import MOON_CRS
 from lunaralbedo.io.geotiff import write_geotiff
-from lunaralbedo.io.response import read_response_csv
-from lunaralbedo.model import response as R
-from lunaralbedo.model.response_fit import fit_response
-from lunaralbedo.response.compare import curve_error, opencv_response
+from lunaralbedo.response.io import read_response_csv
+from lunaralbedo.response import model as R
+from lunaralbedo.response.fit import fit_response
 from lunaralbedo.response.synthetic import render_stack
+from response_compare import curve_error, opencv_response
 
 TOL = 0.03  # log-RMS over DN 10-245 after one global scale (issue 16)
 
@@ -101,7 +101,7 @@ def test_active_monotonicity_constraints_are_settled_in_finite_steps(stack):
 
 
 def test_choose_gauge_rules():
-    from lunaralbedo.model.response import choose_gauge
+    from lunaralbedo.response.model import choose_gauge
 
     ok, why = choose_gauge(0.70, 0.006, 0.006)  # the synthetic film strip: g ~ z^1.43 in the mid range
     assert ok and "1.43" in why

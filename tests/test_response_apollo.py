@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lunaralbedo.engine.response import response_observations
+from lunaralbedo.engine.observations import response_observations
 from lunaralbedo.engine.scene import build_scene
-from lunaralbedo.model.response_fit import fit_response
+from lunaralbedo.response.fit import fit_response
 from lunaralbedo.parallel import make_executor
 from lunaralbedo.settings import load_settings
 

@@ -141,7 +141,7 @@ def test_identical_for_worker_counts_and_file_reuse(film, estimated, tmp_path):
 
 
 def test_a_stopped_run_resumes_without_refitting_the_response(film, estimated, tmp_path, monkeypatch):
-    import lunaralbedo.engine.response as engine_response
+    import lunaralbedo.response.solve_hook as engine_response
     import lunaralbedo.engine.solve as engine_solve
 
     out, _ = estimated

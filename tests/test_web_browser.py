@@ -212,9 +212,9 @@ def test_report_panel_shows_report_json(served, browser, demo_results):
 def test_report_panel_shows_a_camera_response(served, browser, demo_results):
     """A solve run with ``--response`` adds report.json ``response`` and ``residuals``
     (engine/response.py's format); the panel shows the curve dn -> g and the per-DN residual."""
-    from lunaralbedo.engine.response import report_parts
-    from lunaralbedo.model.response import observations_from_stack
-    from lunaralbedo.model.response_fit import fit_response
+    from lunaralbedo.response.solve_hook import report_parts
+    from lunaralbedo.response.model import observations_from_stack
+    from lunaralbedo.response.fit import fit_response
     from lunaralbedo.response.aligned import fit_report
     from lunaralbedo.response.synthetic import render_stack
 

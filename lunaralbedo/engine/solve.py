@@ -34,8 +34,8 @@ from ..settings import Settings, load_settings
 from ..parallel import local_workers, make_executor
 from ..parallel.workers import trim_malloc
 from ..runtime import Runtime
-from .response import check_resume, known_exposures, lut_digest, move_outputs, report_parts, resolve_response
-from .observations import ROW_PIXEL_BYTES, block_budget
+from ..response.solve_hook import check_resume, known_exposures, lut_digest, move_outputs, report_parts, resolve_response
+from .observations import ROW_PIXEL_BYTES, block_budget, response_observations
 from .options import DEFAULT_TOLERANCE, METHODS
 from .scene import Scene, build_scene
 from .prepare import WRITER, prepare_tile
@@ -50,7 +50,7 @@ CHECKPOINT_DIR = "checkpoint"  # everything --resume needs; removed when the run
 STATE_FILE = f"{CHECKPOINT_DIR}/state.json"
 CACHE_DIR = f"{CHECKPOINT_DIR}/cache"
 TILES_DIR = f"{CHECKPOINT_DIR}/tiles"  # finalised tiles, moved into OUTDIR at the end
-RESPONSE_DIR = f"{CHECKPOINT_DIR}/response"  # camera response files (engine/response.py), moved likewise
+RESPONSE_DIR = f"{CHECKPOINT_DIR}/response"  # camera response files (response/solve_hook.py), moved likewise
 MARKER = ".lunaralbedo"  # written first into every OUTDIR: marks it as ours
 _TILE_DIRS = ("albedo", "error", "DEM", "weightsSum")
 _OUTPUT_DIRS = (*_TILE_DIRS, "weight")
@@ -170,8 +170,8 @@ def solve(
     ``workers`` local processes (default NUM_PROCESSES capped at the CPU count),
     ``scheduler`` (tcp://host:port) or ``cluster`` ("pbs"/"slurm").  Outputs go to
     ``out`` (default ``albedo_<settings stem>``); nothing is written to input folders.
-    ``response``: None (linear DN), ``"estimate"`` or a ``response.csv`` (seed 002, see
-    :mod:`.response`); ``exposure_times``: a ``key,exposure`` CSV that fixes the exposures.
+    ``response``: None (linear DN), ``"estimate"`` or a ``response.csv`` (Kim et al., see
+    :mod:`lunaralbedo.response.solve_hook`); ``exposure_times``: a ``key,exposure`` CSV that fixes the exposures.
     Iterations stop early once ``|Q_n - Q_(n-1)| <= tolerance * Q_n`` (0: run them all).
     ``runtime``: how the run uses the machine (:class:`lunaralbedo.runtime.Runtime`: memory budgets,
     how workers start, a node file); no value of it changes a result.
@@ -229,9 +229,10 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     ck = _load_checkpoint(out, scene, method, resume)
     tiles = list(range(len(scene.tiles)))
     t1 = time.perf_counter()
-    # camera response (seed 002): g for the prepare step, fixed exposures (engine/response.py)
+    # camera response (Kim et al.): g for the prepare step, fixed exposures (response/solve_hook.py)
     t_known = known_exposures(resp[1], scene.keys) if resp[1] is not None else None
-    lut, resp_report = resolve_response(resp[0], scene, executor, out / RESPONSE_DIR, t_known, ck, plots)
+    lut, resp_report = resolve_response(resp[0], lambda: response_observations(scene, executor), scene.keys,
+                                        out / RESPONSE_DIR, t_known, ck, plots)
     check_resume(ck, lut, t_known)
     if lut is not None:  # the cached stacks hold g(DN): one cache per response, never a stale one on --resume
         cache = cache / f"g-{lut_digest(lut)}"

@@ -1,7 +1,7 @@
 """``lunaralbedo response``: the aligned case of seed 002 section 3 (a co-registered stack of one scene).
 
 Reads the images (band 1 DN, the GDAL mask as the seed's D_j), fits g, r and (unless
-given) t by :func:`lunaralbedo.model.response_fit.fit_response` on a deterministic
+given) t by :func:`lunaralbedo.response.fit.fit_response` on a deterministic
 subsample of pixels, computes the radiance of every pixel by eq. 10, and writes into
 OUTDIR: ``response.csv``, ``radiance.tif``, ``exposure.csv`` (when estimated),
 ``report.json`` and the plots ``response.png`` (seed fig. 8), ``exposure.png`` (fig. 9),
@@ -17,10 +17,10 @@ import numpy as np
 
 from ..errors import InputError
 from ..io import outputs
-from ..io import response as rio
+from . import io as rio
 from ..io.geotiff import write_geotiff
-from ..model.response import observations_from_stack, radiance_map
-from ..model.response_fit import ResponseFit, fit_response
+from .fit import ResponseFit, fit_response
+from .model import observations_from_stack, radiance_map
 
 
 @dataclass

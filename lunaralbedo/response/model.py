@@ -18,19 +18,19 @@ of eq. 12 (eq. 13 approximates :math:`\Psi^{-1}` by exp); with the constraint (7
 becomes an isotonic regression of the per-level means of :math:`\ln\mu` followed by
 :math:`\Psi^{-1}` (the separable objective is a Bregman one, so pooling adjacent
 violators in the mean parameter is exact).  Alternating these converges slowly, so
-:func:`~.response_fit.fit_response` maximises the *profile* likelihood :math:`L(g, r^*(g,t), t)` with
+:func:`~.fit.fit_response` maximises the *profile* likelihood :math:`L(g, r^*(g,t), t)` with
 a trust-region Newton method from the alternation's result (eq. 13) as the start
-(:mod:`.response_fit`).
+(:mod:`.fit`).
 
 Gauges.  The continuous Poisson "density" (eq. 4) is not normalised in :math:`x`, so
 eq. 8 does not fix the overall scale of :math:`g` (it grows without bound as
 :math:`g \to 0`).  The fit therefore holds the mean of :math:`\ln g(z_n)` over the observations at
 ``ln FIT_SCALE`` (1000 counts: the Poisson weighting's Gaussian regime, so the shape hardly
-depends on the choice; see :mod:`.response_fit` for why this pin), and the returned :math:`g` is normalised to
+depends on the choice; see :mod:`.fit` for why this pin), and the returned :math:`g` is normalised to
 :math:`g(z_{ref}) = 1` (OpenCV's convention, :math:`z_{ref} = 128`), with :math:`r`
 rescaled so that :math:`g(z) = r\,t\,c` still holds.  With unknown exposure times the
 data also fit :math:`g^\gamma, r^\gamma, t^\gamma` (the exponential ambiguity): see
-:func:`.response_fit.fit_response` (its gauges) and :class:`GeometricSlope`.
+:func:`.fit.fit_response` (its gauges) and :class:`GeometricSlope`.
 """
 from __future__ import annotations
 

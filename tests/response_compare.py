@@ -1,4 +1,4 @@
-"""Side-by-side with OpenCV's ``calibrateDebevec`` / ``calibrateRobertson`` (optional: opencv-python-headless).
+"""Side-by-side with OpenCV's ``calibrateDebevec`` / ``calibrateRobertson`` (the reference methods).
 
 Used by the tests and ``benchmarks/response_bench.py`` on the same synthetic stacks as
 :func:`lunaralbedo.response.synthetic.render_stack`; not part of the product.
@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.response import log_rms_error
+from lunaralbedo.response.model import log_rms_error
 
 #: DN range of the comparison (the issue's figure of merit).
 EVAL_RANGE = (10, 245)

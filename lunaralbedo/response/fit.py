@@ -32,9 +32,9 @@ iterations or ``MAX_PASSES`` passes.  (The earlier log-increment parametrisation
 active bound at :math:`-\infty`: trust-exact never settled on the Apollo DRGs.)
 
 Unknown exposure times: the gauge of the exponential ambiguity, g linear over DN 64-192
-(:func:`.response.gauge_prior`, a linear equality in :math:`S`), is eliminated through its null space;
-:func:`.response.choose_gauge` then decides whether the geometric slope :math:`\beta` of
-:class:`.response.GeometricSlope` replaces it: strong geometry (``GEOMETRY_STRONG``) refits with
+(:func:`.model.gauge_prior`, a linear equality in :math:`S`), is eliminated through its null space;
+:func:`.model.choose_gauge` then decides whether the geometric slope :math:`\beta` of
+:class:`.model.GeometricSlope` replaces it: strong geometry (``GEOMETRY_STRONG``) refits with
 :math:`\beta = 1` as the constraint; weaker geometry applies the power :math:`1/\beta` to the fitted
 g, r, t (a constraint on :math:`\beta` alone would let eq. 8's compression bend the rest of the curve).
 """
@@ -48,7 +48,7 @@ from scipy.linalg import null_space
 from scipy.optimize import minimize
 from scipy.special import digamma, polygamma
 
-from .response import (FIT_SCALE, GEOMETRY_STRONG, MID_RANGE, Z_REF, GeometricSlope, Levels, Observations, choose_gauge,
+from .model import (FIT_SCALE, GEOMETRY_STRONG, MID_RANGE, Z_REF, GeometricSlope, Levels, Observations, choose_gauge,
                        choose_levels, exposure_update, gauge_prior, known_factor, log_likelihood, radiance_update,
                        residual_analysis, response_closed_form)
 
@@ -292,12 +292,12 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
     r"""Maximum-likelihood g, r and (if ``exposure`` is None) t of eq. 8 under eq. 7.
 
     Observations at excluded DN (saturation) or outside the range of the free levels
-    (:func:`~.response.choose_levels`) are left out, as are pixels left with fewer than
+    (:func:`~.model.choose_levels`) are left out, as are pixels left with fewer than
     two observations (they carry no information on g).  With ``exposure`` None the
     exponential ambiguity needs a gauge (reported in ``gamma``).  The fit holds g linear over
     DN 64-192 (the prior, an exact linear constraint); then, with ``gauge`` "auto" (or
     "geometry") and factors ``c`` that vary within pixels, the slope :math:`\beta` of
-    :class:`.response.GeometricSlope` replaces it when :func:`.response.choose_gauge` accepts it ("prior":
+    :class:`.model.GeometricSlope` replaces it when :func:`.model.choose_gauge` accepts it ("prior":
     never): as the constraint of a refit when the geometry is strong (``GEOMETRY_STRONG``),
     else as the power :math:`\gamma = 1/\beta` applied to g, r, t.  The exposures are returned
     with geometric mean 1.

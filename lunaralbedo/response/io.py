@@ -14,8 +14,8 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InputError
-from .atomic import atomic_write_text
-from .outputs import save_figure
+from ..io.atomic import atomic_write_text
+from ..io.outputs import save_figure
 
 
 def write_response_csv(path: Path, dn: np.ndarray, g: np.ndarray, se_log_g: np.ndarray, count: np.ndarray,
