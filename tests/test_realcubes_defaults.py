@@ -76,6 +76,14 @@ def test_wac_defaults(realdata, tmp_path):
     dl = 1737400 * math.hypot(lat[r + 1, c] - lat[r, c], (lon[r + 1, c] - lon[r, c]) * math.cos(lat[r, c]))
     phocube = (ds + dl) / 2  # 205 m (232 across, 178 along)
     assert resolution_written(work) == pytest.approx(phocube, rel=0.03)
+    # `positions` keys and positions are those of ingest's DRGs (one per band)
+    from lunaralbedo.io.positions import read_positions
+
+    run("positions", isis / WAC, "--sun", tmp_path / "sun.txt", "--spacecraft", tmp_path / "sc.txt")
+    for name, mine in (("sunpos.txt", "sun.txt"), ("spacecraftpos.txt", "sc.txt")):
+        ingested, alone = read_positions(work / "meta" / name), read_positions(tmp_path / mine)
+        assert list(alone) == list(ingested) == [f"M1181493B0{b}" for b in range(1, 6)]
+        assert all(np.array_equal(alone[k], ingested[k]) for k in alone)
     for b in range(1, 6):  # one DRG per band, on the native grid
         with rasterio.open(work / f"DRG/M1181493B0{b}.tif") as drg:
             assert 1737400 * math.radians(drg.res[0]) == pytest.approx(resolution_written(work), rel=1e-5)

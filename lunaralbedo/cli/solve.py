@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from ..engine.solve import DEFAULT_TOLERANCE, METHODS
-from ._common import parallel_options, reports_errors
+from ._common import check_number, parallel_options, reports_errors
 
 
 def _print_summary(result) -> None:
@@ -71,6 +71,10 @@ def command(settings, out, method, legacy, workers, scheduler, cluster, queue, c
     """Solve for the albedo of SETTINGS (legacy PhotometryTK settings file or TOML)."""
     from ..settings import load_settings
 
+    check_number("--max-iter", max_iter, 0)
+    check_number("--tolerance", tolerance, 0)
+    for name, v in (("--cores", cores), ("--jobs", jobs)):
+        check_number(name, v, 1)
     s = load_settings(settings)
     if legacy:
         from ..engine.solve import default_out_dir

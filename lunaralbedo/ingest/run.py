@@ -26,7 +26,7 @@ from ..camera.pushframe import PushFrameCamera
 from .dem import DemMosaic, load_dems
 from ..model.grid import mpp_to_degrees
 from .keys import band_items
-from .observation import open_observation
+from .observation import band_time, open_observation
 from .orthoproject import footprint, level2_bounds, orthoproject, warp_level2
 from .resolution import degrees_to_mpp, pixel_resolution_m, tile_pixels, tile_size_deg
 from .workdir import remove_stale_drgs, write_dem, write_drg, write_settings
@@ -106,8 +106,9 @@ def _ingest_one(res: CubeResult, obs, dem: DemMosaic, mpp_deg, drg_dir: Path, le
         res.kind = "line scanner" if camera.is_line_scanner else "frame camera"
         if isinstance(camera, PushFrameCamera):  # positions at this band's centre time (framelet timing)
             res.kind = f"push-frame band {res.band}"
-            res.sun = np.asarray(obs.ephemeris.sun(camera.center_et), dtype=np.float64)
-            res.spacecraft = np.asarray(obs.ephemeris.spacecraft(camera.center_et), dtype=np.float64)
+            et = band_time(obs, res.band, camera)
+            res.sun = np.asarray(obs.ephemeris.sun(et), dtype=np.float64)
+            res.spacecraft = np.asarray(obs.ephemeris.spacecraft(et), dtype=np.float64)
         lon, lat = footprint(camera, dem.height)
     box = _box(lon, lat, _lon_base(dem))
     if box is None:

@@ -33,6 +33,8 @@ def repair_pvl_text(text: str) -> str:
 def parse_pvl_file(path: str | Path) -> pvl.PVLModule:
     """Parse a PVL file (ISIS label, photometric parameter file, ...) tolerantly."""
     path = Path(path)
+    if path.is_dir():
+        raise IsisError(f"{path}: is a folder, not an ISIS cube or label file")
     if not path.is_file():
         raise IsisError(f"{path}: file not found")
     with open(path, "rb") as f:
@@ -42,7 +44,16 @@ def parse_pvl_file(path: str | Path) -> pvl.PVLModule:
     try:
         return pvl.loads(repair_pvl_text(raw.decode("latin-1")))
     except Exception as exc:  # pvl raises several lexer/parser exception types
-        raise IsisError(f"{path}: cannot parse PVL label: {exc}") from None
+        raise IsisError(f"{path}: not an ISIS cube or PVL label ({_pvl_reason(exc)})") from None
+
+
+def _pvl_reason(exc: Exception) -> str:
+    """One short line for a pvl parse failure (pvl's own message repeats the text around the error)."""
+    line = getattr(exc, "lineno", None)
+    if line is not None:
+        return f"cannot parse line {line}, column {getattr(exc, 'colno', '?')}"
+    args = [a for a in getattr(exc, "args", ()) if isinstance(a, str)]
+    return f"cannot parse it: {args[-1].splitlines()[0][:80]}" if args else "cannot parse it"
 
 
 def _find(module: Any, name: str) -> Any | None:
