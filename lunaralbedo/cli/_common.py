@@ -100,6 +100,35 @@ def check_number(name: str, value, low=None, high=None, low_open: bool = False, 
         raise InputError(f"{name} must be <= {high:g}, got {value:g}")
 
 
+#: Modules whose numba kernels the solver's tile tasks compile (``cache=True``) on the first run after installing.
+SOLVER_KERNELS = ("lunaralbedo.engine.kernels", "lunaralbedo.engine.finalise_kernels", "lunaralbedo.engine.runs")
+#: ... and ingest's orthoprojection.
+INGEST_KERNELS = ("lunaralbedo.ingest.sampling", "lunaralbedo.ingest.approx")
+
+
+def _jit_cached(module: str) -> bool:
+    """True when numba's cache holds compiled kernels of ``module`` (an index ``<stem>.*.nbi`` beside the file,
+    or in ``NUMBA_CACHE_DIR``)."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.find_spec(module)
+    if spec is None or spec.origin is None:
+        return True
+    src = Path(spec.origin)
+    places = [src.parent / "__pycache__"]
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        places.append(Path(os.environ["NUMBA_CACHE_DIR"]))
+    return any(any(p.rglob(f"{src.stem}.*.nbi")) for p in places if p.is_dir())
+
+
+def announce_compiling(modules: tuple[str, ...]) -> None:
+    """Say once, on stderr, that this first run compiles the numerical kernels (not a slow run)."""
+    if not all(_jit_cached(m) for m in modules):
+        click.echo("note: first run after installing: compiling the numerical kernels (numba), about a minute "
+                   "on a busy machine; later runs reuse them", err=True)
+
+
 def parallel_options(default: str) -> Callable:
     """``--workers N`` and ``--scheduler ADDRESS``, with the same meaning in every command.
 

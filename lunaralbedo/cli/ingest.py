@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ._common import parallel_options, reports_errors
+from ._common import INGEST_KERNELS, announce_compiling, parallel_options, reports_errors
 
 
 @click.command("ingest")
@@ -55,6 +55,7 @@ def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem
             dem_values = "height"  # the aligned DEMs hold heights
         for n in notes:
             click.echo(n)
+    announce_compiling(INGEST_KERNELS)
     report = ingest(list(cubes), list(dems), workdir, kernels, isisdata, mpp, source, dem_values,
                     legacy_8bit, tile_size, workers=workers or 1, scheduler=scheduler, progress=sys.stderr.isatty(),
                     match_dem=match_dem)

@@ -33,6 +33,7 @@ from ..io.cache import MemoryCache, discard, load_meta, load_stack
 from ..io.geotiff import GeoTiffRows
 from ..io.rasters import count_finite
 from ..model import shadows, updates
+from ..parallel.progress import ROWS
 from . import kernels, runs
 from .finalise_kernels import finalise_runs
 from .scene import Scene
@@ -163,6 +164,7 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
     pos = {k: i for i, k in enumerate(idx.tolist())}
     for i, (b0, b1) in enumerate(meta["blocks"]):
         arrays = pixel_stack(folder / f"block_{i:04d}", cache_root)
+        ROWS.advance(b1 - b0)
         if not len(arrays["index"]):
             continue
         part = TileSums(index=arrays["index"], n_params=out.n_params, exp_num=np.zeros(len(arrays["index"])),
@@ -307,6 +309,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
             if want_err:
                 files["error"].write(err, b0)
             del alb, err
+            ROWS.advance(b1 - b0)
         for f in files.values():  # each renamed into place complete
             f.close()
     except BaseException:

@@ -4,28 +4,18 @@
   one camera pixel at the image centre, the mean of the sample and line spacings
   (ISIS ``Camera::PixelResolution``), measured by intersecting with the DEM the rays
   through points a quarter pixel either side of the centre.  Several images: the finest.
-* **Tile size** (``TILE_SIZE``, degrees): the tile the solver works on should hold one
-  block of rows of the solver's memory budget (:data:`TILE_PIXELS` pixels a side for the
-  default 384 MiB budget at 96 bytes per pixel, ``engine/observations.py``), rounded down
-  to a round number of degrees (:data:`ROUND_MANTISSAS` times a power of ten) so that tile names stay
-  readable.
+* **Tile size** (``TILE_SIZE``, degrees): the tile the solver works on should be one
+  block of rows of the solver's memory budget (``engine/observations.py``: 384 MiB at 96
+  bytes per pixel, 2048 pixels a side), rounded down to a round number of degrees
+  (:func:`lunaralbedo.model.grid.round_down`: tiles of ~1400 to 2048 px a side) so that
+  tile names stay readable.
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from ..constants import MOON_RADIUS_M
-from ..model.grid import mpp_to_degrees
-
-#: Pixels on a side of a solver tile that fits the default budget in one block of rows
-#: (sqrt(384 MiB / 96 bytes per pixel) = 2048; engine/observations.py BLOCK_BYTES, ROW_PIXEL_BYTES).
-TILE_PIXELS = 2048
-#: Bytes per tile pixel the solver holds for a tile processed as one block (engine/observations.py ROW_PIXEL_BYTES).
-TILE_PIXEL_BYTES = 96
-#: The default memory budget of one tile's block (engine/observations.py BLOCK_BYTES).
-TILE_BUDGET_BYTES = 384 * 2**20
+from ..engine.observations import BLOCK_BYTES, ROW_PIXEL_BYTES
+from ..model.grid import mpp_to_degrees, tile_side_deg
 
 
 def pixel_resolution_m(camera, height_fn) -> float:
@@ -62,35 +52,7 @@ def pixel_resolution_m(camera, height_fn) -> float:
     return float(np.median(ok)) if ok.size else float("nan")
 
 
-#: Round tile sizes: these times a power of ten (degrees).
-ROUND_MANTISSAS = (8, 6, 5, 4, 3, 2.5, 2, 1.5, 1)
-
-
-def round_down(value: float) -> float:
-    """The largest of :data:`ROUND_MANTISSAS` times a power of ten that is <= ``value`` (> 0)."""
-    k = math.floor(math.log10(value))
-    for m in ROUND_MANTISSAS:
-        v = m * 10.0**k
-        if v <= value * (1 + 1e-9):
-            return float(f"{v:.12g}")
-    return float(f"{10.0 ** k:.12g}")
-
-
-def tile_size_deg(mpp: float, budget_bytes: float = TILE_BUDGET_BYTES) -> float:
-    """TILE_SIZE (degrees) for pixels of ``mpp`` metres: at most ``sqrt(budget / 96 bytes)`` pixels a side, rounded down.
-
-    At most 4 degrees (the legacy default), at least one pixel.
-    """
-    px = math.sqrt(budget_bytes / TILE_PIXEL_BYTES)
-    deg = px * mpp_to_degrees(mpp)
-    return min(4.0, max(round_down(deg), mpp_to_degrees(mpp)))
-
-
-def tile_pixels(tile_size: float, res_deg: float) -> int:
-    """Pixels on a side of a ``tile_size``-degree tile of ``res_deg``-degree pixels."""
-    return max(1, math.ceil(tile_size / res_deg - 1e-6))
-
-
-def degrees_to_mpp(deg: float) -> float:
-    """Metres per pixel on the 1737.4 km sphere for a pixel of ``deg`` degrees of arc."""
-    return math.radians(deg) * MOON_RADIUS_M
+def tile_size_deg(mpp: float) -> float:
+    """TILE_SIZE (degrees) for pixels of ``mpp`` metres: tiles that the solver does in one block of rows of its
+    default memory budget (:func:`lunaralbedo.model.grid.tile_side_deg`)."""
+    return tile_side_deg(mpp_to_degrees(mpp), BLOCK_BYTES, ROW_PIXEL_BYTES)

@@ -24,11 +24,11 @@ from ..spice.kernels import expand_kernel_args
 from ..camera.build import build_camera
 from ..camera.pushframe import PushFrameCamera
 from .dem import DemMosaic, load_dems
-from ..model.grid import mpp_to_degrees
+from ..model.grid import degrees_to_mpp, mpp_to_degrees, tile_pixels
 from .keys import band_items
 from .observation import band_time, open_observation
 from .orthoproject import footprint, level2_bounds, orthoproject, warp_level2
-from .resolution import degrees_to_mpp, pixel_resolution_m, tile_pixels, tile_size_deg
+from .resolution import pixel_resolution_m, tile_size_deg
 from .workdir import remove_stale_drgs, write_dem, write_drg, write_settings
 
 
@@ -131,11 +131,24 @@ def _ingest_one(res: CubeResult, obs, dem: DemMosaic, mpp_deg, drg_dir: Path, le
     write_drg(drg_dir / f"{res.key}.tif", values, grid, legacy_8bit, res.band_center_nm)
 
 
+def refuse_unsupported(path) -> None:
+    """Raise :class:`InputError` for an image ``ingest`` cannot orthoproject (radar: Mini-RF), before its
+    kernels are loaded or its times parsed (a radar label's clock counts may be ``UNK``)."""
+    from ..camera.timing import camera_kind
+    from ..isis.labels import read_label
+
+    label = read_label(path)
+    if label.has("Instrument") and not label.is_map_projected and camera_kind(label) == "radar":
+        raise InputError(f"{path}: radar images (Mini-RF, SAR) are not supported by ingest: no orthoprojection "
+                         "model for radar geometry (`lunaralbedo positions` gives their positions)")
+
+
 def _native_mpp(item, *, extra, isisdata, source, dem: DemMosaic) -> float | None:
     """Native ground resolution (m) of one cube (band): :func:`.resolution.pixel_resolution_m` at its centre,
     or a map-projected cube's own pixel size; None when the cube cannot be opened (its ingest task says why)."""
     path, key, band, _center = item
     try:
+        refuse_unsupported(path)
         with open_observation(path, key, extra, isisdata, source) as obs:
             label = obs.label
             if label.is_map_projected:
@@ -155,6 +168,7 @@ def _process_cube(item, *, extra, isisdata, source, dem: DemMosaic, mpp_deg, drg
     path, key, band, center = item
     res = CubeResult(Path(path), key, band, center)
     try:
+        refuse_unsupported(path)
         with open_observation(path, key, extra, isisdata, source) as obs:
             res.source, res.sun, res.spacecraft = obs.source, obs.sun.copy(), obs.spacecraft.copy()
             try:
