@@ -3,7 +3,8 @@
 * **Resolution** (as ISIS ``cam2map``'s default ``PIXRES=CAMERA``): the ground size of
   one camera pixel at the image centre, the mean of the sample and line spacings
   (ISIS ``Camera::PixelResolution``), measured by intersecting with the DEM the rays
-  through points a quarter pixel either side of the centre.  Several images: the finest.
+  through points a quarter pixel either side of the centre.  Several images: the finest
+  (a multi-band push-frame cube: its first band).
 * **Tile size** (``TILE_SIZE``, degrees): the tile the solver works on should be one
   block of rows of the solver's memory budget (``engine/observations.py``: 384 MiB at 96
   bytes per pixel, 2048 pixels a side), rounded down to a round number of degrees

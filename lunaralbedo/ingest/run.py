@@ -210,7 +210,8 @@ def ingest(cubes: Sequence[str | Path], dems: Sequence[str | Path], workdir: str
     executor = make_executor(workers, scheduler, progress=progress)
     try:
         if mpp is None and not match_dem:
-            native = [m for m in executor.map(_native_mpp, items, "resolution", shared=("dem",), extra=extra,
+            firsts = list({str(it[0]): it for it in reversed(items)}.values())  # a cube's first band: its bands share a grid
+            native = [m for m in executor.map(_native_mpp, firsts, "resolution", shared=("dem",), extra=extra,
                                               isisdata=isisdata, source=source, dem=dem) if m]
             mpp = min(native) if native else None  # none: no cube opens (their tasks say why), the DEM's grid
             report.resolution_note = "native: the finest image's pixel at its centre, as ISIS cam2map" if native else ""

@@ -5,11 +5,16 @@ Parsed with pvl, after two repairs of what ISIS writes and pvl 1.3 rejects:
 * ``EndGroup`` / ``EndObject`` spellings (ISIS accepts them) become ``End_Group`` / ``End_Object``;
 * long unquoted words that ISIS splits with a trailing ``-`` at the end of a line
   (e.g. ``$lro/kernels/spk/fdf29r_..._v01.b-`` / ``sp``) are joined again.
+
+pvl parses a WAC label in ~0.7 s (its date decoding), and ``ingest`` reads each label several
+times (bands, the radar check, the resolution, the DRG): parsed files are kept per process,
+keyed by path, size and modification time, and each caller gets its own copy.
 """
 from __future__ import annotations
 
 import datetime as _dt
 import re
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,6 +27,9 @@ _END_RE = re.compile(rb"^End\s*$", re.MULTILINE)
 _ENDAGG_RE = re.compile(r"^(\s*)End(Group|Object)\b", re.MULTILINE | re.IGNORECASE)
 _HYPHEN_RE = re.compile(r"(?<=[^\s=,(])-\r?\n\s+")
 _MAX_LABEL_BYTES = 4 * 1024 * 1024
+#: Parsed PVL files kept per process (see the module docstring): at most this many.
+_PARSED_MAX = 32
+_PARSED: OrderedDict = OrderedDict()
 
 
 def repair_pvl_text(text: str) -> str:
@@ -37,14 +45,33 @@ def parse_pvl_file(path: str | Path) -> pvl.PVLModule:
         raise IsisError(f"{path}: is a folder, not an ISIS cube or label file")
     if not path.is_file():
         raise IsisError(f"{path}: file not found")
+    st = path.stat()
+    key = (str(path.resolve()), st.st_size, st.st_mtime_ns)
+    if key in _PARSED:
+        _PARSED.move_to_end(key)
+        return _copy_pvl(_PARSED[key])
     with open(path, "rb") as f:
         head = f.read(_MAX_LABEL_BYTES)
     m = _END_RE.search(head)
     raw = head[: m.end()] if m else head
     try:
-        return pvl.loads(repair_pvl_text(raw.decode("latin-1")))
+        module = pvl.loads(repair_pvl_text(raw.decode("latin-1")))
     except Exception as exc:  # pvl raises several lexer/parser exception types
         raise IsisError(f"{path}: not an ISIS cube or PVL label ({_pvl_reason(exc)})") from None
+    _PARSED[key] = module
+    while len(_PARSED) > _PARSED_MAX:
+        _PARSED.popitem(last=False)
+    return _copy_pvl(module)
+
+
+def _copy_pvl(value: Any) -> Any:
+    """A copy of a parsed PVL tree that keeps repeated keys (``copy.deepcopy`` of pvl's multi-dicts drops
+    them: a cube's several ``Table`` objects became one); leaves (numbers, strings, quantities) are shared."""
+    if hasattr(value, "items") and hasattr(value, "getall"):
+        return type(value)([(k, _copy_pvl(v)) for k, v in value.items()])
+    if isinstance(value, list):
+        return [_copy_pvl(v) for v in value]
+    return value
 
 
 def _pvl_reason(exc: Exception) -> str:
