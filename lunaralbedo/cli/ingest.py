@@ -39,8 +39,10 @@ def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem
     """Orthoproject CUBES onto the DEM and write WORKDIR/{DRG,DEM,meta,settings.txt}.
 
     DRGs are named <KEY>.tif, KEY = the cube name up to its first '.', cut or padded
-    ('_') to 11 characters (duplicates get a 3-digit counter).  Positions are at the
-    campt centre time, km, Moon-centred body-fixed (MOON_ME).
+    ('_') to 11 characters (duplicates get a 3-digit counter; a multi-band LRO WAC cube one
+    DRG per band, <8 characters>B01..).  Positions are at the campt centre time, km,
+    Moon-centred body-fixed (MOON_ME).  The output grid is the images' native resolution
+    (as ISIS cam2map) and TILE_SIZE fits the solver's memory, unless --mpp / --tile-size.
     """
     from ..ingest.run import check_grid_options, ingest
 
