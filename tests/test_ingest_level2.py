@@ -18,7 +18,7 @@ SAMPLE = Path(__file__).resolve().parents[1] / "sample_data"
 def test_level2_cube_warps_back_onto_its_grid(tmp_path):
     spiceypy.kclear()
     w1 = tmp_path / "w1"
-    ingest([SAMPLE / "cubes/SIM-F-00001.cub"], [SAMPLE / "dem"], w1)
+    ingest([SAMPLE / "cubes/SIM-F-00001.cub"], [SAMPLE / "dem"], w1, match_dem=True)
     with rasterio.open(w1 / "DRG/SIM-F-00001.tif") as ds:
         v, t = ds.read(1), ds.transform
     # the DRG as an ISIS Level-2 cube: SimpleCylindrical on the 1737.4 km sphere, metres
@@ -32,7 +32,7 @@ def test_level2_cube_warps_back_onto_its_grid(tmp_path):
     lab = read_label(SAMPLE / "cubes/SIM-F-00001.cub")
     cube = tmp_path / "L2-00001.cub"
     write_cube(cube, v, {"Instrument": dict(lab.instrument), "Kernels": dict(lab.group("Kernels")), "Mapping": mapping})
-    report = ingest([cube], [SAMPLE / "dem"], tmp_path / "w2", kernels=[SAMPLE / "kernels"])
+    report = ingest([cube], [SAMPLE / "dem"], tmp_path / "w2", kernels=[SAMPLE / "kernels"], match_dem=True)
     (res,) = report.done
     assert res.kind == "level2" and res.key == "L2-00001___"
     with rasterio.open(tmp_path / "w2/DRG/L2-00001___.tif") as ds:

@@ -73,7 +73,7 @@ def test_sample_data_round_trip(tmp_path):
     cubes = sorted((SAMPLE / "cubes").glob("*.cub"))
     work = tmp_path / "work"
     t0 = time.perf_counter()
-    report = ingest(cubes, [SAMPLE / "dem"], work)
+    report = ingest(cubes, [SAMPLE / "dem"], work, match_dem=True)  # the truth is on the DEM grid
     elapsed = time.perf_counter() - t0
     assert len(report.done) == len(truth["images"]) == 5
     sun, sc = read_positions(work / "meta/sunpos.txt"), read_positions(work / "meta/spacecraftpos.txt")
@@ -108,7 +108,7 @@ def test_line_scanner_round_trip(tmp_path):
     truth = build(sample, seed=7, n_frames=1, with_line=True)
     key = "SIM-L-00001"
     work = tmp_path / "work"
-    report = ingest([sample / "cubes" / f"{key}.cub"], [sample / "dem"], work)
+    report = ingest([sample / "cubes" / f"{key}.cub"], [sample / "dem"], work, match_dem=True)
     (res,) = report.done
     assert res.kind == "line scanner"
     rel, n = _drg_errors(sample, work, key, truth["images"][key])
@@ -191,7 +191,7 @@ def test_ingested_sample_data_solves_to_the_truth_albedo(tmp_path):
 
     truth = json.loads((SAMPLE / "truth/truth.json").read_text())
     work = tmp_path / "work"
-    ingest(sorted((SAMPLE / "cubes").glob("*.cub")), [SAMPLE / "dem"], work)
+    ingest(sorted((SAMPLE / "cubes").glob("*.cub")), [SAMPLE / "dem"], work, match_dem=True)
     lunaralbedo.solve(work / "settings.txt", out=tmp_path / "albedo", plots=False)
     tiles = sorted((tmp_path / "albedo/albedo").glob("*.tif"))
     assert tiles

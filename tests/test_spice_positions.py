@@ -139,11 +139,13 @@ def test_positions_command_writes_legacy_files(realdata, tmp_path):
 
 
 def test_pushframe_and_radar_times(realdata):
-    """WAC push-frame: middle of its SPICE cache; Mini-RF: centre line of the crop, LineExposureDuration in s."""
+    """WAC push-frame: one position per band (the keys of ingest's DRGs), at a time inside its SPICE cache;
+    Mini-RF: centre line of the crop, LineExposureDuration in s."""
     wac = realdata / "isis/M1181493219CE.vis.odd.reduced.cub"
     rf = realdata / "isis/LSZ_04866_1CD_XKU_89N109_V1_lev1.crop.cub"
-    w, r = compute_positions([wac, rf])
-    assert w.et == pytest.approx((480126019.21679896 + 480126924.46679896) / 2, abs=1e-6)
+    *bands, r = compute_positions([wac, rf])
+    assert [b.key for b in bands] == [f"M1181493B0{b}" for b in range(1, 6)]
+    assert all(480126019.21679896 < b.et < 480126924.46679896 for b in bands)
     # Mini-RF crop: alpha line 4906.5 + 2.5 = 4909 at StartTime + (4909 - 0.5) * 0.004651130362 s
     start = r.et - (4909 - 0.5) * 0.004651130362
     with KernelPool(expand_kernel_args([realdata / "kernels/generic"])):

@@ -2,12 +2,14 @@
 
 Exit codes (see docs/errors.md): 0 success, 2 bad input (incl. an output path that
 cannot be created), 3 infrastructure (worker lost, cluster cannot start, disk full),
-130 interrupted (Ctrl-C), 1 an unexpected internal error (a bug: please report it).
+130 interrupted (Ctrl-C), 141 output pipe closed (``| head -1``; nothing printed),
+1 an unexpected internal error (a bug: please report it).
 Without the global ``--debug`` no traceback is printed, only ``error: <message>``.
 """
 from __future__ import annotations
 
 import functools
+import math
 import os
 import sys
 import traceback
@@ -18,6 +20,8 @@ import click
 from ..errors import ClusterError, InputError, Interrupted, LunarAlbedoError, typed_error
 
 INTERNAL_ERROR = 1
+#: Exit status when the reader of our output went away (``| head -1``): 128 + SIGPIPE, as a shell tool killed by it.
+BROKEN_PIPE = 141
 
 
 def cli_runtime(**given):
@@ -37,11 +41,17 @@ def debug_enabled() -> bool:
     return bool(ctx and (ctx.find_root().obj or {}).get("debug"))
 
 
+def _has_resume() -> bool:
+    """True when the running command has a ``--resume`` option (only then is a checkpoint kept)."""
+    ctx = click.get_current_context(silent=True)
+    return bool(ctx and any(p.name == "resume" for p in ctx.command.params))
+
+
 def _hint(exc: LunarAlbedoError) -> str:
     if isinstance(exc, ClusterError):  # the cluster did not start: no work was done
         return ""
-    if exc.exit_code == 3 or isinstance(exc, Interrupted):
-        return " (the checkpoint is kept: rerun the same command with --resume where the command has it)"
+    if (exc.exit_code == 3 or isinstance(exc, Interrupted)) and _has_resume():
+        return " (the checkpoint is kept: rerun the same command with --resume)"
     return ""
 
 
@@ -55,6 +65,17 @@ def _vector_width() -> None:
         simd.apply(os.environ)
     except ValueError as exc:  # a bad LUNARALBEDO_VECTOR_BITS: say so, and leave numba's defaults
         click.echo(f"warning: {exc}", err=True)
+
+
+def _quiet_broken_pipe() -> None:
+    """The reader of stdout went away: point stdout at /dev/null (so that the interpreter's last flush does
+    not complain) and end with :data:`BROKEN_PIPE`, saying nothing."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):  # no real stdout (tests): nothing to flush
+        pass
+    sys.exit(BROKEN_PIPE)
 
 
 def reports_errors(func: Callable) -> Callable:
@@ -72,6 +93,8 @@ def reports_errors(func: Callable) -> Callable:
             return func(*args, **kwargs)
         except (click.exceptions.Exit, click.ClickException, click.Abort):
             raise
+        except BrokenPipeError:
+            _quiet_broken_pipe()
         except (Exception, KeyboardInterrupt) as exc:  # noqa: BLE001 - the one place that reports failures
             typed = typed_error(exc)
             if debug_enabled():
@@ -84,6 +107,50 @@ def reports_errors(func: Callable) -> Callable:
             sys.exit(typed.exit_code)
 
     return wrapper
+
+
+def check_number(name: str, value, low=None, high=None, low_open: bool = False, integer: bool = False) -> None:
+    """Raise :class:`InputError` (exit 2, one line naming option ``name``) unless ``value`` is None or a
+    finite number in ``[low, high]`` (``(low, high]`` with ``low_open``); called before anything is written."""
+    if value is None:
+        return
+    if not math.isfinite(value):
+        raise InputError(f"{name} must be a finite number, got {value}")
+    if integer and value != int(value):
+        raise InputError(f"{name} must be a whole number, got {value}")
+    if low is not None and (value <= low if low_open else value < low):
+        raise InputError(f"{name} must be {'>' if low_open else '>='} {low:g}, got {value:g}")
+    if high is not None and value > high:
+        raise InputError(f"{name} must be <= {high:g}, got {value:g}")
+
+
+#: Modules whose numba kernels the solver's tile tasks compile (``cache=True``) on the first run after installing.
+SOLVER_KERNELS = ("lunaralbedo.engine.kernels", "lunaralbedo.engine.finalise_kernels", "lunaralbedo.engine.runs")
+#: ... and ingest's orthoprojection.
+INGEST_KERNELS = ("lunaralbedo.ingest.sampling", "lunaralbedo.ingest.approx")
+
+
+def _jit_cached(module: str) -> bool:
+    """True when numba's cache holds compiled kernels of ``module`` (an index ``<stem>.*.nbi`` beside the file,
+    or in ``NUMBA_CACHE_DIR``)."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.find_spec(module)
+    if spec is None or spec.origin is None:
+        return True
+    src = Path(spec.origin)
+    places = [src.parent / "__pycache__"]
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        places.append(Path(os.environ["NUMBA_CACHE_DIR"]))
+    return any(any(p.rglob(f"{src.stem}.*.nbi")) for p in places if p.is_dir())
+
+
+def announce_compiling(modules: tuple[str, ...]) -> None:
+    """Say once, on stderr, that this first run compiles the numerical kernels (not a slow run)."""
+    if not all(_jit_cached(m) for m in modules):
+        click.echo("note: first run after installing: compiling the numerical kernels (numba), about a minute "
+                   "on a busy machine; later runs reuse them", err=True)
 
 
 def parallel_options(default: str) -> Callable:

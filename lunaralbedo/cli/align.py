@@ -1,4 +1,4 @@
-"""``lunaralbedo align``: ICP of a DEM onto LOLA points or a reference DEM (``pc_align`` of seed 004)."""
+"""``lunaralbedo align``: ICP of a DEM onto LOLA points or a reference DEM (as ASP ``pc_align``)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -27,7 +27,16 @@ from ._common import reports_errors
 @reports_errors
 def command(source, reference, prefix, max_displacement, method, translation_only, outlier_ratio, dem_values):
     """Rigid transform (Moon body-fixed metres) that moves the SOURCE DEM onto the reference."""
+    import sys
+
     from ..nac.align_files import align_files
 
-    align_files(source, reference, prefix, max_displacement, method, translation_only, outlier_ratio, dem_values)
+    def progress(iteration, distance):  # one line rewritten in place on a terminal
+        click.echo(f"\r  ICP iteration {iteration}: mean distance {distance:,.3f} m", err=True, nl=False)
+
+    tty = sys.stderr.isatty()
+    align_files(source, reference, prefix, max_displacement, method, translation_only, outlier_ratio, dem_values,
+                on_iteration=progress if tty else None)
+    if tty:
+        click.echo("", err=True)
     click.echo(Path(f"{prefix}-log.txt").read_text().rstrip())

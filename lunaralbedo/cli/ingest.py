@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from ._common import parallel_options, reports_errors
+from ._common import INGEST_KERNELS, announce_compiling, parallel_options, reports_errors
 
 
 @click.command("ingest")
@@ -18,14 +18,16 @@ from ._common import parallel_options, reports_errors
               help="Kernel file, folder or meta-kernel (repeatable); added to the labels' Kernels groups.")
 @click.option("--isisdata", type=click.Path(path_type=Path), default=None, envvar="ISISDATA",
               help="ISIS data area for $base/$<mission> kernel paths (default: $ISISDATA).")
-@click.option("--mpp", type=float, default=None, help="Output resolution in metres per pixel.")
-@click.option("--match-dem", is_flag=True, default=False, help="Use the first DEM's grid (the default).")
+@click.option("--mpp", type=float, default=None,
+              help="Output resolution in metres per pixel (default: the images' native resolution, as ISIS cam2map).")
+@click.option("--match-dem", is_flag=True, default=False, help="Use the first DEM's grid instead of the native resolution.")
 @click.option("--source", type=click.Choice(["auto", "table", "kernels"]), default="auto", show_default=True,
               help="Ephemeris source: attached SPICE tables when present (auto), or kernels.")
 @click.option("--dem-values", type=click.Choice(["auto", "radius", "height"]), default="auto", show_default=True,
               help="Whether DEM values are radius (m, converted to height above 1737.4 km) or height.")
 @click.option("--legacy-8bit", is_flag=True, default=False, help="Write 8-bit DRGs (stretch + alpha) as the legacy tools did.")
-@click.option("--tile-size", type=float, default=4.0, show_default=True, help="TILE_SIZE (degrees) for settings.txt.")
+@click.option("--tile-size", type=float, default=None,
+              help="TILE_SIZE (degrees) for settings.txt (default: tiles of ~2000 px at the output resolution).")
 @parallel_options("1; cubes are processed in parallel")
 @click.option("--dem-align", type=click.Path(path_type=Path), default=None,
               help="Align each DEM to these reference points (CSV lon,lat,radius km) or DEM first (see `align`).")
@@ -37,14 +39,14 @@ def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem
     """Orthoproject CUBES onto the DEM and write WORKDIR/{DRG,DEM,meta,settings.txt}.
 
     DRGs are named <KEY>.tif, KEY = the cube name up to its first '.', cut or padded
-    ('_') to 11 characters (duplicates get a 3-digit counter).  Positions are at the
-    campt centre time, km, Moon-centred body-fixed (MOON_ME).
+    ('_') to 11 characters (duplicates get a 3-digit counter; a multi-band LRO WAC cube one
+    DRG per band, <8 characters>B01..).  Positions are at the campt centre time, km,
+    Moon-centred body-fixed (MOON_ME).  The output grid is the images' native resolution
+    (as ISIS cam2map) and TILE_SIZE fits the solver's memory, unless --mpp / --tile-size.
     """
-    from ..errors import InputError
-    from ..ingest.run import ingest
+    from ..ingest.run import check_grid_options, ingest
 
-    if mpp is not None and match_dem:
-        raise InputError("give either --mpp or --match-dem, not both")
+    check_grid_options(mpp, tile_size, match_dem)
     if dem_align is not None or nac_mosaic:
         from ..nac.api import prepare_ingest
         from ..spice.kernels import expand_kernel_args
@@ -55,8 +57,10 @@ def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem
             dem_values = "height"  # the aligned DEMs hold heights
         for n in notes:
             click.echo(n)
+    announce_compiling(INGEST_KERNELS)
     report = ingest(list(cubes), list(dems), workdir, kernels, isisdata, mpp, source, dem_values,
-                    legacy_8bit, tile_size, workers=workers or 1, scheduler=scheduler, progress=sys.stderr.isatty())
+                    legacy_8bit, tile_size, workers=workers or 1, scheduler=scheduler, progress=sys.stderr.isatty(),
+                    match_dem=match_dem)
     for p in report.dem_radius_converted:
         click.echo(f"DEM {p}: values are radius, converted to height above 1737.4 km")
     for p in report.removed:
@@ -69,5 +73,6 @@ def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem
             click.echo(f"{r.key}  {r.kind:<12} {r.source:<7} lon {w:.4f}..{e:.4f}  lat {s:.4f}..{n:.4f}  "
                        f"{r.valid_pixels} px  {r.pixels_per_second:,.0f} px/s")
     lo0, lo1, la0, la1 = report.box
+    click.echo(f"resolution {report.mpp:.4g} m/px; TILE_SIZE {report.tile_size:g} degrees")
     click.echo(f"footprint union lon {lo0:.4f}..{lo1:.4f} lat {la0:.4f}..{la1:.4f}; "
                f"{len(report.done)} of {len(report.results)} cubes ingested; settings: {report.settings}")

@@ -1,4 +1,4 @@
-"""``lunaralbedo jitreg``: LE/RE offset and jitter series (``lronacjitreg`` of seed 004)."""
+"""``lunaralbedo jitreg``: LE/RE offset and jitter series (ASP ``lronacjitreg``, the ASP LRO-NAC notes)."""
 from __future__ import annotations
 
 from pathlib import Path

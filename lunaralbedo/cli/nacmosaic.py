@@ -1,4 +1,4 @@
-"""``lunaralbedo nacmosaic``: LE + RE cubes -> one ideal line-scan camera cube (noproj + handmos of seed 004)."""
+"""``lunaralbedo nacmosaic``: LE + RE cubes -> one ideal line-scan camera cube (ISIS noproj + handmos, as in the ASP LRO-NAC notes)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -20,7 +20,7 @@ from ._common import reports_errors
 @click.option("--height", "height_m", type=float, default=0.0, show_default=True,
               help="Height (m above 1737.4 km) of the sphere the ideal rays meet (use the mean DEM height).")
 @click.option("--ideal", type=click.Choice(["auto", "noproj", "computed"]), default="auto", show_default=True,
-              help="Ideal camera: seed 004's noproj numbers for LRO NAC (auto: when the LE is one), or computed "
+              help="Ideal camera: the noproj numbers of the ASP LRO-NAC notes for LRO NAC (auto: when the LE is one), or computed "
                    "half-way between the LE/RE boresights from the camera models.")
 @click.option("--block-lines", type=click.IntRange(min=1), default=256, show_default=True,
               help="Ideal lines resampled at a time (memory: about 80 bytes x samples per line; same output).")

@@ -24,7 +24,9 @@ def command(cubes, kernels, isisdata, source, sun_file, sc_file):
     """Write legacy position files (KEY x y z; km, Moon-centred body-fixed MOON_ME) for CUBES.
 
     Positions are at the centre pixel's time, as ISIS campt reports them; KEY is the
-    first 11 characters of the file name.  Works on detached labels without pixels.
+    file name up to its first '.', cut or padded ('_') to 11 characters, as ingest names
+    its DRGs (a multi-band LRO WAC cube: one KEY per band, <8 characters>B01..).  Works on
+    detached labels without pixels.
     """
     import numpy as np
 

@@ -1,4 +1,4 @@
-"""``lunaralbedo response IMAGES... -o OUTDIR``: camera response of an aligned image stack (seed 002)."""
+"""``lunaralbedo response IMAGES... -o OUTDIR``: camera response of an aligned image stack (Kim et al.)."""
 from __future__ import annotations
 
 from pathlib import Path

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from ..engine.options import DEFAULT_TOLERANCE, METHODS
-from ._common import cli_runtime, parallel_options, reports_errors
+from ._common import SOLVER_KERNELS, announce_compiling, check_number, cli_runtime, parallel_options, reports_errors
 
 
 #: The solver's options that PhotometryTK's pipeline (``--legacy``) has no counterpart of: it runs in one
@@ -85,7 +85,7 @@ def _print_summary(result) -> None:
 @click.option("--tolerance", type=float, default=DEFAULT_TOLERANCE, show_default=True,
               help="Stop when the cost Q changes by at most this fraction between iterations (0: run MAX_NUM_ITER).")
 @click.option("--response", default=None, metavar="estimate|FILE",
-              help="Camera response (seed 002): 'estimate' fits g with the albedo; FILE reuses a response.csv. Default: linear DN.")
+              help="Camera response (Kim et al.): 'estimate' fits g with the albedo; FILE reuses a response.csv. Default: linear DN.")
 @click.option("--exposure-times", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="CSV key,exposure (the solver's exposure.csv format) that fixes the exposures.")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
@@ -95,6 +95,10 @@ def command(settings, out, method, legacy, workers, scheduler, cluster, queue, c
     """Solve for the albedo of SETTINGS (legacy PhotometryTK settings file or TOML)."""
     from ..settings import load_settings
 
+    check_number("--max-iter", max_iter, 0)
+    check_number("--tolerance", tolerance, 0)
+    for name, v in (("--cores", cores), ("--jobs", jobs)):
+        check_number(name, v, 1)
     if legacy:
         _check_legacy_options(workers)
     runtime = cli_runtime(nodefile=str(nodefile) if nodefile else None)  # its variables checked before any work
@@ -114,9 +118,10 @@ def command(settings, out, method, legacy, workers, scheduler, cluster, queue, c
         return
     from ..engine.solve import solve
 
+    announce_compiling(SOLVER_KERNELS)
     opts = dict(queue=queue, cores=cores, memory=memory, walltime=walltime, jobs=jobs, account=account)
     result = solve(s, out=out, method=method, workers=workers, scheduler=scheduler, cluster=cluster,
                    cluster_options=opts, resume=resume, skip_missing=skip_missing, max_iter=max_iter, tolerance=tolerance,
                    progress=not quiet and sys.stderr.isatty(), response=response, exposure_times=exposure_times,
-                   runtime=runtime)
+                   runtime=runtime, warn=lambda m: click.echo(f"warning: {m}", err=True))
     _print_summary(result)

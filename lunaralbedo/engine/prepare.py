@@ -18,6 +18,7 @@ from ..io.cache import load_stack
 from ..io.cachewriter import CacheWriter
 from ..model import exposure_init
 from ..parallel.ahead import ahead, helper
+from ..parallel.progress import ROWS
 from . import kernels, observations, runs
 from .scene import Scene
 from .tilework import CACHE_LAYOUT, OUTPUT_OPTIONS, cache_dir
@@ -107,6 +108,7 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
                    {"rows": [b0, b1], "cols": [int(cols[0]), int(cols[1])]})
         del pm, per_pixel, sums
         blocks.append([b0, b1])
+        ROWS.advance(b1 - b0)
     index = [int(k) for k in scene.tile_images[t] if int(k) in r_sums]  # tile order
     meta = {
         "index": index,

@@ -32,11 +32,13 @@ from ..io.guard import check_output_dir
 from ..model import exposure_init, updates
 from ..settings import Settings, load_settings
 from ..parallel import local_workers, make_executor
+from ..parallel.progress import ROWS
 from ..parallel.workers import trim_malloc
 from ..runtime import Runtime
 from ..response.solve_hook import check_resume, known_exposures, lut_digest, move_outputs, report_parts, resolve_response
 from .observations import ROW_PIXEL_BYTES, block_budget, response_observations
 from .options import DEFAULT_TOLERANCE, METHODS
+from .tiles import budget_warning
 from .scene import Scene, build_scene
 from .prepare import WRITER, prepare_tile
 from .tilework import SolveState, finalize_tile, iterate_tile
@@ -162,6 +164,7 @@ def solve(
     response: str | Path | None = None,
     exposure_times: str | Path | None = None,
     runtime: Runtime | None = None,
+    warn=None,
 ) -> SolveResult:
     """Solve for albedo, exposures and the photometric model's parameters (seed 000 section 7).
 
@@ -175,6 +178,7 @@ def solve(
     Iterations stop early once ``|Q_n - Q_(n-1)| <= tolerance * Q_n`` (0: run them all).
     ``runtime``: how the run uses the machine (:class:`lunaralbedo.runtime.Runtime`: memory budgets,
     how workers start, a node file); no value of it changes a result.
+    ``warn(message)`` is called once the tiles are known when one needs more than the memory budget.
     """
     settings = settings if isinstance(settings, Settings) else load_settings(settings)
     if method not in METHODS:
@@ -195,6 +199,9 @@ def solve(
                             map_fn=lambda f, xs: executor.map(f, xs, "masks", meanwhile=True, threads=_threads(executor)),
                             runtime=runtime)
         timings["scene"] = time.perf_counter() - t0
+        big = budget_warning(scene.tiles, block_budget(scene), ROW_PIXEL_BYTES)
+        if big and warn is not None:
+            warn(big)
         if not resume:
             _clear_previous_run(out)
         out.mkdir(parents=True, exist_ok=True)
@@ -237,9 +244,15 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     if lut is not None:  # the cached stacks hold g(DN): one cache per response, never a stale one on --resume
         cache = cache / f"g-{lut_digest(lut)}"
     cache.mkdir(parents=True, exist_ok=True)  # tasks create entries inside it, never the run's folders
+    rows = sum(t.height for t in scene.tiles)
     def on_tiles(fn, desc, home="tiles", threads=1, **kwargs):  # the scene sent to each worker once; a tile stays on its worker
-        return executor.map(fn, tiles, desc, shared=("scene",), home=home, threads=threads, scene=scene, cache_root=cache,
-                            **kwargs)
+        if executor.in_process and getattr(executor, "progress", False):
+            ROWS.start(desc, rows)  # a bar that moves a block of rows at a time, not only per tile
+        try:
+            return executor.map(fn, tiles, desc, shared=("scene",), home=home, threads=threads, scene=scene,
+                                cache_root=cache, **kwargs)
+        finally:
+            ROWS.stop()
 
     metas = _prepare(on_tiles, executor, lut)
     executor.place("tiles", {t: TASK_OBSERVATIONS + sum(m["r_count"]) for t, m in zip(tiles, metas)})

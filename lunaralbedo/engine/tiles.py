@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from affine import Affine
 
 from ..errors import SolverError
-from ..model.grid import Grid
+from ..model.grid import Grid, tile_side_deg
 from ..model.longitude import wrap180
 
 
@@ -156,3 +156,20 @@ def make_tiles(
                      size_deg=tile_size, pad=pad)
             )
     return tiles
+
+
+def budget_warning(tiles: list[Tile], budget_bytes: float, bytes_per_pixel: float) -> str | None:
+    """A one-line warning naming TILE_SIZE when the largest tile needs more than ``budget_bytes`` of working
+    memory at ``bytes_per_pixel`` (it is then done in blocks of rows: slower, most of a big tile's
+    pixels are empty), with the TILE_SIZE that fits; None when every tile fits."""
+    if not tiles:
+        return None
+    big = max(tiles, key=lambda t: t.height * t.width)
+    px = big.height * big.width
+    if px * bytes_per_pixel <= budget_bytes:
+        return None
+    rows = max(1, int(budget_bytes // (bytes_per_pixel * big.width)))
+    fits = tile_side_deg(big.res_x, budget_bytes, bytes_per_pixel, max_deg=big.size_deg)
+    return (f"TILE_SIZE {big.size_deg:g} gives tiles of {big.width:,} x {big.height:,} px, more than one block of the "
+            f"{budget_bytes / 2**20:,.0f} MiB memory budget: each is done in {math.ceil(big.height / rows):,} blocks "
+            f"of {rows:,} rows; TILE_SIZE {fits:g} (or ingest's default) would fit one block")

@@ -33,6 +33,7 @@ from ..io.cache import MemoryCache, discard, load_meta, load_stack
 from ..io.geotiff import GeoTiffRows
 from ..io.rasters import count_finite
 from ..model import shadows, updates
+from ..parallel.progress import ROWS
 from . import kernels, runs
 from .finalise_kernels import finalise_runs
 from ..runtime import STACK_MEMORY_MB
@@ -139,6 +140,7 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
     out = updates.PassSums(len(idx), len(model.parameters), index=idx)
     for i, (b0, b1) in enumerate(meta["blocks"]):
         arrays = pixel_stack(folder / f"block_{i:04d}", cache_root)
+        ROWS.advance(b1 - b0)
         if not len(arrays["index"]):
             continue
         part = updates.PassSums(len(arrays["index"]), out.n_params, index=arrays["index"])
@@ -271,6 +273,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
             if want_err:
                 files["error"].write(err, b0)
             del alb, err
+            ROWS.advance(b1 - b0)
         for f in files.values():  # each renamed into place complete
             f.close()
     except BaseException:

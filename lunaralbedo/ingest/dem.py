@@ -55,8 +55,9 @@ class DemSource:
             xs, ys = warp_transform(MOON_CRS, self.crs, lon.ravel().tolist(), lat.ravel().tolist())
             x, y = np.reshape(xs, lon.shape), np.reshape(ys, lat.shape)
         inv = ~self.transform
-        col = inv.a * x + inv.b * y + inv.c
-        row = inv.d * x + inv.e * y + inv.f
+        with np.errstate(invalid="ignore"):  # points the projection cannot map (inf) fall outside: NaN
+            col = inv.a * np.asarray(x) + inv.b * np.asarray(y) + inv.c
+            row = inv.d * np.asarray(x) + inv.e * np.asarray(y) + inv.f
         return bilinear(self.heights, np.asarray(col) - 0.5, np.asarray(row) - 0.5)
 
     def native_res_deg(self) -> tuple[float, float]:

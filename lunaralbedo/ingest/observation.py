@@ -133,3 +133,16 @@ def open_observation(path: str | Path, key: str, kernels: Sequence[Path] = (), i
     if not any(k.suffix.lower() == ".tls" for k in allk) and packaged_lsk() is not None:
         allk.insert(0, packaged_lsk())
     return Observation(path=path, label=label, key=key, source=source, pool=KernelPool(allk, missing))
+
+
+def band_time(obs: Observation, band: int = 1, camera=None) -> float:
+    """The time (s, TDB) of the positions of band ``band`` of an opened image, one rule for ``positions`` and
+    ``ingest``: a push-frame cube's band at its centre framelet (its own camera, ``camera`` when already
+    built), any other image at its ``campt`` centre time (``obs.et``)."""
+    if camera_kind(obs.label) != "pushframe":
+        return obs.et
+    if camera is None:
+        from ..camera.pushframe import build_pushframe
+
+        camera = build_pushframe(obs.label, obs.ephemeris, band)
+    return float(camera.center_et)

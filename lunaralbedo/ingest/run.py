@@ -24,10 +24,11 @@ from ..spice.kernels import expand_kernel_args
 from ..camera.build import build_camera
 from ..camera.pushframe import PushFrameCamera
 from .dem import DemMosaic, load_dems
-from ..model.grid import mpp_to_degrees
+from ..model.grid import degrees_to_mpp, mpp_to_degrees, tile_pixels
 from .keys import band_items
-from .observation import open_observation
+from .observation import band_time, open_observation
 from .orthoproject import footprint, level2_bounds, orthoproject, warp_level2
+from .resolution import pixel_resolution_m, tile_size_deg
 from .workdir import remove_stale_drgs, write_dem, write_drg, write_settings
 
 
@@ -62,6 +63,9 @@ class IngestReport:
     settings: Path | None = None
     dem_radius_converted: list[Path] = field(default_factory=list)
     removed: list[Path] = field(default_factory=list)
+    mpp: float | None = None  # output resolution, metres per pixel
+    tile_size: float | None = None  # TILE_SIZE written, degrees
+    resolution_note: str = ""
 
     @property
     def done(self) -> list[CubeResult]:
@@ -102,8 +106,9 @@ def _ingest_one(res: CubeResult, obs, dem: DemMosaic, mpp_deg, drg_dir: Path, le
         res.kind = "line scanner" if camera.is_line_scanner else "frame camera"
         if isinstance(camera, PushFrameCamera):  # positions at this band's centre time (framelet timing)
             res.kind = f"push-frame band {res.band}"
-            res.sun = np.asarray(obs.ephemeris.sun(camera.center_et), dtype=np.float64)
-            res.spacecraft = np.asarray(obs.ephemeris.spacecraft(camera.center_et), dtype=np.float64)
+            et = band_time(obs, res.band, camera)
+            res.sun = np.asarray(obs.ephemeris.sun(et), dtype=np.float64)
+            res.spacecraft = np.asarray(obs.ephemeris.spacecraft(et), dtype=np.float64)
         lon, lat = footprint(camera, dem.height)
     box = _box(lon, lat, _lon_base(dem))
     if box is None:
@@ -118,9 +123,44 @@ def _ingest_one(res: CubeResult, obs, dem: DemMosaic, mpp_deg, drg_dir: Path, le
     res.valid_pixels = int(np.isfinite(values).sum())
     res.grid_pixels = int(values.size)
     if res.valid_pixels == 0:
-        raise InputError(f"{res.path}: no pixel of the image falls on the DEM")
+        mpp = degrees_to_mpp(grid.res[0])
+        raise InputError(f"{res.path}: no pixel of the output grid ({grid.width} x {grid.height} px of {mpp:,.4g} m) "
+                         "sees the image; give a finer --mpp" if grid.width * grid.height < 64 else
+                         f"{res.path}: no pixel of the image falls on the DEM (DEM without heights under the image?)")
     res.box = box
     write_drg(drg_dir / f"{res.key}.tif", values, grid, legacy_8bit, res.band_center_nm)
+
+
+def refuse_unsupported(path) -> None:
+    """Raise :class:`InputError` for an image ``ingest`` cannot orthoproject (radar: Mini-RF), before its
+    kernels are loaded or its times parsed (a radar label's clock counts may be ``UNK``)."""
+    from ..camera.timing import camera_kind
+    from ..isis.labels import read_label
+
+    label = read_label(path)
+    if label.has("Instrument") and not label.is_map_projected and camera_kind(label) == "radar":
+        raise InputError(f"{path}: radar images (Mini-RF, SAR) are not supported by ingest: no orthoprojection "
+                         "model for radar geometry (`lunaralbedo positions` gives their positions)")
+
+
+def _native_mpp(item, *, extra, isisdata, source, dem: DemMosaic) -> float | None:
+    """Native ground resolution (m) of one cube (band): :func:`.resolution.pixel_resolution_m` at its centre,
+    or a map-projected cube's own pixel size; None when the cube cannot be opened (its ingest task says why)."""
+    path, key, band, _center = item
+    try:
+        refuse_unsupported(path)
+        with open_observation(path, key, extra, isisdata, source) as obs:
+            label = obs.label
+            if label.is_map_projected:
+                from ..isis.pixels import cube_georeference
+
+                transform, crs = cube_georeference(label.data_path)
+                size = abs(transform.a)
+                return degrees_to_mpp(size) if crs is None or crs.is_geographic else size
+            mpp = pixel_resolution_m(build_camera(label, obs.ephemeris, obs.code, band=band), dem.height)
+            return mpp if np.isfinite(mpp) and mpp > 0 else None
+    except (LunarAlbedoError, KeyError, ValueError, TypeError, IndexError):
+        return None
 
 
 def _process_cube(item, *, extra, isisdata, source, dem: DemMosaic, mpp_deg, drg_dir: Path, legacy_8bit: bool) -> CubeResult:
@@ -128,6 +168,7 @@ def _process_cube(item, *, extra, isisdata, source, dem: DemMosaic, mpp_deg, drg
     path, key, band, center = item
     res = CubeResult(Path(path), key, band, center)
     try:
+        refuse_unsupported(path)
         with open_observation(path, key, extra, isisdata, source) as obs:
             res.source, res.sun, res.spacecraft = obs.source, obs.sun.copy(), obs.spacecraft.copy()
             try:
@@ -141,33 +182,42 @@ def _process_cube(item, *, extra, isisdata, source, dem: DemMosaic, mpp_deg, drg
 
 def ingest(cubes: Sequence[str | Path], dems: Sequence[str | Path], workdir: str | Path,
            kernels: Sequence[str | Path] = (), isisdata=None, mpp: float | None = None, source: str = "auto",
-           dem_mode: str = "auto", legacy_8bit: bool = False, tile_size: float = 4.0,
+           dem_mode: str = "auto", legacy_8bit: bool = False, tile_size: float | None = None,
            on_cube: Callable[[CubeResult], None] | None = None, workers: int = 1, scheduler: str | None = None,
-           progress: bool = False) -> IngestReport:
+           progress: bool = False, match_dem: bool = False) -> IngestReport:
     """Ingest ``cubes`` into ``workdir``; returns a report of footprints and skipped cubes.
 
-    ``mpp`` (metres per pixel) sets the output resolution; without it the grid is
-    the first DEM's.  Cubes are independent tasks: ``workers`` local processes or a
+    ``mpp`` (metres per pixel) sets the output resolution; without it the images' native
+    resolution (:mod:`.resolution`, as ISIS ``cam2map``: the finest image's pixel at its
+    centre), or with ``match_dem`` the first DEM's grid.  ``tile_size`` (degrees) defaults to
+    the tiles of :func:`.resolution.tile_size_deg` for that resolution.  Both go into
+    ``settings.txt`` with a comment.  Cubes are independent tasks: ``workers`` local processes or a
     Dask ``scheduler`` address run them in parallel (each worker process has its own
     SPICE kernel pool).  ``on_cube`` is called for each result, in the cubes' order.
-    Raises :class:`InputError` when no cube could be ingested.
+    Raises :class:`InputError` when no cube could be ingested (nothing is written then).
     """
     from ..parallel import make_executor
 
     workdir = Path(workdir)
     if not cubes:
         raise InputError("no cubes given")
-    if mpp is not None and mpp <= 0:
-        raise InputError(f"--mpp must be positive, got {mpp}")
+    check_grid_options(mpp, tile_size, match_dem)
     extra = expand_kernel_args(kernels)
     dem = DemMosaic(load_dems(dems, dem_mode))
-    mpp_deg = mpp_to_degrees(mpp) if mpp else None
     report = IngestReport(workdir, dem_radius_converted=dem.radius_converted)
     drg_dir = workdir / "DRG"
+    items = band_items(cubes)
     executor = make_executor(workers, scheduler, progress=progress)
     try:
+        if mpp is None and not match_dem:
+            firsts = list({str(it[0]): it for it in reversed(items)}.values())  # a cube's first band: its bands share a grid
+            native = [m for m in executor.map(_native_mpp, firsts, "resolution", shared=("dem",), extra=extra,
+                                              isisdata=isisdata, source=source, dem=dem) if m]
+            mpp = min(native) if native else None  # none: no cube opens (their tasks say why), the DEM's grid
+            report.resolution_note = "native: the finest image's pixel at its centre, as ISIS cam2map" if native else ""
+        mpp_deg = mpp_to_degrees(mpp) if mpp else None
         results = executor.map(
-            _process_cube, band_items(cubes), "ingest", shared=("dem",),
+            _process_cube, items, "ingest", shared=("dem",),
             extra=extra, isisdata=isisdata, source=source, dem=dem, mpp_deg=mpp_deg, drg_dir=drg_dir, legacy_8bit=legacy_8bit,
         )
     finally:
@@ -190,5 +240,26 @@ def ingest(cubes: Sequence[str | Path], dems: Sequence[str | Path], workdir: str
     write_dem(workdir / "DEM" / "dem.tif", dem.onto(union), union)
     write_positions(workdir / "meta" / "sunpos.txt", {r.key: r.sun for r in done})
     write_positions(workdir / "meta" / "spacecraftpos.txt", {r.key: r.spacecraft for r in done})
-    report.settings = write_settings(workdir, report.box, tile_size, legacy_8bit)
+    report.mpp = degrees_to_mpp(rx)
+    note = report.resolution_note or ("given (--mpp)" if mpp else "the first DEM's pixels")
+    if tile_size is None:
+        tile_size = tile_size_deg(report.mpp)
+        tile_note = f"{tile_pixels(tile_size, rx)} px a side, one block of the solver's memory budget"
+    else:
+        tile_note = f"given (--tile-size): {tile_pixels(tile_size, rx)} px a side"
+    report.tile_size = tile_size
+    comment = (f"Resolution {report.mpp:.6g} m/px ({note}): the DRGs' and DEM's pixels.\n"
+               f"TILE_SIZE {tile_size:g} degrees = {tile_note}.")
+    report.settings = write_settings(workdir, report.box, tile_size, legacy_8bit, comment)
     return report
+
+
+def check_grid_options(mpp, tile_size, match_dem: bool = False) -> None:
+    """``--mpp`` and ``--tile-size`` must be positive finite numbers (checked before anything is written)."""
+    if mpp is not None and match_dem:
+        raise InputError("give either --mpp or --match-dem, not both")
+    for name, v in (("--mpp", mpp), ("--tile-size", tile_size)):
+        if v is not None and not (np.isfinite(v) and v > 0):
+            raise InputError(f"{name} must be a positive number, got {v:g}")
+    if tile_size is not None and tile_size > 360:
+        raise InputError(f"--tile-size is in degrees and at most 360, got {tile_size:g}")

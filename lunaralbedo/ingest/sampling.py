@@ -3,7 +3,8 @@
 For output pixel ``(i, j)`` of a north-up grid: the body-fixed point of its DEM height
 (km, 1737.4 km sphere), the outward normal from the neighbouring points (central
 differences, one-sided at the grid's edges; the same formula as
-:func:`lunaralbedo.model.geometry.dem_normals`), ``cos e`` towards the spacecraft, and
+:func:`lunaralbedo.model.geometry.dem_normals`; the radial direction on a grid one pixel
+high or wide, which has no slope across it), ``cos e`` towards the spacecraft, and
 the cube value at 1-based ``(sample, line)`` sampled bilinearly as
 :func:`lunaralbedo.model.grid.bilinear_at` does.  NaN where the DEM has no value, the
 point is not imaged or the slope faces away from the spacecraft (``cos e <= 0``).
@@ -50,6 +51,9 @@ def _visible_samples(image, s, l, lon, lat, heights, row0, cx, cy, cz, out):
             nx, ny, nz = ry * ez - rz * ey, rz * ex - rx * ez, rx * ey - ry * ex
             px, py, pz = _point(lon[j], lat[i], h)
             norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+            if norm == 0.0:  # a grid one pixel high or wide has no slope across it: the radial normal
+                nx, ny, nz = px, py, pz
+                norm = math.sqrt(px * px + py * py + pz * pz)
             if nx * px + ny * py + nz * pz < 0:
                 norm = -norm
             vx, vy, vz = cx - px, cy - py, cz - pz

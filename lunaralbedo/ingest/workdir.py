@@ -59,7 +59,7 @@ def write_dem(path: Path, heights: np.ndarray, grid: Grid) -> None:
                   MOON_CRS, nodata=NO_DEM, dtype="float32")
 
 
-def settings_text(box, tile_size: float, legacy_8bit: bool) -> str:
+def settings_text(box, tile_size: float, legacy_8bit: bool, note: str = "") -> str:
     """Legacy settings for the ingested products (relative paths; Lunar-Lambertian)."""
     shadow_type, shadow_thresh = (1, 10) if legacy_8bit else (0, 0)
     values = {
@@ -71,14 +71,16 @@ def settings_text(box, tile_size: float, legacy_8bit: bool) -> str:
         "NO_DEM_DATA_VAL": NO_DEM, "USE_WEIGHTS": 1, "USE_NORMALIZED_COST_FUN": 0, "COMPUTE_ERRORS": 1,
     }
     comment = "Written by lunaralbedo ingest. SIMULATION_BOX = union of image footprints (lon_min:lon_max:lat_min:lat_max)."
+    if note:
+        comment += "\n" + note
     if not legacy_8bit:
         comment += "\nDRGs are float32 in physical units: SHADOW_TYPE 0 (no DN threshold)."
     return legacy_text(values, comment)
 
 
-def write_settings(workdir: Path, box, tile_size: float, legacy_8bit: bool) -> Path:
-    """Write ``WORKDIR/settings.txt`` atomically and check that :func:`load_settings` accepts it."""
+def write_settings(workdir: Path, box, tile_size: float, legacy_8bit: bool, note: str = "") -> Path:
+    """Write ``WORKDIR/settings.txt`` atomically (``note``: comment lines) and check that :func:`load_settings` accepts it."""
     path = workdir / "settings.txt"
-    atomic_write_text(path, settings_text(box, tile_size, legacy_8bit))
+    atomic_write_text(path, settings_text(box, tile_size, legacy_8bit, note))
     load_settings(path)
     return path

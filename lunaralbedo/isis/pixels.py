@@ -13,11 +13,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from rasterio.errors import RasterioIOError
 
 from ..errors import IsisError
 from ..io.guard import open_quietly
 from ..model.geometry import radius_to_height
-from .labels import IsisLabel, read_label
+from .labels import IsisLabel, read_label, value_of
 
 #: Special-pixel ranges (inclusive) of each ISIS pixel type, as stored values.
 _SPECIAL = {
@@ -61,11 +62,33 @@ def read_rows(label: IsisLabel | str | Path, start: int | None, stop: int | None
             raise IsisError(f"{data_path}: band {band} out of range 1..{ds.count}")
         window = None if start is None and stop is None else \
             Window(0, start or 0, ds.width, (ds.height if stop is None else stop) - (start or 0))
-        stored = ds.read(band, window=window, masked=False)
+        try:
+            stored = ds.read(band, window=window, masked=False)
+        except RasterioIOError as exc:
+            raise IsisError(f"{data_path}: cannot read the cube's pixels: {_read_failure(label, data_path, exc)}") from None
     base, mult = label.base_multiplier
     out = base + mult * stored.astype(np.float64)
     out[special_mask(stored, label.pixel_type)] = np.nan
     return out
+
+
+_PIXEL_BYTES = {"Real": 4, "SignedWord": 2, "UnsignedWord": 2, "UnsignedByte": 1}
+
+
+def _read_failure(label: IsisLabel, data_path: Path, exc: Exception) -> str:
+    """What GDAL's failure means: a file shorter than its label says (truncated), or GDAL's own words."""
+    try:
+        core = label.cube["Core"]
+        start = int(value_of(core.get("StartByte", 1))) - 1
+        bands, lines, samples = label.shape
+        need = start + bands * lines * samples * _PIXEL_BYTES[label.pixel_type]
+        size = data_path.stat().st_size
+        if size < need:
+            return f"the file is truncated ({size:,} bytes, its label needs {need:,})"
+    except (KeyError, TypeError, ValueError, OSError):
+        pass
+    text = str(exc).replace("See previous exception for details.", "").strip().rstrip(".")
+    return f"GDAL: {text or type(exc).__name__} (truncated or corrupt file?)"
 
 
 def cube_georeference(path: str | Path):

@@ -12,6 +12,7 @@ with ``EndGroup`` / ``EndObject``, the spellings ISIS's own reader accepts besid
 from __future__ import annotations
 
 import re
+from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
@@ -47,21 +48,62 @@ GRAMMARS = (ISISGrammar, EndAggregationGrammar)
 
 def read_pvl(path: str | Path, what: str = "PVL file") -> pvl.PVLModule:
     """Parse a PVL file (an ISIS label, a parameter file); :class:`IsisError` naming the file when it is
-    missing or no grammar accepts it (``what`` names the kind of file in the message)."""
+    missing, a folder, or no grammar accepts it (``what`` names the kind of file in the message; the reason
+    is one short line, not pvl's dump of the text around the error).
+
+    Parsed files are kept per process, keyed by path, size and modification time (pvl takes ~0.7 s on a
+    WAC label, and ``ingest`` reads each label several times); each caller gets its own copy."""
     path = Path(path)
+    if path.is_dir():
+        raise IsisError(f"{path}: is a folder, not an ISIS cube or {what}")
     if not path.is_file():
         raise IsisError(f"{path}: {what} not found")
+    st = path.stat()
+    key = (str(path.resolve()), st.st_size, st.st_mtime_ns)
+    if key in _PARSED:
+        _PARSED.move_to_end(key)
+        return _copy_pvl(_PARSED[key])
     with open(path, "rb") as f:
         head = f.read(MAX_LABEL_BYTES)
     end = _END_LINE.search(head)
     text = (head[: end.end()] if end else head).decode("latin-1")
-    errors = []
+    first = None
     for grammar in GRAMMARS:
         try:
-            return pvl.loads(text, grammar=grammar())
+            module = pvl.loads(text, grammar=grammar())
+            break
         except Exception as exc:  # pvl raises several lexer/parser exception types
-            errors.append(f"{grammar.__name__}: {exc}")
-    raise IsisError(f"{path}: cannot parse the {what} as PVL ({'; '.join(errors)})")
+            first = first or exc
+    else:
+        raise IsisError(f"{path}: not an ISIS cube or {what} ({_pvl_reason(first)})")
+    _PARSED[key] = module
+    while len(_PARSED) > _PARSED_MAX:
+        _PARSED.popitem(last=False)
+    return _copy_pvl(module)
+
+
+#: Parsed PVL files kept per process (see :func:`read_pvl`): at most this many.
+_PARSED_MAX = 32
+_PARSED: OrderedDict = OrderedDict()
+
+
+def _copy_pvl(value: Any) -> Any:
+    """A copy of a parsed PVL tree that keeps repeated keys (``copy.deepcopy`` of pvl's multi-dicts drops
+    them: a cube's several ``Table`` objects became one); leaves (numbers, strings, quantities) are shared."""
+    if hasattr(value, "items") and hasattr(value, "getall"):
+        return type(value)([(k, _copy_pvl(v)) for k, v in value.items()])
+    if isinstance(value, list):
+        return [_copy_pvl(v) for v in value]
+    return value
+
+
+def _pvl_reason(exc: Exception | None) -> str:
+    """One short line for a pvl parse failure (pvl's own message repeats the text around the error)."""
+    line = getattr(exc, "lineno", None)
+    if line is not None:
+        return f"cannot parse line {line}, column {getattr(exc, 'colno', '?')}"
+    args = [a for a in getattr(exc, "args", ()) if isinstance(a, str)]
+    return f"cannot parse it: {args[-1].splitlines()[0][:80]}" if args else "cannot parse it"
 
 
 def find_object(module: Any, name: str, where: str):

@@ -139,9 +139,43 @@ def aligned_grid(res_deg: tuple[float, float], box: Bounds, origin: tuple[float,
     return Grid(t, (max(1, r1 - r0), max(1, c1 - c0)))
 
 
+#: Round tile sizes (degrees): these times a power of ten.
+ROUND_MANTISSAS = (8, 6, 5, 4, 3, 2.5, 2, 1.5, 1)
+
+
+def round_down(value: float) -> float:
+    """The largest of :data:`ROUND_MANTISSAS` times a power of ten that is <= ``value`` (> 0)."""
+    k = math.floor(math.log10(value))
+    for m in ROUND_MANTISSAS:
+        v = float(f"{m * 10.0 ** k:.12g}")
+        if v <= value * (1 + 1e-9):
+            return v
+    return float(f"{10.0 ** k:.12g}")  # pragma: no cover - 1 * 10^k <= value always
+
+
+def tile_side_deg(res_deg: float, budget_bytes: float, bytes_per_pixel: float, max_deg: float = 4.0) -> float:
+    """A round tile size (degrees) whose square tiles of ``res_deg`` pixels hold at most ``budget_bytes``.
+
+    ``side = sqrt(budget / bytes_per_pixel) * res_deg`` rounded down by :func:`round_down`,
+    at most ``max_deg`` (the legacy default), at least one pixel.
+    """
+    side = math.sqrt(budget_bytes / bytes_per_pixel) * res_deg
+    return min(max_deg, max(round_down(side), res_deg))
+
+
+def tile_pixels(tile_size: float, res_deg: float) -> int:
+    """Pixels on a side of a ``tile_size``-degree tile of ``res_deg``-degree pixels (as the solver's tiles)."""
+    return max(1, math.ceil(tile_size / res_deg - 1e-6))
+
+
 def mpp_to_degrees(mpp: float) -> float:
     """Pixel size in degrees of arc (on the 1737.4 km sphere) for ``mpp`` metres per pixel."""
     return math.degrees(mpp / MOON_RADIUS_M)
+
+
+def degrees_to_mpp(deg: float) -> float:
+    """Metres per pixel on the 1737.4 km sphere for a pixel of ``deg`` degrees of arc."""
+    return math.radians(deg) * MOON_RADIUS_M
 
 
 @njit(cache=True)

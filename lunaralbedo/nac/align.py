@@ -95,8 +95,12 @@ class IcpResult:
 
 def icp(reference: np.ndarray, dem_points: np.ndarray, dem_normals: np.ndarray, method: str = "point-to-plane",
         max_displacement: float = np.inf, outlier_ratio: float = 0.75, translation_only: bool = False,
-        max_iterations: int = 1000, tol_m: float = 1e-3, tree=None) -> IcpResult:
-    """Rigid transform of the DEM cloud onto the ``reference`` points (all ``(n, 3)`` body-fixed metres)."""
+        max_iterations: int = 1000, tol_m: float = 1e-3, tree=None, on_iteration=None) -> IcpResult:
+    """Rigid transform of the DEM cloud onto the ``reference`` points (all ``(n, 3)`` body-fixed metres).
+
+    ``on_iteration(iteration, mean inlier distance m)`` is called after each iteration (progress).
+    Raises :class:`InputError` when the points do not determine a rigid transform (degenerate geometry).
+    """
     from scipy.spatial import cKDTree
 
     if method not in METHODS:
@@ -121,11 +125,19 @@ def icp(reference: np.ndarray, dem_points: np.ndarray, dem_normals: np.ndarray, 
         else:
             keep = np.ones(dist.size, bool)
         history.append(float(dist[keep].mean()))
-        if method == "point-to-plane":
-            r, t, c = _point_to_plane(q[keep], dem_points[j[keep]], dem_normals[j[keep]], translation_only)
-        else:
-            r, t, c = _point_to_point(q[keep], dem_points[j[keep]], translation_only)
+        if on_iteration is not None:
+            on_iteration(it, history[-1])
+        try:
+            if method == "point-to-plane":
+                r, t, c = _point_to_plane(q[keep], dem_points[j[keep]], dem_normals[j[keep]], translation_only)
+            else:
+                r, t, c = _point_to_point(q[keep], dem_points[j[keep]], translation_only)
+        except np.linalg.LinAlgError as exc:
+            raise InputError(f"the reference points and the DEM do not determine a rigid transform ({exc})") from None
         step = rigid(r, c + t - r @ c)  # rotate about the centroid c, then translate
+        if not np.isfinite(step).all():
+            raise InputError("the reference points and the DEM do not determine a rigid transform "
+                             "(degenerate geometry, e.g. all points on one line); try --translation-only")
         s = step @ s
         moved = float(np.max(np.linalg.norm(apply(step, q[keep]) - q[keep], axis=1)))
         past.append(s)

@@ -5,9 +5,14 @@ files (as LOLA RDR exports), errors and DEM heights in metres, transforms in Moo
 body-fixed metres.  Outputs (atomic): ``PREFIX-transform.txt`` /
 ``PREFIX-inverse-transform.txt`` (4x4, maps the DEM onto the reference / back),
 ``PREFIX-beg_errors.csv`` / ``PREFIX-end_errors.csv`` (``lon,lat,radius,error`` per
-reference point within ``--max-displacement``; error = absolute vertical distance
-to the bilinearly interpolated DEM), ``PREFIX-trans_dem.tif`` (the aligned DEM on
+reference point within ``--max-displacement`` that meets the DEM, as ``pc_align`` writes them;
+error = absolute vertical distance to the bilinearly interpolated DEM), ``PREFIX-trans_dem.tif`` (the aligned DEM on
 the source grid), ``PREFIX-report.json``, ``PREFIX-log.txt`` and ``PREFIX-errors.png``.
+
+Only the reference points over the source DEM take part (a global reference DEM against a
+small source: the points of its footprint), at most :data:`MAX_REFERENCE_POINTS` of them
+(an even subsample, as ``pc_align --max-num-reference-points``); inputs that do not overlap,
+or too few points to fix a rigid transform, are refused (exit 2) before anything is written.
 """
 from __future__ import annotations
 
@@ -26,6 +31,13 @@ from ..io.outputs import save_figure
 from ..io.geotiff import write_geotiff
 from ..model.geometry import body_fixed, dem_normals, lonlat_height
 from .align import apply, ce90_le90, error_stats, icp
+
+#: Most reference points used (an even subsample beyond): each ICP iteration queries them all.
+MAX_REFERENCE_POINTS = 100_000
+#: Fewest reference points over the DEM that ``align`` accepts (a rigid transform has 6 unknowns).
+MIN_POINTS = 6
+_OUTPUTS = ("-transform.txt", "-inverse-transform.txt", "-beg_errors.csv", "-end_errors.csv", "-trans_dem.tif",
+            "-errors.png", "-report.json", "-log.txt")
 
 _LON = ("lon", "longitude", "pt_longitude")
 _LAT = ("lat", "latitude", "pt_latitude")
@@ -129,6 +141,8 @@ def plot_errors(path: Path, beg: np.ndarray, end: np.ndarray) -> None:
     import matplotlib.pyplot as plt
 
     b, e = beg[np.isfinite(beg)], end[np.isfinite(end)]
+    if b.size == 0 or e.size == 0:
+        return
     lo = max(1e-3, float(min(np.percentile(b, 1), np.percentile(e, 1))))
     hi = float(max(b.max(), e.max())) * 1.1
     bins = np.geomspace(lo, hi, 60)
@@ -145,7 +159,8 @@ def plot_errors(path: Path, beg: np.ndarray, end: np.ndarray) -> None:
 
 
 def _log_text(report: dict) -> str:
-    out = [f"source DEM: {report['source']}", f"reference: {report['reference']} ({report['reference_points']} points, "
+    out = [f"source DEM: {report['source']}", f"reference: {report['reference']} ({report['reference_points']} points "
+           f"over the DEM of {report.get('reference_points_given', report['reference_points'])}, "
            f"{report['inliers']} within --max-displacement {report['max_displacement']} m)",
            f"method: {report['method']}{' (translation only)' if report['translation_only'] else ''}; "
            f"{report['iterations']} iterations, converged: {report['converged']}; {report['points_per_second']:,.0f} points/s"]
@@ -161,27 +176,58 @@ def _log_text(report: dict) -> str:
     return "\n".join(out) + "\n"
 
 
+def _over_dem(src: DemSource, ref: np.ndarray, reference: Path, source: Path) -> np.ndarray:
+    """The reference rows over the source DEM (finite height under them), evenly subsampled to at most
+    :data:`MAX_REFERENCE_POINTS`; :class:`InputError` when fewer than :data:`MIN_POINTS`."""
+    over = np.isfinite(src.sample(ref[:, 0], ref[:, 1]))
+    if over.sum() < MIN_POINTS:
+        raise InputError(f"{reference}: only {int(over.sum())} of its {len(ref)} points lie over the DEM {source} "
+                         f"(need at least {MIN_POINTS}): the two do not overlap")
+    ref = ref[over]
+    if len(ref) > MAX_REFERENCE_POINTS:
+        ref = ref[np.linspace(0, len(ref) - 1, MAX_REFERENCE_POINTS).astype(int)]
+    return ref
+
+
 def align_files(source: str | Path, reference: str | Path, prefix: str | Path, max_displacement: float = np.inf,
                 method: str = "point-to-plane", translation_only: bool = False, outlier_ratio: float = 0.75,
-                dem_mode: str = "auto") -> dict:
-    """Align ``source`` (DEM) onto ``reference`` (CSV or DEM) and write the outputs; returns the report dict."""
+                dem_mode: str = "auto", on_iteration=None) -> dict:
+    """Align ``source`` (DEM) onto ``reference`` (CSV or DEM) and write the outputs; returns the report dict.
+
+    ``on_iteration(iteration, mean distance m)``: progress of the ICP.  Nothing is written unless the
+    alignment succeeds (a failure while writing removes what was written).
+    """
     from scipy.spatial import cKDTree
 
     source, reference, prefix = Path(source), Path(reference), Path(prefix)
     if not reference.is_file():
         raise InputError(f"{reference}: reference file not found")
+    if not (max_displacement > 0):
+        raise InputError(f"--max-displacement must be > 0 m, got {max_displacement}")
+    if not 0 < outlier_ratio <= 1:
+        raise InputError(f"--outlier-ratio must be in (0, 1], got {outlier_ratio}")
     src = load_dems([source], dem_mode)[0]
-    ref = reference_points(reference, dem_mode)
+    ref_all = reference_points(reference, dem_mode)
+    ref = _over_dem(src, ref_all, reference, source)
     ref_m = body_fixed(ref[:, 0], ref[:, 1], ref[:, 2] * 1000.0 - MOON_RADIUS_M) * 1000.0
     pts, normals = dem_cloud(src)
+    if len(pts) < MIN_POINTS:
+        raise InputError(f"{source}: only {len(pts)} DEM pixels with a surface normal (need at least {MIN_POINTS})")
     t0 = time.perf_counter()
     tree = cKDTree(pts)
-    res = icp(ref_m, pts, normals, method, max_displacement, outlier_ratio, translation_only, tree=tree)
+    res = icp(ref_m, pts, normals, method, max_displacement, outlier_ratio, translation_only, tree=tree,
+              on_iteration=on_iteration)
     seconds = time.perf_counter() - t0
     used, used_m = ref[res.inliers], ref_m[res.inliers]
     beg = vertical_errors(src, used_m)
     moved = apply(res.inverse, used_m)  # reference points in the source DEM's frame
     end = vertical_errors(src, moved)
+    meets = np.isfinite(beg) & np.isfinite(end)  # pc_align lists only the points that meet the DEM
+    used, used_m, moved, beg, end = used[meets], used_m[meets], moved[meets], beg[meets], end[meets]
+    if len(used) < MIN_POINTS:
+        raise InputError(f"{reference}: the alignment moved the reference points off the DEM {source} ({len(used)} of "
+                         f"{len(ref)} still on it, need {MIN_POINTS}): too few points over the DEM to fix a rigid "
+                         "transform; use a denser reference, --translation-only or --max-displacement")
     before, after = error_stats(beg), error_stats(end)
     before["ce90"], before["le90"] = ce90_le90(used_m, pts, normals, tree)
     after["ce90"], after["le90"] = ce90_le90(moved, pts, normals, tree)
@@ -193,6 +239,7 @@ def align_files(source: str | Path, reference: str | Path, prefix: str | Path, m
     north = np.cross(up, east)
     report = {
         "source": str(source), "reference": str(reference), "reference_points": int(len(ref)),
+        "reference_points_given": int(len(ref_all)),
         "inliers": int(res.inliers.sum()), "max_displacement": float(max_displacement), "method": method,
         "translation_only": translation_only, "outlier_ratio": outlier_ratio, "iterations": res.iterations,
         "converged": res.converged, "seconds": seconds, "points_per_second": len(ref) * res.iterations / seconds,
@@ -203,13 +250,19 @@ def align_files(source: str | Path, reference: str | Path, prefix: str | Path, m
                      "from the tangent plane at its nearest DEM point",
         "transform": res.transform.tolist(),
     }
-    atomic_write_text(Path(f"{prefix}-transform.txt"), _matrix_text(res.transform))
-    atomic_write_text(Path(f"{prefix}-inverse-transform.txt"), _matrix_text(res.inverse))
-    atomic_write_text(Path(f"{prefix}-beg_errors.csv"), _errors_csv(used, beg))
-    atomic_write_text(Path(f"{prefix}-end_errors.csv"), _errors_csv(used, end))
-    write_geotiff(Path(f"{prefix}-trans_dem.tif"), transformed_dem(src, res.transform).astype(np.float32),
-                  src.transform, src.crs, nodata=np.nan, dtype="float32")
-    plot_errors(Path(f"{prefix}-errors.png"), beg, end)
-    atomic_write_text(Path(f"{prefix}-report.json"), json.dumps(report, indent=1) + "\n")
-    atomic_write_text(Path(f"{prefix}-log.txt"), _log_text(report))
+    trans_dem = transformed_dem(src, res.transform).astype(np.float32)
+    paths = [Path(f"{prefix}{suffix}") for suffix in _OUTPUTS]
+    try:
+        atomic_write_text(paths[0], _matrix_text(res.transform))
+        atomic_write_text(paths[1], _matrix_text(res.inverse))
+        atomic_write_text(paths[2], _errors_csv(used, beg))
+        atomic_write_text(paths[3], _errors_csv(used, end))
+        write_geotiff(paths[4], trans_dem, src.transform, src.crs, nodata=np.nan, dtype="float32")
+        plot_errors(paths[5], beg, end)
+        atomic_write_text(paths[6], json.dumps(report, indent=1) + "\n")
+        atomic_write_text(paths[7], _log_text(report))
+    except BaseException:
+        for p in paths:
+            p.unlink(missing_ok=True)
+        raise
     return report
