@@ -185,7 +185,7 @@ def test_a_label_that_is_not_pvl_is_one_error_naming_the_file(tmp_path, realdata
     text = (realdata / NAC).read_bytes()[:2000]  # the label, cut off in its first groups
     bad = tmp_path / "cut.cub"
     bad.write_bytes(text + b'\n  Name = "a quote that never closes\nEnd\n')
-    with pytest.raises(IsisError, match=r"cut\.cub: cannot parse the ISIS label as PVL"):
+    with pytest.raises(IsisError, match=r"cut\.cub: not an ISIS cube or ISIS label \(cannot parse"):
         read_label(bad)
     with pytest.raises(IsisError, match=r"nothing\.cub: ISIS label not found"):
         read_label(tmp_path / "nothing.cub")
