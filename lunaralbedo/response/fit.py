@@ -286,6 +286,23 @@ def _solve(prof: "_Profile", p0: np.ndarray, a_s: np.ndarray | None, record, max
     return p, False, passes, its, f"not converged: KKT violation {viol:.1e} after {its} Newton iterations, {passes} passes"
 
 
+def _fitted_levels(obs: Observations, min_count: int, exclude) -> tuple:
+    """The free levels and the observations fitted: in the levels' range, not excluded, of pixels with two
+    or more of them.  The levels are chosen on the observations that are kept (a level whose observations
+    all fall on pixels seen once carries nothing on g: as a knot it had no data and the fit started from
+    NaN); dropping a pixel can move the range, so the choice is repeated until it holds."""
+    keep = ~np.isin(obs.dn, exclude)
+    lev = None
+    for _ in range(32):
+        keep &= np.bincount(obs.pixel[keep], minlength=obs.n_pixels)[obs.pixel] >= 2
+        new = choose_levels(obs.dn[keep], min_count, exclude)
+        in_range = keep & (obs.dn >= new.lo) & (obs.dn <= new.hi)
+        if lev is not None and np.array_equal(new.knots, lev.knots) and np.array_equal(in_range, keep):
+            break
+        lev, keep = new, in_range
+    return lev, keep
+
+
 def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_count: int = 20, exclude=(0, 255),
                  juggle_passes: int = 10, max_iter: int = MAX_ITER, z_ref: int = Z_REF,
                  gauge: str = "auto") -> ResponseFit:
@@ -302,9 +319,7 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
     else as the power :math:`\gamma = 1/\beta` applied to g, r, t.  The exposures are returned
     with geometric mean 1.
     """
-    lev = choose_levels(obs.dn, min_count, exclude)
-    keep = (obs.dn >= lev.lo) & (obs.dn <= lev.hi) & ~np.isin(obs.dn, exclude)
-    keep &= np.bincount(obs.pixel[keep], minlength=obs.n_pixels)[obs.pixel] >= 2
+    lev, keep = _fitted_levels(obs, min_count, exclude)
     sub, pix_ids = obs.take(keep)
     lev_idx = (sub.dn - lev.lo).astype(np.int64)
     t_free = exposure is None
