@@ -185,3 +185,20 @@ def test_align_ctrl_c_does_not_offer_resume(terrain, tmp_path, monkeypatch):
     msg = assert_clean_failure(_align(d, ref, tmp_path / "a"), 130, "interrupted")
     assert "resume" not in msg
     assert not list(tmp_path.glob("a-*"))
+
+
+def test_native_union_too_big_asks_for_mpp():
+    """Two 0.5 m images 10 degrees apart would make a 600 000 px wide grid at their native resolution:
+    refused before anything is written, with the --mpp that fits."""
+    from lunaralbedo.errors import InputError
+    from lunaralbedo.ingest.dem import DemMosaic, load_dems
+    from lunaralbedo.ingest.run import MAX_GRID_PIXELS, _check_union_size
+
+    dem = DemMosaic(load_dems([SAMPLE / "dem"]))
+    near = [(0.5, (10.0, 0.0, 10.01, 0.1)), (0.5, (10.02, 0.0, 10.03, 0.1))]
+    _check_union_size(near, dem)  # 0.03 x 0.1 degrees at 0.5 m: ~1800 x 6100 px, fine
+    with pytest.raises(InputError, match=r"give --mpp ([0-9.]+) or coarser") as exc:
+        _check_union_size(near + [(0.5, (20.0, 0.0, 20.01, 0.1))], dem)
+    coarser = float(exc.value.args[0].split("give --mpp ")[1].split()[0])
+    width, height = 10.01 / np.degrees(coarser / 1737400.0), 0.1 / np.degrees(coarser / 1737400.0)
+    assert width * height == pytest.approx(MAX_GRID_PIXELS, rel=0.05)
