@@ -202,3 +202,16 @@ def test_native_union_too_big_asks_for_mpp():
     coarser = float(exc.value.args[0].split("give --mpp ")[1].split()[0])
     width, height = 10.01 / np.degrees(coarser / 1737400.0), 0.1 / np.degrees(coarser / 1737400.0)
     assert width * height == pytest.approx(MAX_GRID_PIXELS, rel=0.05)
+
+
+def test_align_reports_each_iteration(terrain, tmp_path):
+    """align's progress: one call per ICP iteration with the mean distance, as many as the report counts."""
+    from lunaralbedo.nac.align_files import align_files
+
+    d, pts = terrain
+    ref = tmp_path / "ref.csv"
+    np.savetxt(ref, pts, delimiter=",", header="lon,lat,radius", comments="", fmt="%.9f")
+    seen = []
+    report = align_files(d / "dem.tif", ref, tmp_path / "a", on_iteration=lambda i, dist: seen.append((i, dist)))
+    assert [i for i, _ in seen] == list(range(1, report["iterations"] + 1))
+    assert all(np.isfinite(dist) and dist >= 0 for _, dist in seen)
