@@ -215,3 +215,22 @@ def test_align_reports_each_iteration(terrain, tmp_path):
     report = align_files(d / "dem.tif", ref, tmp_path / "a", on_iteration=lambda i, dist: seen.append((i, dist)))
     assert [i for i, _ in seen] == list(range(1, report["iterations"] + 1))
     assert all(np.isfinite(dist) and dist >= 0 for _, dist in seen)
+
+
+def test_solve_warns_naming_tile_size_over_the_budget(scene, tmp_path, monkeypatch):
+    """A tile over the memory budget: one warning naming TILE_SIZE and the value that fits; the run goes on
+    in blocks of rows and finishes."""
+    monkeypatch.setenv("LUNARALBEDO_BLOCK_MB", "0.05")  # 52 kB: 546 px at 96 B/px, less than one tile of the scene
+    from lunaralbedo.settings import load_settings
+
+    s = load_settings(scene / "settings.txt")
+    out = tmp_path / "out"
+    res = cli("solve", scene / "settings.txt", "-o", out, "--quiet")
+    assert res.exit_code == 0, res.stderr
+    warnings = [line for line in res.stderr.splitlines() if line.startswith("warning: ")]
+    assert len(warnings) == 1 and f"TILE_SIZE {s.tile_size:g} gives tiles of" in warnings[0], res.stderr
+    fits = float(warnings[0].split("; TILE_SIZE ")[1].split()[0])
+    assert fits < s.tile_size
+    monkeypatch.delenv("LUNARALBEDO_BLOCK_MB")
+    res = cli("solve", scene / "settings.txt", "-o", tmp_path / "out2", "--quiet")
+    assert res.exit_code == 0 and "warning" not in res.stderr
