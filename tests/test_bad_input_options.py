@@ -185,3 +185,52 @@ def test_align_ctrl_c_does_not_offer_resume(terrain, tmp_path, monkeypatch):
     msg = assert_clean_failure(_align(d, ref, tmp_path / "a"), 130, "interrupted")
     assert "resume" not in msg
     assert not list(tmp_path.glob("a-*"))
+
+
+def test_native_union_too_big_asks_for_mpp():
+    """Two 0.5 m images 10 degrees apart would make a 600 000 px wide grid at their native resolution:
+    refused before anything is written, with the --mpp that fits."""
+    from lunaralbedo.errors import InputError
+    from lunaralbedo.ingest.dem import DemMosaic, load_dems
+    from lunaralbedo.ingest.run import MAX_GRID_PIXELS, _check_union_size
+
+    dem = DemMosaic(load_dems([SAMPLE / "dem"]))
+    near = [(0.5, (10.0, 0.0, 10.01, 0.1)), (0.5, (10.02, 0.0, 10.03, 0.1))]
+    _check_union_size(near, dem)  # 0.03 x 0.1 degrees at 0.5 m: ~1800 x 6100 px, fine
+    with pytest.raises(InputError, match=r"give --mpp ([0-9.]+) or coarser") as exc:
+        _check_union_size(near + [(0.5, (20.0, 0.0, 20.01, 0.1))], dem)
+    coarser = float(exc.value.args[0].split("give --mpp ")[1].split()[0])
+    width, height = 10.01 / np.degrees(coarser / 1737400.0), 0.1 / np.degrees(coarser / 1737400.0)
+    assert width * height == pytest.approx(MAX_GRID_PIXELS, rel=0.05)
+
+
+def test_align_reports_each_iteration(terrain, tmp_path):
+    """align's progress: one call per ICP iteration with the mean distance, as many as the report counts."""
+    from lunaralbedo.nac.align_files import align_files
+
+    d, pts = terrain
+    ref = tmp_path / "ref.csv"
+    np.savetxt(ref, pts, delimiter=",", header="lon,lat,radius", comments="", fmt="%.9f")
+    seen = []
+    report = align_files(d / "dem.tif", ref, tmp_path / "a", on_iteration=lambda i, dist: seen.append((i, dist)))
+    assert [i for i, _ in seen] == list(range(1, report["iterations"] + 1))
+    assert all(np.isfinite(dist) and dist >= 0 for _, dist in seen)
+
+
+def test_solve_warns_naming_tile_size_over_the_budget(scene, tmp_path, monkeypatch):
+    """A tile over the memory budget: one warning naming TILE_SIZE and the value that fits; the run goes on
+    in blocks of rows and finishes."""
+    monkeypatch.setenv("LUNARALBEDO_BLOCK_MB", "0.05")  # 52 kB: 546 px at 96 B/px, less than one tile of the scene
+    from lunaralbedo.settings import load_settings
+
+    s = load_settings(scene / "settings.txt")
+    out = tmp_path / "out"
+    res = cli("solve", scene / "settings.txt", "-o", out, "--quiet")
+    assert res.exit_code == 0, res.stderr
+    warnings = [line for line in res.stderr.splitlines() if line.startswith("warning: ")]
+    assert len(warnings) == 1 and f"TILE_SIZE {s.tile_size:g} gives tiles of" in warnings[0], res.stderr
+    fits = float(warnings[0].split("; TILE_SIZE ")[1].split()[0])
+    assert fits < s.tile_size
+    monkeypatch.delenv("LUNARALBEDO_BLOCK_MB")
+    res = cli("solve", scene / "settings.txt", "-o", tmp_path / "out2", "--quiet")
+    assert res.exit_code == 0 and "warning" not in res.stderr

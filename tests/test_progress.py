@@ -48,9 +48,11 @@ def test_first_run_compilation_is_announced(tmp_path, monkeypatch, capsys):
     (tmp_path / "jitmod.py").write_text("x = 1\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
-    announce_compiling(("jitmod",))
+    assert not announce_compiling(("jitmod",), tty=False)  # scripts and pipes: nothing
+    assert capsys.readouterr().err == ""
+    announce_compiling(("jitmod",), tty=True)
     assert "compiling the numerical kernels" in capsys.readouterr().err
     (tmp_path / "__pycache__").mkdir()
     (tmp_path / "__pycache__" / "jitmod.kernel-1.py311.nbi").write_bytes(b"")  # numba's cache index
-    announce_compiling(("jitmod",))
+    announce_compiling(("jitmod",), tty=True)
     assert capsys.readouterr().err == ""

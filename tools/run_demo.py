@@ -44,7 +44,8 @@ def main() -> int:
         print(f"no cubes in {sample}/cubes: run `make sample-data` first", file=sys.stderr)
         return 1
     work, results = out / "work", out / "albedo"
-    run("ingest", *cubes, "--dem", rel(sample / "dem"), "-o", rel(work))
+    # on the DEM's grid: the sample data's truth (albedo, DEM) was rendered on it and the scores below compare there
+    run("ingest", *cubes, "--dem", rel(sample / "dem"), "--match-dem", "-o", rel(work))
     run("solve", rel(work / "settings.txt"), "-o", rel(results))
     run("export-kml", rel(results))
     run("export-web", rel(results))

@@ -146,11 +146,16 @@ def _jit_cached(module: str) -> bool:
     return any(any(p.rglob(f"{src.stem}.*.nbi")) for p in places if p.is_dir())
 
 
-def announce_compiling(modules: tuple[str, ...]) -> None:
-    """Say once, on stderr, that this first run compiles the numerical kernels (not a slow run)."""
-    if not all(_jit_cached(m) for m in modules):
-        click.echo("note: first run after installing: compiling the numerical kernels (numba), about a minute "
-                   "on a busy machine; later runs reuse them", err=True)
+def announce_compiling(modules: tuple[str, ...], tty: bool | None = None) -> bool:
+    """Say once, on stderr, that this first run compiles the numerical kernels (not a slow run); True if it did.
+
+    Only on a terminal (``tty`` None: whether stderr is one): scripts and pipes keep their one-line errors.
+    """
+    if not (sys.stderr.isatty() if tty is None else tty) or all(_jit_cached(m) for m in modules):
+        return False
+    click.echo("note: first run after installing: compiling the numerical kernels (numba), about a minute "
+               "on a busy machine; later runs reuse them", err=True)
+    return True
 
 
 def parallel_options(default: str) -> Callable:

@@ -57,7 +57,7 @@ def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem
             dem_values = "height"  # the aligned DEMs hold heights
         for n in notes:
             click.echo(n)
-    announce_compiling(INGEST_KERNELS)
+    compiling = announce_compiling(INGEST_KERNELS)
     report = ingest(list(cubes), list(dems), workdir, kernels, isisdata, mpp, source, dem_values,
                     legacy_8bit, tile_size, workers=workers or 1, scheduler=scheduler, progress=sys.stderr.isatty(),
                     match_dem=match_dem)
@@ -70,8 +70,10 @@ def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem
             click.echo(f"skipped {r.key} ({r.path}): {r.skipped}")
         else:
             w, s, e, n = r.box
+            speed = "(compiling)" if compiling else f"{r.pixels_per_second:,.0f} px/s"
+            compiling = False  # the first cube's time holds the compilation, not the others'
             click.echo(f"{r.key}  {r.kind:<12} {r.source:<7} lon {w:.4f}..{e:.4f}  lat {s:.4f}..{n:.4f}  "
-                       f"{r.valid_pixels} px  {r.pixels_per_second:,.0f} px/s")
+                       f"{r.valid_pixels} px  {speed}")
     lo0, lo1, la0, la1 = report.box
     click.echo(f"resolution {report.mpp:.4g} m/px; TILE_SIZE {report.tile_size:g} degrees")
     click.echo(f"footprint union lon {lo0:.4f}..{lo1:.4f} lat {la0:.4f}..{la1:.4f}; "

@@ -102,7 +102,7 @@ def load_dems(paths: Sequence[str | Path], mode: str = "auto") -> list[DemSource
 class DemMosaic:
     """Several DEM sources looked up as one: where they overlap, their heights are averaged.
 
-    The overlap rule is :func:`lunaralbedo.model.geometry.merge_dem_layers` (seed 000
+    The overlap rule is :func:`lunaralbedo.model.geometry.merge_dem_layers` (the PhotometryTK manual,
     section 6), the one ``solve`` applies to the work dir's DEM tiles too.
     """
 

@@ -32,6 +32,11 @@ from .resolution import pixel_resolution_m, tile_size_deg
 from .workdir import remove_stale_drgs, write_dem, write_drg, write_settings
 
 
+#: Most pixels of the images' union at their native resolution (0.4 Gpx: one LRO NAC frame, 5064 x 52 000 px,
+#: with room to spare); beyond it ingest asks for --mpp instead of running out of memory.
+MAX_GRID_PIXELS = 400_000_000
+
+
 @dataclass
 class CubeResult:
     """Outcome for one cube: footprint box (degrees), valid pixels, speed, or why it was skipped."""
@@ -143,9 +148,10 @@ def refuse_unsupported(path) -> None:
                          "model for radar geometry (`lunaralbedo positions` gives their positions)")
 
 
-def _native_mpp(item, *, extra, isisdata, source, dem: DemMosaic) -> float | None:
-    """Native ground resolution (m) of one cube (band): :func:`.resolution.pixel_resolution_m` at its centre,
-    or a map-projected cube's own pixel size; None when the cube cannot be opened (its ingest task says why)."""
+def _native_mpp(item, *, extra, isisdata, source, dem: DemMosaic):
+    """``(metres, footprint box)`` of one cube (band): its native ground resolution
+    (:func:`.resolution.pixel_resolution_m` at its centre, or a map-projected cube's own pixel size) and
+    its footprint (west, south, east, north); None when the cube cannot be opened (its ingest task says why)."""
     path, key, band, _center = item
     try:
         refuse_unsupported(path)
@@ -156,11 +162,27 @@ def _native_mpp(item, *, extra, isisdata, source, dem: DemMosaic) -> float | Non
 
                 transform, crs = cube_georeference(label.data_path)
                 size = abs(transform.a)
-                return degrees_to_mpp(size) if crs is None or crs.is_geographic else size
-            mpp = pixel_resolution_m(build_camera(label, obs.ephemeris, obs.code, band=band), dem.height)
-            return mpp if np.isfinite(mpp) and mpp > 0 else None
+                mpp = degrees_to_mpp(size) if crs is None or crs.is_geographic else size
+                box = _box(*level2_bounds(label), _lon_base(dem))
+            else:
+                camera = build_camera(label, obs.ephemeris, obs.code, band=band)
+                mpp = pixel_resolution_m(camera, dem.height)
+                box = _box(*footprint(camera, dem.height), _lon_base(dem))
+            return (mpp, box) if np.isfinite(mpp) and mpp > 0 and box is not None else None
     except (LunarAlbedoError, KeyError, ValueError, TypeError, IndexError):
         return None
+
+
+def _check_union_size(found, dem: DemMosaic) -> None:
+    """Refuse (before anything is written) a native grid of the images' union beyond :data:`MAX_GRID_PIXELS`."""
+    mpp = min(m for m, _ in found)
+    grid = dem.base_grid(union_box([b for _, b in found], _lon_base(dem)), mpp_to_degrees(mpp))
+    n = grid.width * grid.height
+    if n > MAX_GRID_PIXELS:
+        coarser = mpp * (n / MAX_GRID_PIXELS) ** 0.5
+        raise InputError(f"at the images' native resolution ({mpp:.4g} m/px) their union is a grid of {grid.width:,} x "
+                         f"{grid.height:,} px ({n / 1e9:.2g} Gpx, more than {MAX_GRID_PIXELS / 1e9:g}); give --mpp "
+                         f"{coarser:.3g} or coarser, or ingest distant images into separate work folders")
 
 
 def _process_cube(item, *, extra, isisdata, source, dem: DemMosaic, mpp_deg, drg_dir: Path, legacy_8bit: bool) -> CubeResult:
@@ -213,7 +235,9 @@ def ingest(cubes: Sequence[str | Path], dems: Sequence[str | Path], workdir: str
             firsts = list({str(it[0]): it for it in reversed(items)}.values())  # a cube's first band: its bands share a grid
             native = [m for m in executor.map(_native_mpp, firsts, "resolution", shared=("dem",), extra=extra,
                                               isisdata=isisdata, source=source, dem=dem) if m]
-            mpp = min(native) if native else None  # none: no cube opens (their tasks say why), the DEM's grid
+            if native:
+                _check_union_size(native, dem)
+            mpp = min(m for m, _ in native) if native else None  # none: no cube opens (their tasks say why)
             report.resolution_note = "native: the finest image's pixel at its centre, as ISIS cam2map" if native else ""
         mpp_deg = mpp_to_degrees(mpp) if mpp else None
         results = executor.map(

@@ -1,4 +1,4 @@
-r"""Iterative closest point of reference points (e.g. LOLA shots) onto a DEM surface (``pc_align`` of seed 004).
+r"""Iterative closest point of reference points (e.g. LOLA shots) onto a DEM surface (ASP ``pc_align``, as the ASP LRO-NAC notes use it).
 
 Pure math on NumPy arrays; all points are Moon-centred body-fixed **metres**.
 The DEM is a cloud of surface points :math:`d_j` with unit normals :math:`n_j`
