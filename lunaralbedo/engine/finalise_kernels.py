@@ -39,7 +39,7 @@ def _error_quotient(num, blend, err, n):
             err[j] = num[j] / blend[j]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")  # IEEE division, as the NumPy formulas (model/updates.albedo, error_terms)
+@njit(cache=True, nogil=True, error_model="numpy")  # IEEE division, as the NumPy formulas (tests/oracles.py; model/updates.error_terms)
 def finalise_runs(chunks, run_start, run_pixel, run_image, image, texp, r, w, blend, c0, alb, err):
     r"""Eq. 3's albedo and eq. 7's error of a block's observations in chunk-major runs, into ``alb`` and ``err``.
 

@@ -267,7 +267,7 @@ def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1
     add into its consecutive pixels' float64 sums, and its pixels' albedo is read back, as
     contiguous slices, so nearly every loop is elementwise and LLVM vectorises it
     (``tests/test_kernels.py`` checks the packed instructions).  Eq. 3's sums of a pixel run
-    over its images in tile order, ``((0 + p0) + p1) + ...``, as :func:`lunaralbedo.model.updates.albedo`
+    over its images in tile order, ``((0 + p0) + p1) + ...``, as the NumPy oracle of eq. 3 in ``tests/oracles.py``
     sums them: the same bits.  The quotient is taken once per pixel, over the union of the
     chunk's runs (:func:`_spans`).  The global sums (Q and the normal equations) go to
     :data:`LANES` float64 lanes by position in the chunk, each image's exposure sums to

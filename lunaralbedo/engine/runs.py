@@ -13,7 +13,7 @@ whole width), so that
   contiguous sums (no scatter);
 * a run's pixels are consecutive: its terms add into the chunk's per-pixel sums, and its
   pixels' albedo is read back, as contiguous slices (vectorised), in tile order of the
-  images for every pixel (the order of :func:`lunaralbedo.model.updates.albedo`).
+  images for every pixel (the order of the NumPy oracle of eq. 3, ``tests/oracles.albedo``).
 
 :func:`chunk_runs` reorders a block once, before it is cached (each image's pieces of the
 chunks, sorted by chunk, images staying in tile order), so the cache holds the iterations' order: ~16 bytes per observation (value, weight,
