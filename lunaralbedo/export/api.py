@@ -111,16 +111,66 @@ def export_kml(
     name: str | None = None,
     sub4_resampling: str = "average",
 ) -> dict:
-    """Write ``albedo_sub4/``, ``kml/doc.kml`` (+ tree) and ``albedo_mosaic.tif`` (+ ``error_mosaic.tif``).
+    """Write the Google Earth and GIS products of a ``solve`` results folder.
 
-    ``stretch`` are the low/high percentiles of the 8-bit stretch, unless
-    ``value_range=(lo, hi)`` is given.  ``levels`` None means as many as the data
-    needs.  Where tasks run (:func:`lunaralbedo.parallel.make_executor`): ``client``
-    (a ``distributed.Client``), else ``scheduler`` (address of a Dask scheduler),
-    else ``workers`` local workers (default: all cores; 1 = serial) of kind
-    ``pool`` (``"threads"`` or ``"processes"``).  Returns a
-    summary dict (also the content of the printed summary).  ``sub4_resampling``
-    is ``"average"`` (default) or ``"nearest"`` (PhotometryTK's values).
+    The products the PhotometryTK manual lists, built as independent Dask tasks:
+    ``albedo_sub4/`` (each albedo tile at 1/4 resolution),
+    ``kml/doc.kml`` with its super-overlay quadtree of 8-bit PNG tiles (plus
+    ``kml/stretch.json``), ``albedo_mosaic.tif`` and, when ``results_dir/error`` holds
+    tiles, ``error_mosaic.tif`` (float32 Cloud-Optimised GeoTIFFs, geographic degrees).
+    Folders are built in a ``.tmp-*`` sibling and swapped in at the end: a failed run
+    leaves the previous export intact.
+
+    Parameters
+    ----------
+    results_dir : str or Path
+        The ``RESULTS_DIR`` of a solve (its ``albedo/tile_*.tif``, optionally ``error/``).
+        With a ``distributed.Client`` it must be on a file system the workers share.
+    levels : int, optional
+        Levels of the KML quadtree; default as many as the data needs (finest level at
+        about the albedo's native pixel size).
+    stretch : tuple of float, default (2.0, 98.0)
+        Low and high percentiles (0..100) of the valid albedo values that map to 0 and 255
+        of the 8-bit stretch.
+    value_range : tuple of float, optional
+        Albedo values ``(lo, hi)`` of the stretch; replaces ``stretch`` (no sampling pass).
+    tile_size : int, default 256
+        Side of a PNG tile, pixels.
+    client : distributed.Client, optional
+        A client the caller owns to run the tasks on (not closed here).
+    workers : int, optional
+        Local workers when neither ``client`` nor ``scheduler`` is given; default all
+        cores, 1 runs serially.
+    scheduler : str, optional
+        Address (``tcp://host:port``) of a Dask scheduler to run the tasks on.
+    pool : {"threads", "processes"}, default "threads"
+        Kind of the local workers.
+    name : str, optional
+        Name of the root KML document; default the folder's name.
+    sub4_resampling : {"average", "nearest"}, default "average"
+        Resampling of ``albedo_sub4/``; ``"nearest"`` gives PhotometryTK's values.
+
+    Returns
+    -------
+    dict
+        The summary the CLI prints: ``results_dir`` (str, resolved); ``levels``;
+        ``tile_size`` (px); ``tiles_per_level`` (list, coarsest first) and ``tiles``
+        (total PNG tiles); ``bounds`` (``[west, south, east, north]`` of the quadtree,
+        degrees); ``kml_size`` and ``native_size`` (``[width, height]`` in px of the finest
+        level and of the albedo's native grid); ``longitude_shifted`` (bool: a tile was
+        moved by 360° to make longitudes continuous); ``stretch`` (``lo``, ``hi``,
+        ``method`` = ``"percentile"`` or ``"range"``, ``percentiles``); ``doc_kml`` and
+        ``stretch_file`` (paths); ``sub4_tiles``; ``albedo_mosaic`` and ``error_mosaic``
+        (None without error tiles), each a dict of ``path``, ``width``, ``height``,
+        ``valid_pixels``, ``overviews``; ``seconds`` (wall time).
+
+    Raises
+    ------
+    InputError
+        Exit 2: no ``albedo/tile_*.tif`` (or tiles without valid pixels, of different pixel
+        sizes, not north-up geographic), or an unknown ``sub4_resampling``.
+    InfrastructureError
+        Exit 3: a lost worker or a full disk.
     """
     try:
         sub4_rs = {"average": Resampling.average, "nearest": Resampling.nearest}[sub4_resampling]

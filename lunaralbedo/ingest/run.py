@@ -207,16 +207,80 @@ def ingest(cubes: Sequence[str | Path], dems: Sequence[str | Path], workdir: str
            dem_mode: str = "auto", legacy_8bit: bool = False, tile_size: float | None = None,
            on_cube: Callable[[CubeResult], None] | None = None, workers: int = 1, scheduler: str | None = None,
            progress: bool = False, match_dem: bool = False) -> IngestReport:
-    """Ingest ``cubes`` into ``workdir``; returns a report of footprints and skipped cubes.
+    """Orthoproject ISIS cubes onto a DEM and write the work folder ``solve`` reads.
 
-    ``mpp`` (metres per pixel) sets the output resolution; without it the images' native
-    resolution (:mod:`.resolution`, as ISIS ``cam2map``: the finest image's pixel at its
-    centre), or with ``match_dem`` the first DEM's grid.  ``tile_size`` (degrees) defaults to
-    the tiles of :func:`.resolution.tile_size_deg` for that resolution.  Both go into
-    ``settings.txt`` with a comment.  Cubes are independent tasks: ``workers`` local processes or a
-    Dask ``scheduler`` address run them in parallel (each worker process has its own
-    SPICE kernel pool).  ``on_cube`` is called for each result, in the cubes' order.
-    Raises :class:`InputError` when no cube could be ingested (nothing is written then).
+    Replaces the PhotometryTK manual's preparation chain (ISIS ``spiceinit``, ``campt``,
+    ``cam2map``, ``get_sun_or_spacecraft_position.pl``): per cube (per band of a multi-band
+    push-frame cube) the camera is built from the label and its kernels, its footprint found
+    on the DEM, and the image orthoprojected onto a DEM-aligned geographic grid cropped to
+    that footprint.  Writes ``workdir/DRG/<KEY>.tif`` (float32, NaN no-data),
+    ``workdir/DEM/dem.tif`` (heights in metres above the 1737.4 km sphere over the union of
+    the footprints plus 10 pixels), ``workdir/meta/sunpos.txt`` and ``spacecraftpos.txt``
+    (``KEY x y z``, km, Moon-centred body-fixed MOON_ME, at the ``campt`` centre time) and
+    ``workdir/settings.txt``.  A cube that fails is skipped with its reason; DRGs of an
+    earlier run that this run did not produce are removed.
+
+    Parameters
+    ----------
+    cubes : sequence of str or Path
+        ISIS3 Level-1 cubes (or detached labels), or map-projected Level-2 cubes.  The DRG
+        key is the file name up to its first ``.``, cut or padded to 11 characters.
+    dems : sequence of str or Path
+        DEM GeoTIFFs or ISIS DEM cubes, or folders of them, geographic or projected; where
+        they overlap their heights are averaged (the PhotometryTK manual's rule).
+    workdir : str or Path
+        Work folder to write (created when missing).
+    kernels : sequence of str or Path, optional
+        Extra SPICE kernels, kernel folders or meta-kernels, loaded after the kernels of each
+        label's ``Kernels`` group.
+    isisdata : str or Path, optional
+        ISIS data area that resolves ``$base``/``$<mission>`` kernel paths of the labels.
+    mpp : float, optional
+        Output resolution in metres per pixel.  Default: the images' native resolution (the
+        finest image's pixel at its centre, as ISIS ``cam2map``), or the first DEM's grid
+        with ``match_dem``.
+    source : {"auto", "table", "kernels"}, default "auto"
+        Ephemeris source: the cube's attached SPICE tables when present (``auto``), only
+        the tables, or only the kernels.
+    dem_mode : {"auto", "radius", "height"}, default "auto"
+        Whether DEM values are radii in metres (converted to heights above 1737.4 km) or
+        heights; ``auto`` takes radius when the median exceeds 1000 km.
+    legacy_8bit : bool, default False
+        Write 8-bit DRGs (stretch + alpha) as the PhotometryTK tools did.
+    tile_size : float, optional
+        ``TILE_SIZE`` written to ``settings.txt``, degrees (at most 360).  Default: tiles of
+        about one block of the solver's memory budget at the output resolution.
+    on_cube : callable, optional
+        Called with each :class:`CubeResult`, in the cubes' order, once all are done.
+    workers : int, default 1
+        Local worker processes that ingest cubes in parallel (each with its own SPICE pool).
+    scheduler : str, optional
+        Address of a Dask scheduler to run the cubes on instead of local workers.
+    progress : bool, default False
+        Show a progress bar (tqdm) of the tasks.
+    match_dem : bool, default False
+        Use the first DEM's grid instead of the native resolution (exclusive with ``mpp``).
+
+    Returns
+    -------
+    IngestReport
+        ``workdir``; ``results`` (one :class:`CubeResult` per cube band: ``key``, ``path``,
+        ``box`` = footprint ``(west, south, east, north)`` in degrees, ``valid_pixels``,
+        ``kind``, ephemeris ``source``, ``sun``/``spacecraft`` positions in km body-fixed,
+        or ``skipped`` = the reason); ``box`` = SIMULATION_BOX ``(west, east, south,
+        north)`` in degrees, continuous across ±180°; ``mpp`` (m/px) and ``tile_size``
+        (degrees) written; ``settings`` (path of ``settings.txt``);
+        ``dem_radius_converted`` (DEMs read as radius) and ``removed`` (stale DRGs).
+
+    Raises
+    ------
+    InputError
+        Exit 2: no cube given, an invalid ``mpp``/``tile_size`` (or both ``mpp`` and
+        ``match_dem``), an unreadable DEM, a native grid over :data:`MAX_GRID_PIXELS`, or
+        no cube could be ingested (the message lists each cube's reason; nothing is
+        written then).
+    InfrastructureError
+        Exit 3: a worker lost or a Dask cluster that cannot be reached.
     """
     from ..parallel import make_executor
 

@@ -55,10 +55,32 @@ def _band_centers(label) -> list[float]:
 
 
 def read_backplane(path: str | Path, ground: bool = True) -> dict[str, np.ndarray]:
-    """Angles (and, if ``ground``, latitude/longitude) from a backplane, matched by band name.
+    """Read the photometric angles (and ground coordinates) of a backplane, matched by band name.
 
-    The backplane is an ISIS phocube cube or our ``backplanes`` GeoTIFF; emission/incidence
-    prefer the "Local" bands (what ISIS's ``lrowacphomap`` and ``lronacpho`` read).
+    The backplane is an ISIS ``phocube`` cube (band names from ``BandBin/Name``) or the
+    GeoTIFF of :func:`lunaralbedo.backplanes.run.write_backplanes` (band descriptions).
+    Emission and incidence prefer the "Local" bands (DEM normal), as ISIS ``lrowacphomap``
+    and ``lronacpho`` read them.
+
+    Parameters
+    ----------
+    path : str or Path
+        The backplane cube or GeoTIFF.
+    ground : bool, default True
+        Also read ``"Latitude"`` and ``"Longitude"``.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        Float64 ``(lines, samples)`` arrays in degrees under the keys ``"phase"``,
+        ``"emission"``, ``"incidence"`` and, with ``ground``, ``"lat"`` (planetocentric) and
+        ``"lon"`` (as the backplane holds it: 0..360 east from ``phocube`` and ours).
+
+    Raises
+    ------
+    InputError
+        Exit 2: the file cannot be opened, or a needed band is missing (the message lists
+        the bands it has).
     """
     path = Path(path)
     with open_quietly(path, "backplane") as ds:
@@ -84,7 +106,74 @@ def read_backplane(path: str | Path, ground: bool = True) -> dict[str, np.ndarra
 
 def correct(cube, out, model: str, params, band: int | None = None, param_map=None, backplane=None, dem=None,
             ellipsoid: bool = False, isis_compat: bool = False, limits=None, kernels=(), isisdata=None) -> list[Result]:
-    """Correct ``cube`` (all bands, or ``band``) and write ``out`` (float32 GeoTIFF, one band per corrected band)."""
+    """Photometrically correct a Level-1 cube to standard angles and write a float32 GeoTIFF.
+
+    Each valid pixel is multiplied by :math:`r(i_r, e_r, g_r) / r(i, e, g)`: the model's
+    reflectance at the reference angles over that at the pixel's incidence :math:`i`,
+    emission :math:`e` and phase :math:`g`.  ``"lroc-empirical"`` is ISIS ``lronacpho``
+    (the LROC empirical model, reference angles ``IncRef``/``EmaRef``/``PhaRef`` of the
+    parameter file); ``"hapke-map"`` is ISIS ``lrowacphomap`` (HapkeLROC with per-pixel
+    parameters read from a map at the pixel's latitude/longitude).  Pixels outside the
+    angle ``limits`` or without geometry are NaN (where ISIS writes Null).
+
+    Parameters
+    ----------
+    cube : str or Path
+        ISIS3 Level-1 cube with ``BandBin/Center`` (nm; the wavelength selects the
+        parameters).
+    out : str or Path
+        GeoTIFF to write (atomically): one float32 band per corrected band, in the cube's
+        pixel frame, described and tagged with the band centre and model.
+    model : {"lroc-empirical", "hapke-map"}
+        The photometric model, as above.
+    params : str or Path
+        Photometric parameter file (PVL): ``NormalizationModel`` of ``lronacpho`` or
+        ``PhotometricModel`` HapkeLROC of ``lrowacphomap``.
+    band : int, optional
+        Correct only this band (1-based); default every band.
+    param_map : str or Path, optional
+        Equirectangular Hapke parameter cube (e.g. the Sato et al. WAC map); required for
+        ``"hapke-map"``.
+    backplane : str or Path, optional
+        Take the angles from this backplane (:func:`read_backplane`; one ``band`` only)
+        instead of our camera.
+    dem : str or Path or sequence of them, optional
+        DEM(s) for the camera geometry (local angles, ISIS ``usedem=true``); default the
+        cube's ``ShapeModel`` when it resolves, else the sphere.
+    ellipsoid : bool, default False
+        Sphere geometry with the plain angles (ISIS ``usedem=no``).
+    isis_compat : bool, default False
+        Reproduce ISIS ``lrowacphomap``'s numbers including its two band-matching defects
+        (see docs/photometry.md); with a backplane also skip the angle limits, as ISIS does.
+    limits : sequence of (float, float), optional
+        ``(min, max)`` in degrees for incidence, emission and phase; default ISIS's:
+        ``(0, 85), (0, 85), (0, 180)`` for ``lronacpho``, ``(0, 90), (0, 90), (0, 180)`` for
+        ``lrowacphomap``.
+    kernels : sequence of str or Path, optional
+        Extra SPICE kernels, kernel folders or meta-kernels, loaded after the label's.
+    isisdata : str or Path, optional
+        ISIS data area that resolves ``$base``/``$<mission>`` paths.
+
+    Returns
+    -------
+    list of Result
+        One per corrected band, in order: ``band`` (1-based), ``center`` (nm), ``count``
+        (valid pixels), ``mean``, ``std`` (ddof 1), ``minimum``, ``maximum``, ``total``
+        (float64 statistics of the float32 output's finite values; NaN when none) and
+        ``geometry`` (where the angles came from: ``"camera on <shape>"`` or
+        ``"backplane <path>"``).
+
+    Raises
+    ------
+    InputError
+        Exit 2: an unknown ``model``, ``"hapke-map"`` without ``param_map``, a backplane
+        with more than one band selected, a backplane without a needed band.
+    IsisError
+        Exit 2: ``band`` out of range, no or mismatched ``BandBin/Center``, a malformed
+        parameter file or parameter map.
+    SpiceError
+        Exit 2: a missing kernel or a time the kernels do not cover.
+    """
     if model not in MODELS:
         raise InputError(f"unknown photometric model {model!r} (known: {', '.join(MODELS)})")
     label = read_label(cube)

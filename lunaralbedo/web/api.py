@@ -74,10 +74,59 @@ def export_web(
     pool: str = "threads",
     name: str | None = None,
 ) -> dict:
-    """Write the web map of ``results_dir`` to ``out`` (default ``results_dir/web``); return a summary.
+    """Write the static web map and run report of a ``solve`` results folder.
 
-    Options as :func:`lunaralbedo.export.export_kml` (same pyramid, same albedo stretch, same
-    executor options: ``client``, ``scheduler``, ``workers``, ``pool``).
+    A Leaflet page (``index.html``, ``lib/``) that works from the file system, with tile
+    layers ``tiles/<layer>/<z>/<x>/<y>.png`` of the same quadtree and albedo stretch as
+    :func:`lunaralbedo.export.api.export_kml` (``albedo``; ``error``, the per-pixel error
+    of the PhotometryTK manual's error equation, when ``results_dir/error`` holds tiles;
+    ``hillshade`` of the DEM when ``results_dir/DEM`` does), and ``data/*.js``: metadata,
+    the run report (``report.json``) and exposures (``exposure.csv``), image footprints
+    and per-pixel values of the finest level.  Built in a ``.tmp-*`` sibling and swapped
+    in at the end.
+
+    Parameters
+    ----------
+    results_dir : str or Path
+        The ``RESULTS_DIR`` of a solve (``albedo/tile_*.tif``, ``report.json``).
+    out : str or Path, optional
+        Folder of the site; default ``results_dir/web``.
+    levels : int, optional
+        Levels of the quadtree; default as many as the data needs.
+    stretch : tuple of float, default (2.0, 98.0)
+        Low and high percentiles (0..100) of the albedo values of the 8-bit stretch.
+    value_range : tuple of float, optional
+        Albedo values ``(lo, hi)`` of the stretch; replaces ``stretch``.
+    tile_size : int, default 256
+        Side of a PNG tile, pixels.
+    client : distributed.Client, optional
+        A client the caller owns to run the tasks on (not closed here).
+    workers : int, optional
+        Local workers when neither ``client`` nor ``scheduler`` is given; default all cores.
+    scheduler : str, optional
+        Address (``tcp://host:port``) of a Dask scheduler to run the tasks on.
+    pool : {"threads", "processes"}, default "threads"
+        Kind of the local workers.
+    name : str, optional
+        Title of the map; default the folder's name.
+
+    Returns
+    -------
+    dict
+        ``results_dir`` and ``site`` (resolved paths, str); ``index`` (path of
+        ``index.html``); ``levels``; ``tiles_per_layer`` (tiles of one layer, all levels);
+        ``layers`` (ids written, e.g. ``["albedo", "error", "hillshade"]``);
+        ``value_tiles`` (finest-level tiles with per-pixel values); ``footprints`` (image
+        footprints drawn); ``bounds`` (``[west, south, east, north]``, degrees);
+        ``stretch`` (albedo ``lo``, ``hi``); ``seconds`` (wall time).
+
+    Raises
+    ------
+    InputError
+        Exit 2: no albedo tiles, no or invalid ``report.json``, an invalid
+        ``exposure.csv``.
+    InfrastructureError
+        Exit 3: a lost worker or a full disk.
     """
     t0 = time.perf_counter()
     results_dir = Path(results_dir).expanduser().resolve()
