@@ -96,10 +96,53 @@ class IcpResult:
 def icp(reference: np.ndarray, dem_points: np.ndarray, dem_normals: np.ndarray, method: str = "point-to-plane",
         max_displacement: float = np.inf, outlier_ratio: float = 0.75, translation_only: bool = False,
         max_iterations: int = 1000, tol_m: float = 1e-3, tree=None, on_iteration=None) -> IcpResult:
-    """Rigid transform of the DEM cloud onto the ``reference`` points (all ``(n, 3)`` body-fixed metres).
+    """Find the rigid transform that moves a DEM's surface points onto reference points.
 
-    ``on_iteration(iteration, mean inlier distance m)`` is called after each iteration (progress).
-    Raises :class:`InputError` when the points do not determine a rigid transform (degenerate geometry).
+    Iterative closest point as ASP ``pc_align`` (the module docstring gives the math):
+    point-to-plane (Chen & Medioni 1992) or point-to-point (Besl & McKay 1992, Kabsch
+    rotation), with ``pc_align``'s outlier rules.
+
+    Parameters
+    ----------
+    reference : numpy.ndarray
+        ``(n, 3)`` reference points, Moon-centred body-fixed metres.
+    dem_points : numpy.ndarray
+        ``(m, 3)`` DEM surface points, body-fixed metres.
+    dem_normals : numpy.ndarray
+        ``(m, 3)`` unit outward normals at ``dem_points``.
+    method : {"point-to-plane", "point-to-point"}, default "point-to-plane"
+        Error metric minimised.
+    max_displacement : float, default inf
+        Reference points farther than this (metres) from the DEM at the start are dropped.
+    outlier_ratio : float, default 0.75
+        Fraction (0, 1] of the closest pairs kept at each iteration.
+    translation_only : bool, default False
+        Solve for a translation only.
+    max_iterations : int, default 1000
+        Iterations at most.
+    tol_m : float, default 1e-3
+        Converged when a step moves no point by more than this (metres), or the last 10
+        steps together none by more than ``3 * tol_m``.
+    tree : scipy.spatial.cKDTree, optional
+        A tree of ``dem_points`` already built.
+    on_iteration : callable, optional
+        Called as ``on_iteration(iteration, mean inlier distance in metres)`` after each
+        iteration.
+
+    Returns
+    -------
+    IcpResult
+        ``transform`` (4x4, maps the DEM onto the reference; ``inverse`` back),
+        ``inliers`` (bool ``(n,)``: reference points within ``max_displacement``),
+        ``iterations``, ``converged`` and ``history`` (mean inlier distance per iteration,
+        metres).
+
+    Raises
+    ------
+    InputError
+        Exit 2: an unknown ``method``, ``outlier_ratio`` outside (0, 1], fewer than 6
+        points within ``max_displacement``, or points that do not determine a rigid
+        transform (degenerate geometry).
     """
     from scipy.spatial import cKDTree
 

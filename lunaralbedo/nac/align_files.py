@@ -192,10 +192,69 @@ def _over_dem(src: DemSource, ref: np.ndarray, reference: Path, source: Path) ->
 def align_files(source: str | Path, reference: str | Path, prefix: str | Path, max_displacement: float = np.inf,
                 method: str = "point-to-plane", translation_only: bool = False, outlier_ratio: float = 0.75,
                 dem_mode: str = "auto", on_iteration=None) -> dict:
-    """Align ``source`` (DEM) onto ``reference`` (CSV or DEM) and write the outputs; returns the report dict.
+    """Align a DEM onto reference points (LOLA shots or a reference DEM) and write ``pc_align``-like outputs.
 
-    ``on_iteration(iteration, mean distance m)``: progress of the ICP.  Nothing is written unless the
-    alignment succeeds (a failure while writing removes what was written).
+    ASP ``pc_align``, as the ASP LRO-NAC notes use it: the reference points over the DEM
+    (at most :data:`MAX_REFERENCE_POINTS`, an even subsample) are matched to the DEM's
+    surface points by iterative closest point (:func:`lunaralbedo.nac.align.icp`), giving
+    the rigid transform that moves the DEM onto the reference.  Writes, atomically and only
+    when the alignment succeeds: ``PREFIX-transform.txt`` / ``-inverse-transform.txt``
+    (4x4, Moon body-fixed metres), ``-beg_errors.csv`` / ``-end_errors.csv``
+    (``lon,lat,radius,error`` per used point that meets the DEM: degrees, km, and the
+    absolute vertical distance in metres to the bilinearly interpolated DEM),
+    ``-trans_dem.tif`` (the moved DEM's heights on the source grid, metres, float32),
+    ``-report.json``, ``-log.txt`` and ``-errors.png``.
+
+    Parameters
+    ----------
+    source : str or Path
+        The DEM to move (GeoTIFF or ISIS DEM cube).
+    reference : str or Path
+        Reference: a CSV (``.csv``/``.txt``) of longitude, latitude (degrees,
+        planetocentric, east-positive) and radius (km), as LOLA RDR exports, or a DEM
+        whose every valid pixel is a point.
+    prefix : str or Path
+        Prefix of the output files.
+    max_displacement : float, default inf
+        Reference points farther than this from the DEM at the start are dropped for good,
+        metres (``pc_align --max-displacement``).
+    method : {"point-to-plane", "point-to-point"}, default "point-to-plane"
+        ICP error metric (Chen & Medioni 1992, or Besl & McKay 1992).
+    translation_only : bool, default False
+        Solve for a translation only (no rotation).
+    outlier_ratio : float, default 0.75
+        Fraction (0, 1] of the closest pairs kept at each iteration (``pc_align
+        --outlier-ratio``).
+    dem_mode : {"auto", "radius", "height"}, default "auto"
+        How to read DEM values (radius in metres, or height above 1737.4 km).
+    on_iteration : callable, optional
+        Called as ``on_iteration(iteration, mean inlier distance in metres)`` after each
+        ICP iteration (progress).
+
+    Returns
+    -------
+    dict
+        The report (also ``PREFIX-report.json``): ``source``, ``reference``;
+        ``reference_points`` (used, over the DEM) and ``reference_points_given``;
+        ``inliers``; the options ``max_displacement``, ``method``, ``translation_only``,
+        ``outlier_ratio``; ``iterations``, ``converged``, ``seconds``,
+        ``points_per_second``; ``before`` and ``after`` (absolute vertical errors in metres
+        as ``pc_align`` prints them: ``count``, ``p16``, ``p50``, ``p84``, ``mean``,
+        ``std``, ``rmse``, ``median``, ``nmad``, and ``ce90``/``le90``);
+        ``translation_at_dem_centre`` (``north``, ``east``, ``down``, ``horizontal``,
+        metres); ``ce90_le90`` (their definition) and ``transform`` (4x4 nested list,
+        body-fixed metres, DEM onto reference).
+
+    Raises
+    ------
+    InputError
+        Exit 2, nothing written: the reference missing or unreadable, an invalid
+        ``max_displacement``/``outlier_ratio``/``method``, inputs that do not overlap, fewer
+        than :data:`MIN_POINTS` points over the DEM (before or after the alignment), or
+        degenerate geometry.
+    OSError
+        An output cannot be written (what was written is removed); the CLI reports a full
+        disk as :class:`~lunaralbedo.errors.DiskFullError`, exit 3.
     """
     from scipy.spatial import cKDTree
 

@@ -120,15 +120,68 @@ def nac_mosaic(le: str | Path, re: str | Path, out: str | Path, offset: str | Pa
                kernels: Sequence[Path] = (), isisdata=None, source: str = "auto", height_m: float = 0.0,
                step: int = 8, jitreg_prefix: str | Path | None = None, ideal: str = "auto",
                block_lines: int = 256) -> MosaicResult:
-    """Mosaic the LE and RE cubes into one ideal-camera cube ``out`` (see module docstring).
+    """Mosaic the LE and RE cubes of an LRO NAC observation into one ideal-camera ISIS cube.
 
-    ``offset``: a ``jitreg`` JSON, a ``(sample_offset, line_offset)`` pair, or None
-    to measure it (outputs then written at ``jitreg_prefix``, default ``OUT`` without
-    suffix + ``-jitreg``).  ``height_m``: height (m above 1737.4 km) of the sphere
-    the ideal rays meet (ISIS uses the ellipsoid; a mean DEM height is better).
-    ``ideal``: ``auto`` (the noproj definition of a known instrument, else computed),
-    ``noproj`` (require one) or ``computed`` (see :mod:`.ideal`).  ``block_lines``: ideal
-    lines resampled at a time (memory; the output does not depend on it, see :mod:`.noproj`).
+    ASP's ``lronac2mosaic.py`` (the ASP LRO-NAC notes): both CCDs are resampled onto one
+    ideal line-scan camera (ISIS ``noproj``; rays of the ideal camera meet the sphere of
+    ``height_m``, then are projected into each CCD), the RE is shifted by the LE/RE offset
+    (measured as ASP ``lronacjitreg`` does, or given) and the two are blended with a linear
+    ramp across their overlap (ISIS ``handmos`` without a seam).  The ideal camera uses the
+    LE's ephemeris and timing; the output label has an ISIS ``IdealCamera`` Instrument
+    group, the LE's Kernels group (absolute paths) and a ``NacMosaic`` group recording the
+    inputs and the offset.  Pixels are float32, NaN outside both CCDs.
+
+    Parameters
+    ----------
+    le, re : str or Path
+        The LE (NACL) and RE (NACR) Level-1 cubes of one observation.
+    out : str or Path
+        ISIS cube to write.
+    offset : str or Path or tuple of float, optional
+        The RE offset: a ``jitreg`` JSON, or ``(sample_offset, line_offset)`` in pixels
+        (the feature at RE pixel ``(x, y)`` lies at LE pixel ``(x + sample_offset, y +
+        line_offset)``).  None: measure it (:func:`lunaralbedo.nac.api.jitreg`'s method).
+    kernels : sequence of Path, optional
+        Extra SPICE kernels (already expanded), loaded after each label's.
+    isisdata : str or Path, optional
+        ISIS data area that resolves ``$base``/``$<mission>`` kernel paths.
+    source : {"auto", "table", "kernels"}, default "auto"
+        Ephemeris source: the cubes' attached SPICE tables when present, or the kernels.
+    height_m : float, default 0.0
+        Height of the sphere the ideal rays meet, metres above 1737.4 km (ISIS uses the
+        ellipsoid; the DEM's mean height is better).
+    step : int, default 8
+        Ideal pixels between the nodes where the CCD coordinates are computed exactly
+        (interpolated between them).
+    jitreg_prefix : str or Path, optional
+        Prefix of the ``jitreg`` outputs when the offset is measured; default ``out``
+        without its suffix + ``-jitreg``.
+    ideal : {"auto", "noproj", "computed"}, default "auto"
+        The ideal camera: ISIS ``noproj``'s definition for a known instrument (``auto``
+        falls back to ``computed``, ``noproj`` requires it), or one computed from the LE/RE
+        camera models.
+    block_lines : int, default 256
+        Ideal lines resampled at a time (memory only; the output does not depend on it).
+
+    Returns
+    -------
+    MosaicResult
+        ``path`` (the cube written), ``shape`` (ideal ``(lines, samples)``), ``overlap``
+        (blended columns ``[start, stop)``), ``sample_offset`` and ``line_offset`` (pixels,
+        applied to RE), ``measured`` (True when measured here), ``spec`` (the ideal
+        camera's :class:`~lunaralbedo.camera.ideal.IdealSpec`: focal length and pitch in
+        mm, samples, boresight) and ``ideal_source`` (which definition was used).
+
+    Raises
+    ------
+    InputError
+        Exit 2: the LE is not a line scanner, the CCDs do not overlap on the ideal camera,
+        no window correlated (give ``offset``), an unreadable offset file, or ``ideal``
+        invalid or ``"noproj"`` for an instrument without a definition.
+    IsisError
+        Exit 2: a cube or label that cannot be read.
+    SpiceError
+        Exit 2: a missing kernel or a time the kernels do not cover.
     """
     le, re, out = Path(le), Path(re), Path(out)
     re_label, re_cam, _ = _open_camera(re, kernels, isisdata, source)
