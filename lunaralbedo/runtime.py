@@ -52,28 +52,38 @@ VARIABLES = {
 class Runtime:
     """Machine-use options of a run (none changes a result).
 
+    Passed to :func:`lunaralbedo.engine.solve.solve` and
+    :func:`lunaralbedo.parallel.make_executor`; frozen, validated on construction (change
+    one with :meth:`but`).  The output bytes are the same for any of these values.
+
     Parameters
     ----------
-    block_mb : float
+    block_mb : float, default BLOCK_MB (384)
         Working memory of one block of rows of a tile in the prepare and iterate steps, MiB per worker.
-    block_rows : int or None
+    block_rows : int or None, default None
         Rows per block, overriding the budget (None: from ``block_mb``).
-    stack_memory_mb : float
+    stack_memory_mb : float, default STACK_MEMORY_MB (512)
         Observations a process keeps in memory between iterations, MiB; beyond it they are
         memory-mapped from the cache every pass.
-    worker_start : {"forkserver", "spawn"} or None
+    worker_start : {"forkserver", "spawn"} or None, default None
         How local worker processes start; None: ``forkserver`` on Linux, ``spawn`` elsewhere.
-    remote_shell : str
+    remote_shell : str, default REMOTE_SHELL ("ssh -o BatchMode=yes")
         Command that starts a worker on a node-file host (called as ``SHELL HOST COMMAND...``).
-    nodefile : str or None
+    nodefile : str or None, default None
         A PBS node file: workers are started on every host it lists.  Only when given.
-    tune_workers : bool
+    tune_workers : bool, default True
         Tune glibc's malloc and NumPy's huge pages in the worker processes this run starts
         (:mod:`lunaralbedo.parallel.workers`); they are the run's own processes.  The command line
         leaves them alone where the user set ``MALLOC_*`` or ``NUMPY_MADVISE_HUGEPAGE`` variables.
-    tune_process : bool
+    tune_process : bool, default False
         The same in this process, for tile tasks run in it (one worker, thread pools).  Off for
         library calls: a notebook's process is left as it was; the command line turns it on.
+
+    Raises
+    ------
+    SettingsError
+        Exit 2: a value no run can use (``block_mb`` not > 0, ``block_rows`` < 1, a negative
+        ``stack_memory_mb``, an unknown ``worker_start``, an empty ``remote_shell``).
     """
 
     block_mb: float = BLOCK_MB
@@ -89,7 +99,13 @@ class Runtime:
         self.validate()
 
     def validate(self) -> None:
-        """:class:`SettingsError` naming the option with a value no run can use."""
+        """Check every field; called on construction.
+
+        Raises
+        ------
+        SettingsError
+            Naming the option (and its environment variable) with a value no run can use.
+        """
         if not self.block_mb > 0:
             raise SettingsError(f"block_mb (LUNARALBEDO_BLOCK_MB) must be > 0, got {self.block_mb!r}")
         if self.block_rows is not None and self.block_rows < 1:
@@ -104,22 +120,59 @@ class Runtime:
 
     @property
     def block_bytes(self) -> float:
+        """Working memory of one block, bytes (``block_mb`` MiB)."""
         return self.block_mb * 2**20
 
     @property
     def stack_bytes(self) -> int:
+        """Memory for the observations kept between iterations, bytes (``stack_memory_mb`` MiB)."""
         return int(self.stack_memory_mb * 2**20)
 
     def but(self, **changes) -> "Runtime":
-        """A copy with ``changes`` (validated)."""
+        """Return a copy with some fields changed.
+
+        Parameters
+        ----------
+        **changes
+            Fields of :class:`Runtime` and their new values.
+
+        Returns
+        -------
+        Runtime
+            The copy, validated.
+
+        Raises
+        ------
+        SettingsError
+            A new value no run can use.
+        """
         return replace(self, **changes)
 
     @classmethod
     def from_environ(cls, environ: Mapping[str, str], **given) -> "Runtime":
-        """The runtime the environment variables of :data:`VARIABLES` ask for, plus ``given`` fields.
+        """Build the runtime the environment variables of :data:`VARIABLES` ask for.
 
-        Called by the command line only (the library takes a :class:`Runtime`).  An unparsable
-        value is a :class:`SettingsError` naming the variable."""
+        Called by the command line only (the library takes a :class:`Runtime`).
+
+        Parameters
+        ----------
+        environ : Mapping of str to str
+            The environment (``os.environ`` in the command line); unset or blank variables
+            keep their field's default.
+        **given
+            Fields set by the caller (e.g. ``nodefile`` from ``--nodefile``); they win over
+            the environment.
+
+        Returns
+        -------
+        Runtime
+            The runtime, validated.
+
+        Raises
+        ------
+        SettingsError
+            Exit 2: an unparsable or invalid value, naming the variable.
+        """
         values: dict = {}
         for name, fld in VARIABLES.items():
             text = environ.get(name)

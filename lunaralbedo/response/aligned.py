@@ -91,7 +91,59 @@ def fit_stack(stack: Stack, exposure: np.ndarray | None, min_count: int = 20, ma
 
 def recover_response(images: Sequence[str | Path], out_dir: str | Path, exposure_times: str | Path | None = None,
                      min_count: int = 20, max_pixels: int = 200_000, plots: bool = True) -> dict:
-    """Run the aligned case and write its outputs; returns the report (also in ``report.json``)."""
+    """Recover the camera response, exposure times and radiance of a co-registered image stack.
+
+    The aligned case of Kim et al. (section 3): with :math:`x_n = g(z_n)` the exposure of
+    observation :math:`n` (pixel :math:`i` in image :math:`j`, digital number :math:`z_n`,
+    :math:`g` the inverse camera response), Poisson with mean :math:`r_i t_j`, the fit
+    maximises the likelihood (their eq. 8) under :math:`g` non-decreasing (eq. 7) by
+    :func:`lunaralbedo.response.fit.fit_response` on a fixed subsample of pixels; then the
+    radiance of every pixel is :math:`r = \\sum_j g(z_j) / \\sum_j t_j` over its valid DN
+    (eq. 10).  Writes into ``out_dir``: ``response.csv`` (``g`` per DN with its standard
+    error), ``radiance.tif`` (float32, the first image's georeference, NaN where no image
+    has a usable DN), ``exposure.csv`` (when estimated), ``report.json`` and, with
+    ``plots``, ``response.png``, ``exposure.png``, ``loglik.png``, ``residuals.png``.
+    Nothing is written before the fit succeeded.
+
+    Parameters
+    ----------
+    images : sequence of str or Path
+        At least two rasters of one scene on one grid; band 1 holds 8-bit DN (integers
+        0..255), its GDAL mask marks the valid pixels.
+    out_dir : str or Path
+        Folder to write.
+    exposure_times : str or Path, optional
+        CSV with a header holding an ``exposure`` column, the first column naming the
+        image (as given, or its base name): the exposure times are then known (any unit;
+        only ratios matter).  None: they are estimated, with geometric mean 1.
+    min_count : int, default 20
+        Observations a DN level needs to be a free level of ``g`` (the others are
+        interpolated in :math:`\\ln g`).
+    max_pixels : int, default 200000
+        Pixels fitted at most (a fixed random subsample beyond; the radiance covers all).
+    plots : bool, default True
+        Write the PNG plots.
+
+    Returns
+    -------
+    dict
+        The report (also ``report.json``): ``dn`` and ``g`` (the curve over the fitted DN
+        range, normalised to ``g(128) = 1``), ``dn_range``, ``free_levels``,
+        ``interpolated_levels``, ``normalisation``, ``exposures`` (image name to exposure),
+        ``identifiability`` (the gauge of the exponential ambiguity when exposures are
+        estimated), ``converged``, ``convergence`` (message), ``flat_steps``, ``warnings``
+        (plain-language, e.g. a largely flat curve), ``loglik`` (eq. 8 per iteration),
+        ``iterations``, ``residuals`` (per-DN ``dn``, ``bias_log``, ``std_log``, ``count``;
+        ``chi2_per_dof``, ``rms_log``, ``n_obs``, ``n_params``) and
+        ``radiance_valid_pixels``.
+
+    Raises
+    ------
+    InputError
+        Exit 2: fewer than two images, an unreadable image, images on different grids,
+        band 1 not 8-bit DN, an exposure table without an ``exposure`` column or without a
+        row for an image, or fewer than three DN levels with ``min_count`` observations.
+    """
     stack = read_stack(images)
     t_known = None
     if exposure_times is not None:

@@ -306,18 +306,53 @@ def _fitted_levels(obs: Observations, min_count: int, exclude) -> tuple:
 def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_count: int = 20, exclude=(0, 255),
                  juggle_passes: int = 10, max_iter: int = MAX_ITER, z_ref: int = Z_REF,
                  gauge: str = "auto") -> ResponseFit:
-    r"""Maximum-likelihood g, r and (if ``exposure`` is None) t of eq. 8 under eq. 7.
+    r"""Fit the inverse camera response by maximum likelihood (Kim et al., eq. 8 under eq. 7).
 
-    Observations at excluded DN (saturation) or outside the range of the free levels
-    (:func:`~.model.choose_levels`) are left out, as are pixels left with fewer than
-    two observations (they carry no information on g).  With ``exposure`` None the
-    exponential ambiguity needs a gauge (reported in ``gamma``).  The fit holds g linear over
-    DN 64-192 (the prior, an exact linear constraint); then, with ``gauge`` "auto" (or
-    "geometry") and factors ``c`` that vary within pixels, the slope :math:`\beta` of
-    :class:`.model.GeometricSlope` replaces it when :func:`.model.choose_gauge` accepts it ("prior":
-    never): as the constraint of a refit when the geometry is strong (``GEOMETRY_STRONG``),
-    else as the power :math:`\gamma = 1/\beta` applied to g, r, t.  The exposures are returned
-    with geometric mean 1.
+    Maximises :math:`L = \sum_n g(z_n)\ln\mu_n - \mu_n - \ln\Gamma(g(z_n)+1)`,
+    :math:`\mu_n = r_i t_j c_n`, over a non-decreasing :math:`g` (eq. 7), the radiances
+    :math:`r` and, if ``exposure`` is None, the exposure times :math:`t` (the module
+    docstring gives the method).  Observations at excluded DN or outside the free levels'
+    range (:func:`~.model.choose_levels`), and pixels left with fewer than two, are left
+    out.  Estimated exposures leave an exponential ambiguity: the fit holds g linear over DN
+    64-192 (the prior), unless the geometric slope of :class:`.model.GeometricSlope`
+    replaces it (:func:`.model.choose_gauge`; as a constraint when the geometry is strong,
+    else as the power :math:`\gamma = 1/\beta` applied to g, r, t).
+
+    Parameters
+    ----------
+    obs : Observations
+        Flat observations: ``pixel``, ``image``, integer ``dn`` (0..255) and an optional
+        known factor ``c`` each (the PhotometryTK manual's reflectance; None = 1).
+    exposure : numpy.ndarray, optional
+        Known exposure time per image, ``(n_images,)``; None: estimated.
+    min_count : int, default 20
+        Observations a DN level needs to be a free level (a knot) of :math:`\ln g`.
+    exclude : sequence of int, default (0, 255)
+        DN left out (saturated).
+    juggle_passes : int, default 10
+        Passes of Kim et al.'s alternation (eqs. 10, 11, 13) that gives the start.
+    max_iter : int, default MAX_ITER
+        Newton iterations before the fit is reported as not converged.
+    z_ref : int, default Z_REF
+        DN of the normalisation :math:`g(z_{ref}) = 1` (clipped into the fitted range).
+    gauge : {"auto", "geometry", "prior"}, default "auto"
+        Gauge of the exponential ambiguity when exposures are estimated, as above.
+
+    Returns
+    -------
+    ResponseFit
+        ``levels`` (DN range ``lo..hi``, ``knots``, ``counts``); ``g`` over ``lo..hi``,
+        ``g(z_ref) = 1`` (``lut()``: over 0..255, NaN outside); ``g_initial``;
+        ``exposure`` (geometric mean 1 when estimated); ``radiance`` (per pixel of ``obs``,
+        NaN where left out); ``loglik`` (eq. 8 per iteration); ``z_ref``; ``n_juggle``;
+        ``gamma`` (the gauge and why); ``residuals`` (per-DN ``count``, ``bias_log``,
+        ``std_log``, ``se_log_g``; ``chi2_per_dof``, ``rms_log``, ``n_obs``,
+        ``n_params``); ``converged``, ``message``, ``passes``, ``newton``.
+
+    Raises
+    ------
+    InputError
+        Exit 2: fewer than three DN levels have ``min_count`` observations.
     """
     lev, keep = _fitted_levels(obs, min_count, exclude)
     sub, pix_ids = obs.take(keep)

@@ -149,11 +149,43 @@ def _sun_and_spacecraft(spec: SceneSpec, k: int, lon_c: float, lat_c: float, rng
 
 
 def render_scene(out_dir: str | Path, spec: SceneSpec | None = None) -> dict:
-    """Render the scene of ``spec`` into ``out_dir`` (see module docstring); return the truth (:mod:`.truth`).
+    """Render a synthetic strip of DRGs from a known Moon, in the input contract of ``solve``.
 
-    :class:`InputError` for a spec that cannot make a scene, :class:`OutputError` when
-    ``out_dir`` cannot be created or is not empty; both before anything is written.
-    A failed render leaves no scene folder behind.
+    The forward model of the PhotometryTK manual's image formation, eq. 1:
+    :math:`I = \\mathrm{round}(A\\,T\\,R + n)` clipped to 0..255, with the true albedo
+    :math:`A`, each image's exposure :math:`T`, the photometric model's reflectance
+    :math:`R` on the true DEM and Gaussian noise :math:`n` (optionally through an
+    S-shaped film response, and with cast shadows).  Writes ``DRG/<KEY>_drg.tif`` (uint8
+    gray + alpha, geographic degrees), ``DEM/dem.tif`` (float32 heights, metres above
+    the 1737.4 km sphere), ``meta/sunpos.txt`` and ``meta/spacecraftpos.txt`` (``KEY x
+    y z``, km, Moon body-fixed), ``settings.txt`` and the truth (``truth/albedo.tif``,
+    ``truth/truth.json``).  A failed render leaves no scene folder behind.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        Scene folder to write: new, or existing and empty.
+    spec : SceneSpec, optional
+        The scene: number and size of the images (pixels), pixel size and position of
+        the strip (degrees, continuous longitudes), exposure spread, photometric model and
+        its parameters, noise (DN), DEM relief (metres), Sun incidence (degrees),
+        spacecraft altitude (km), random ``seed`` and more; default ``SceneSpec()``.
+
+    Returns
+    -------
+    dict
+        The truth (also ``truth/truth.json``, see :mod:`.truth`): ``reflectance_type``,
+        the model's parameters by name (e.g. ``c1``, ``c2``), ``seed``, ``albedo`` and
+        ``dem`` (paths relative to ``out_dir``), ``frame``, ``gain`` (DN per unit of
+        :math:`A\\,T\\,R`), ``spec`` (the scene's parameters) and ``images``: per key
+        ``exposure``, ``sun_km`` and ``spacecraft_km`` (km, body-fixed), ``drg``.
+
+    Raises
+    ------
+    InputError
+        Exit 2, before anything is written: a spec that cannot make a scene.
+    OutputError
+        Exit 2, before anything is written: ``out_dir`` cannot be created or is not empty.
     """
     spec = (spec or SceneSpec()).validate()
     return render_into(out_dir, lambda out: _render(out, spec))

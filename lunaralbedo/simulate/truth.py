@@ -87,12 +87,33 @@ def render_into(out_dir: str | Path, render: Callable[[Path], dict], what: str =
 
 
 def score(result_dir: str | Path, scene_dir: str | Path) -> dict:
-    """Compare a solve's outputs with the truth of a rendered scene.
+    """Compare a solve's albedo and exposures with the truth of a rendered scene.
 
-    Returns ``albedo_rel_rmse`` (relative RMSE of the albedo after the one global
-    scale that A*T leaves free, least squares), ``exposure_max_rel_err`` (largest
-    relative exposure error after normalising both to the same geometric mean),
-    ``coverage`` (fraction of truth pixels with a solved albedo), ``images_compared``.
+    The solved albedo tiles are mosaicked onto the truth's grid; since :math:`A\\,T` of
+    the PhotometryTK manual's eq. 1 leaves one global scale free, the albedo is first
+    scaled by the least-squares :math:`s = \\sum a\\,t / \\sum a^2`, and the exposures are
+    compared after normalising both to the same geometric mean.
+
+    Parameters
+    ----------
+    result_dir : str or Path
+        The ``RESULTS_DIR`` of a solve (``albedo/*.tif``, ``exposure.csv``).
+    scene_dir : str or Path
+        The scene folder (its ``truth/truth.json`` and true albedo raster).
+
+    Returns
+    -------
+    dict
+        ``albedo_rel_rmse`` (RMS of :math:`(s\\,a - t)/t` over the pixels with both a
+        solved and a true albedo), ``exposure_max_rel_err`` (largest relative exposure
+        error), ``coverage`` (fraction of the truth grid with a solved and a true albedo)
+        and ``images_compared`` (images in both the truth and ``exposure.csv``).
+
+    Raises
+    ------
+    InputError
+        Exit 2: no or malformed truth file, no albedo tiles in ``result_dir``, an
+        unreadable ``exposure.csv``.
     """
     import rasterio
     from rasterio.merge import merge
