@@ -31,6 +31,7 @@ PUBLIC_API = (
     "lunaralbedo.response.aligned.recover_response",
     "lunaralbedo.response.fit.fit_response",
     "lunaralbedo.simulate.strip.render_scene",
+    "lunaralbedo.simulate.render_mission",
     "lunaralbedo.simulate.truth.score",
     "lunaralbedo.runtime.Runtime",
     "lunaralbedo.runtime.Runtime.but",

@@ -168,7 +168,8 @@ def export_kml(
     ------
     InputError
         Exit 2: no ``albedo/tile_*.tif`` (or tiles without valid pixels, of different pixel
-        sizes, not north-up geographic), or an unknown ``sub4_resampling``.
+        sizes, not north-up geographic), an unknown ``sub4_resampling``, ``tile_size``
+        below 16 or ``levels`` out of range.
     InfrastructureError
         Exit 3: a lost worker or a full disk.
     """

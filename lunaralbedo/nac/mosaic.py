@@ -129,7 +129,7 @@ def nac_mosaic(le: str | Path, re: str | Path, out: str | Path, offset: str | Pa
     ramp across their overlap (ISIS ``handmos`` without a seam).  The ideal camera uses the
     LE's ephemeris and timing; the output label has an ISIS ``IdealCamera`` Instrument
     group, the LE's Kernels group (absolute paths) and a ``NacMosaic`` group recording the
-    inputs and the offset.  Pixels are float32, NaN outside both CCDs.
+    inputs and the offset.  Pixels are 32-bit reals, ISIS Null outside both CCDs.
 
     Parameters
     ----------

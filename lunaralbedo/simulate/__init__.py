@@ -24,9 +24,43 @@ __all__ = ["SceneSpec", "fresh_craters", "read_truth", "render_mission", "render
 
 
 def render_mission(out_dir, seed: int = 20240601, n_frames: int = 5, with_line: bool = False, noise: float = 0.005) -> dict:
-    """Render the synthetic mission (:func:`.mission.build`) into a new or empty ``out_dir``; return its truth.
+    """Render a synthetic mission in the input contract of ``ingest``: Level-1 ISIS cubes, kernels, a DEM.
 
-    Imported lazily: the mission needs spiceypy and the kernel writers, the strip does not.
+    :func:`.mission.build`: a DEM and true albedo, SPICE kernels written for the scene (SPK,
+    CK, LSK, PCK, FK, IK, SCLK), and frame-camera (and optionally one line-scanner) cubes
+    whose radiance is :math:`A\\,T\\,R` of the PhotometryTK manual's eq. 1 with the
+    Lunar-Lambert model and multiplicative noise, rendered by a pinhole model independent
+    of the ingest camera code.  Imported lazily: the mission needs spiceypy and the kernel
+    writers, the strip does not.  A failed render leaves no folder behind.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        Scene folder to write: new, or existing and empty.
+    seed : int, default 20240601
+        Seed of the random scene (terrain, albedo, pointing, noise).
+    n_frames : int, default 5
+        Frame-camera images, at least 1.
+    with_line : bool, default False
+        Add one line-scanner image.
+    noise : float, default 0.005
+        Relative standard deviation of the multiplicative noise (0: none).
+
+    Returns
+    -------
+    dict
+        The truth (also ``truth/truth.json``, see :mod:`.truth`): ``reflectance_type``,
+        ``c1``, ``c2``, ``noise_relative``, ``seed``, ``albedo`` and ``dem`` (paths
+        relative to ``out_dir``), ``frame`` and ``images``: per key its ``exposure``,
+        ``sun_km`` and ``spacecraft_km`` (km, Moon body-fixed), ``cube`` and the shot's
+        geometry (``kind``, ``et`` in s TDB, aim and Sun angles in degrees).
+
+    Raises
+    ------
+    InputError
+        Exit 2: ``n_frames`` not an integer >= 1, or ``noise`` not a number >= 0.
+    OutputError
+        Exit 2: ``out_dir`` cannot be created or is not empty.
     """
     from ..errors import InputError
     from .mission import build

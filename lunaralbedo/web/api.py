@@ -124,7 +124,7 @@ def export_web(
     ------
     InputError
         Exit 2: no albedo tiles, no or invalid ``report.json``, an invalid
-        ``exposure.csv``.
+        ``exposure.csv``, ``tile_size`` below 16 or ``levels`` out of range.
     InfrastructureError
         Exit 3: a lost worker or a full disk.
     """
