@@ -15,6 +15,7 @@ and on exit so that nothing leaks from one cube (or test) to the next.
 from __future__ import annotations
 
 import contextlib
+import os
 import re
 import tempfile
 from pathlib import Path
