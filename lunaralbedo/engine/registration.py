@@ -1,0 +1,348 @@
+"""Image-to-DEM registration (``REGISTER_IMAGES 1``): a ground shift per image found with the albedo and exposures.
+
+SPICE pointing puts an image tens to hundreds of metres from where it really lies on the DEM.
+Before the tile solve, :func:`estimate` finds per image the shift (east, north, metres) that,
+added to its stated georeference, minimises the cost Q of eq. 1 of the PhotometryTK manual
+jointly with the albedo and the exposures (:mod:`lunaralbedo.model.registration`: Gauss-Newton
+in the exposures and shifts with the albedo eliminated, Levenberg-Marquardt damped).  The
+reflectance comes from the DEM's normals, so the shading of the terrain anchors every image;
+no image is the reference.
+
+It works on an in-memory copy of the scene over SIMULATION_BOX: each image read once, averaged
+over ``factor`` x ``factor`` pixels so that the observations stay under
+:data:`MAX_OBSERVATIONS` (:func:`lunaralbedo.io.drg_levels.read_drg_decimated`), the DEM and the
+geometry resampled onto a common lon/lat grid.  Coarse to fine: grids of 2^j of those pixels
+(images smoothed to match) while 2^j does not exceed REGISTER_MAX_SHIFT, down to 1, each level
+starting from the last one's shifts and exposures; sub-pixel by bilinear sampling.  Shadows:
+the lit test of SHADOW_TYPE 1 and R > 0 (cast shadows are not modelled here).  Units: shifts
+and their standard errors in metres on the ground; REGISTER_MAX_SHIFT in pixels of each image.
+
+The shifted images then enter the solve through their georeference: :func:`shifted_scene` moves
+each image's transform, and the DRG is resampled onto the tiles there
+(:func:`lunaralbedo.io.drgs.read_drg_onto_grid`).  The run writes ``image_offsets.csv``.
+Everything runs in the driver process in a fixed order: the same bytes for any ``--workers``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from rasterio.transform import Affine
+from scipy import ndimage
+
+from ..constants import MOON_RADIUS_KM
+from ..io.atomic import atomic_write_text
+from ..io.drg_levels import read_drg_decimated
+from ..io.rasters import bounds_in, read_dem_onto_grid
+from ..model import geometry, registration as reg, shadows
+from .observations import saturation_of
+from .photometry import solver_model
+from .scene import Scene, overlaps_per_box
+
+#: Most observations (image pixels over SIMULATION_BOX) of the finest level; more and the images are averaged.
+MAX_OBSERVATIONS = 4_000_000
+#: Gauss-Newton iterations per level, at most; a level stops once no shift moves by STOP_PX of its pixels.
+ITERATIONS = 12
+STOP_PX = 0.002
+M_PER_DEG = math.radians(1.0) * MOON_RADIUS_KM * 1000.0
+FOLDER = "registration"  # under the solve's checkpoint folder
+
+
+@dataclass
+class Registration:
+    """Per image (scene order): ``offsets_m`` and ``se_m`` ``(K, 2)`` (east, north, metres), ``pixel_m``
+    (the image's pixel, metres), ``factor`` (pixels averaged at the finest level), ``levels`` (per level:
+    its pixel factor, iterations, final mean squared residual)."""
+
+    keys: list[str]
+    offsets_m: np.ndarray
+    se_m: np.ndarray
+    pixel_m: np.ndarray
+    factor: int
+    levels: list[dict]
+
+    def to_dict(self) -> dict:
+        return {"keys": self.keys, "offsets_m": self.offsets_m.tolist(), "se_m": np.nan_to_num(self.se_m, nan=-1).tolist(),
+                "pixel_m": self.pixel_m.tolist(), "factor": self.factor, "levels": self.levels}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Registration":
+        se = np.array(d["se_m"], float)
+        return cls(d["keys"], np.array(d["offsets_m"], float), np.where(se < 0, np.nan, se), np.array(d["pixel_m"], float),
+                   int(d["factor"]), d["levels"])
+
+
+def metres_to_map(info) -> np.ndarray:
+    """2x2 matrix: the DRG's map units per metre east (column 0) and north (column 1) at its centre."""
+    w, s, e, n = info.lonlat_bounds
+    lon, lat = (w + e) / 2, (s + n) / 2
+    if info.crs is None or info.crs.is_geographic:
+        return np.array([[1.0 / (M_PER_DEG * math.cos(math.radians(lat))), 0.0], [0.0, 1.0 / M_PER_DEG]])
+    from rasterio.warp import transform
+
+    from ..io.rasters import geographic_crs
+
+    d = 1e-3  # degrees
+    xs, ys = transform(geographic_crs(info.crs), info.crs, [lon, lon + d, lon], [lat, lat, lat + d])
+    east_m, north_m = d * M_PER_DEG * math.cos(math.radians(lat)), d * M_PER_DEG
+    return np.array([[(xs[1] - xs[0]) / east_m, (xs[2] - xs[0]) / north_m], [(ys[1] - ys[0]) / east_m, (ys[2] - ys[0]) / north_m]])
+
+
+def pixel_metres(info) -> float:
+    """The ground size of one pixel of ``info`` (metres: the square root of its area)."""
+    t = info.transform
+    return math.sqrt(abs(t.a * t.e - t.b * t.d) / abs(np.linalg.det(metres_to_map(info))))
+
+
+class _Image:
+    """One image held for the registration: its averaged pixels, smoothed per level, and how to sample them."""
+
+    def __init__(self, info, factor, thresh):
+        self.info = info
+        self.value, self.usable, self.transform = read_drg_decimated(info, factor, thresh, saturation_of(info.dtype))
+        self.inv = ~self.transform
+        self.m = metres_to_map(info)
+        a = np.array([[self.inv.a, self.inv.b], [self.inv.d, self.inv.e]]) @ self.m  # (col,row) per metre (east,north)
+        self.d_pix = a
+        self._levels = {}
+
+    def level(self, f: int):
+        """Value, its row and column derivatives, usable mask (float) at level factor ``f`` (smoothed for f > 1)."""
+        if f not in self._levels:
+            u = self.usable.astype(np.float64)
+            v = self.value.astype(np.float64) * u
+            if f > 1:
+                sigma = 0.5 * f
+                wsum = ndimage.gaussian_filter(u, sigma, mode="constant")
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    v = np.where(wsum > 1e-6, ndimage.gaussian_filter(v, sigma, mode="constant") / wsum, 0.0)
+                u = ndimage.minimum_filter(u, size=2 * math.ceil(sigma) + 1, mode="constant")
+            gr, gc = np.gradient(v)
+            u = ndimage.minimum_filter(u, size=3, mode="constant")  # the derivatives' neighbours are usable too
+            self._levels[f] = (v, gr, gc, u)
+        return self._levels[f]
+
+    def sample(self, f, x, y, shift_m):
+        """Value, d/d(east), d/d(north) (per metre) and usable flag at map points ``x, y`` moved back by ``shift_m``."""
+        v, gr, gc, u = self.level(f)
+        dx, dy = self.m @ shift_m
+        inv = self.inv
+        col = inv.a * (x - dx) + inv.b * (y - dy) + inv.c - 0.5
+        row = inv.d * (x - dx) + inv.e * (y - dy) + inv.f - 0.5
+        at = np.stack([row, col])
+        val = ndimage.map_coordinates(v, at, order=1, mode="constant", cval=0.0)
+        ok = ndimage.map_coordinates(u, at, order=1, mode="constant", cval=0.0) > 0.999
+        g_r = ndimage.map_coordinates(gr, at, order=1, mode="constant", cval=0.0)
+        g_c = ndimage.map_coordinates(gc, at, order=1, mode="constant", cval=0.0)
+        # I(g - s): d/ds = -(dI/dcol dcol/dmap + dI/drow drow/dmap) dmap/ds
+        d_e = -(g_c * self.d_pix[0, 0] + g_r * self.d_pix[1, 0])
+        d_n = -(g_c * self.d_pix[0, 1] + g_r * self.d_pix[1, 1])
+        return val, d_e, d_n, ok
+
+
+class _Level:
+    """The common grid of one level: its DEM, and per image a window, map coordinates and reflectance."""
+
+    def __init__(self, scene: Scene, images: list[_Image], f: int, res: tuple[float, float], box, max_m):
+        s = scene.settings
+        model = solver_model(s)
+        self.f = f
+        rx, ry = res[0] * f, res[1] * f
+        west, south, east, north = box
+        w, h = max(1, math.ceil((east - west) / rx)), max(1, math.ceil((north - south) / ry))
+        self.shape = (h, w)
+        t = Affine(rx, 0, west, 0, -ry, north)
+        dem = read_dem_onto_grid(scene.dems, t * Affine.translation(-1, -1), (h + 2, w + 2), scene.crs, s.no_dem_data_val)
+        lon2, lat2 = geometry.lonlat_grid(t * Affine.translation(-1, -1), (h + 2, w + 2))
+        lon, lat = lon2[0], lat2[:, 0]
+        pts = geometry.body_fixed(lon2, lat2, np.nan_to_num(dem))
+        normals = geometry.dem_normals(pts)[1:-1, 1:-1]
+        pts, dem = pts[1:-1, 1:-1], dem[1:-1, 1:-1]
+        lon, lat = lon[1:-1], lat[1:-1]
+        self.windows = []
+        for k, im in enumerate(images):
+            bw, bs, be, bn = im.info.lonlat_bounds
+            pad_lon = max_m[k] / (M_PER_DEG * math.cos(math.radians((bs + bn) / 2))) + rx
+            pad_lat = max_m[k] / M_PER_DEG + ry
+            c0, c1 = max(0, int((bw - pad_lon - west) // rx)), min(w, math.ceil((be + pad_lon - west) / rx))
+            r0, r1 = max(0, int((north - bn - pad_lat) // ry)), min(h, math.ceil((north - bs + pad_lat) / ry))
+            if c1 <= c0 or r1 <= r0:
+                self.windows.append(None)
+                continue
+            ci, ce, al = geometry.illumination(pts[r0:r1, c0:c1], normals[r0:r1, c0:c1], scene.sun[k], scene.spacecraft[k])
+            where = {}
+            if model.needs_location:
+                lo, la = np.meshgrid(lon[c0:c1], lat[r0:r1])
+                where = dict(lon=lo, lat=la)
+            r = np.asarray(model.reflectance_from(model.layers(ci, ce, al, **where), s.initial_params), np.float64)
+            base = np.isfinite(dem[r0:r1, c0:c1]) & (ci > 0)
+            base &= np.isfinite(r) & (r > 0)
+            x, y = _map_coordinates(im.info, lon[c0:c1], lat[r0:r1])
+            rr, cc = np.nonzero(base)
+            self.windows.append(dict(pix=((rr + r0) * w + cc + c0).astype(np.int64), x=x[rr, cc], y=y[rr, cc], r=r[rr, cc]))
+        self.n_grid = h * w
+
+    def observations(self, images, shifts) -> list[reg.ImageObs]:
+        out = []
+        for im, win, s in zip(images, self.windows, shifts):
+            if win is None:
+                z = np.zeros(0)
+                out.append(reg.ImageObs(np.zeros(0, np.int64), z, z, z, z, z))
+                continue
+            val, d_e, d_n, ok = im.sample(self.f, win["x"], win["y"], s)
+            out.append(reg.ImageObs(win["pix"][ok], val[ok], d_e[ok], d_n[ok], win["r"][ok], np.ones(int(ok.sum()))))
+        return out
+
+
+def _map_coordinates(info, lon, lat):
+    """The grid's lon/lat (1-D, degrees) in the DRG's CRS, as 2-D arrays (longitudes brought next to the DRG's)."""
+    lo, la = np.meshgrid(lon, lat)
+    if info.crs is None or info.crs.is_geographic:
+        w, _, e, _ = info.bounds
+        turn = 360.0 * np.round(((w + e) / 2 - lo) / 360.0)
+        return lo + turn, la
+    from rasterio.warp import transform
+
+    from ..io.rasters import geographic_crs
+
+    xs, ys = transform(geographic_crs(info.crs), info.crs, lo.ravel(), la.ravel())
+    return np.asarray(xs).reshape(lo.shape), np.asarray(ys).reshape(lo.shape)
+
+
+def _box(scene: Scene) -> tuple[float, float, float, float]:
+    """SIMULATION_BOX cut to the images' footprints: ``(west, south, east, north)`` degrees."""
+    b = np.array([im.lonlat_bounds for im in scene.images])
+    lon0, lon1, lat0, lat1 = scene.settings.simulation_box
+    return max(lon0, b[:, 0].min()), max(lat0, b[:, 1].min()), min(lon1, b[:, 2].max()), min(lat1, b[:, 3].max())
+
+
+def estimate(scene: Scene, progress=None) -> Registration:
+    """The shift of every image of ``scene`` (module docstring); ``progress(str)`` hears each level's result."""
+    s = scene.settings
+    box = _box(scene)
+    res = scene.images[0].lonlat_res
+    n_obs = sum(im.width * im.height for im in scene.images)
+    factor = max(1, math.ceil(math.sqrt(n_obs / MAX_OBSERVATIONS)))
+    thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
+    images = [_Image(info, factor, thresh) for info in scene.images]
+    pixel_m = np.array([pixel_metres(info) for info in scene.images])
+    max_m = s.register_max_shift * pixel_m
+    k_n = len(images)
+    shifts, exposure = np.zeros((k_n, 2)), None
+    levels = []
+    top = max(0, int(math.floor(math.log2(max(s.register_max_shift / factor, 1.0)))))
+    normal = None
+    for j in range(top, -1, -1):
+        lv = _Level(scene, images, 2**j, (res[0] * factor, res[1] * factor), box, max_m)
+        obs = lv.observations(images, shifts)
+        if exposure is None:
+            exposure = np.array([float(np.sum(o.value)) / max(float(np.sum(o.r)), 1e-300) if len(o.value) else 1.0 for o in obs])
+            exposure /= np.exp(np.mean(np.log(exposure)))
+        for _ in range(3):  # exposures and albedo of eqs. 3 and 4 at the level's first shifts
+            exposure = reg.exposures(obs, reg.albedo(obs, exposure, lv.n_grid), exposure)
+        a = reg.albedo(obs, exposure, lv.n_grid)
+        q, wsum = reg.cost(obs, exposure, a)
+        damping, it = 1e-3, 0
+        level_px = pixel_m * factor * 2**j
+        for it in range(1, ITERATIONS + 1):
+            normal = reg.normal_equations(obs, exposure, a, lv.n_grid)
+            accepted = False
+            for _ in range(8):
+                delta = reg.step(normal, exposure, damping)
+                t_new = exposure + delta[:, 0]
+                t_new = np.where(t_new > 0, t_new, exposure * np.exp(delta[:, 0] / exposure))
+                s_new = np.clip(shifts + delta[:, 1:], -max_m[:, None], max_m[:, None])
+                obs_new = lv.observations(images, s_new)
+                a_new = reg.albedo(obs_new, t_new, lv.n_grid)
+                q_new, w_new = reg.cost(obs_new, t_new, a_new)
+                if q_new / max(w_new, 1e-300) <= q / max(wsum, 1e-300):
+                    moved = np.max(np.abs(s_new - shifts) / level_px[:, None])
+                    shifts, exposure, obs, a, q, wsum = s_new, t_new, obs_new, a_new, q_new, w_new
+                    damping, accepted = max(damping / 10, 1e-7), True
+                    break
+                damping *= 10
+            if not accepted or moved < STOP_PX:
+                break
+        levels.append({"pixel_factor": factor * 2**j, "iterations": it, "mean_sq_residual": q / max(wsum, 1e-300)})
+        if progress:
+            progress(f"registration level {factor * 2**j}: {it} iterations, mean squared residual {levels[-1]['mean_sq_residual']:.4g}")
+    normal = reg.normal_equations(obs, exposure, a, lv.n_grid)
+    se = reg.standard_errors(normal, exposure)
+    se[[len(o.value) == 0 for o in obs]] = np.nan
+    return Registration(scene.keys, shifts, se, pixel_m, factor, levels)
+
+
+def shifted_scene(scene: Scene, offsets_m: np.ndarray) -> Scene:
+    """``scene`` with each image's georeference moved by its offset (metres east, north), and the images of every
+    tile found again for the moved footprints."""
+    images = []
+    for info, off in zip(scene.images, offsets_m):
+        dx, dy = metres_to_map(info) @ np.asarray(off, float)
+        t = Affine.translation(dx, dy) * info.transform
+        w, s, e, n = info.bounds
+        bounds = (w + dx, s + dy, e + dx, n + dy)
+        geo = None if info.geo_bounds is None else bounds_in(info.crs, _geo(info.crs), bounds)
+        images.append(dataclasses.replace(info, transform=t, bounds=bounds, geo_bounds=geo))
+    padded = [t.padded_bounds for t in scene.tiles]
+    tile_images = overlaps_per_box([im.lonlat_bounds for im in images], padded)
+    return dataclasses.replace(scene, images=images, tile_images=tile_images)
+
+
+def _geo(crs):
+    from ..io.rasters import geographic_crs
+
+    return geographic_crs(crs)
+
+
+def write_offsets_csv(path: Path, r: Registration) -> None:
+    """``key,east_m,north_m,east_se_m,north_se_m``: the shift added to each image's stated ground position to put it on
+    the DEM, and its standard errors (metres; empty where not determined), atomically."""
+    fmt = lambda v: "" if not np.isfinite(v) else f"{v:.6g}"  # noqa: E731
+    lines = ["key,east_m,north_m,east_se_m,north_se_m"]
+    lines += [f"{k},{o[0]:.6g},{o[1]:.6g},{fmt(e[0])},{fmt(e[1])}" for k, o, e in zip(r.keys, r.offsets_m, r.se_m)]
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def read_offsets_csv(path: Path) -> dict[str, tuple[float, float]]:
+    """``{key: (east_m, north_m)}`` from an ``image_offsets.csv``."""
+    rows = Path(path).read_text().splitlines()[1:]
+    return {r.split(",")[0]: (float(r.split(",")[1]), float(r.split(",")[2])) for r in rows if r.strip()}
+
+
+def register_scene(scene: Scene, checkpoint: Path, resume: bool, timings: dict | None = None) -> Scene:
+    """The scene with its images registered: the shifts of a resumed run's checkpoint (when it is this scene's),
+    else :func:`estimate`'s, kept in ``checkpoint/registration/`` (``registration.json``, ``image_offsets.csv``);
+    ``timings["register"]`` gets the seconds it took."""
+    t0 = time.perf_counter()
+    folder = Path(checkpoint) / FOLDER
+    state = folder / "registration.json"
+    fp = scene.fingerprint()
+    r = None
+    if resume and state.exists():
+        saved = json.loads(state.read_text())
+        if saved.get("fingerprint") == fp:
+            r = Registration.from_dict(saved["registration"])
+    if r is None:
+        r = estimate(scene)
+        folder.mkdir(parents=True, exist_ok=True)
+        write_offsets_csv(folder / "image_offsets.csv", r)
+        atomic_write_text(state, json.dumps({"fingerprint": fp, "registration": r.to_dict()}) + "\n")
+    if timings is not None:
+        timings["register"] = time.perf_counter() - t0
+    return shifted_scene(scene, r.offsets_m)
+
+
+def finish(checkpoint: Path, out: Path) -> dict | None:
+    """Move ``image_offsets.csv`` into OUTDIR; the report's ``registration`` entry (None when not registered)."""
+    folder = Path(checkpoint) / FOLDER
+    if not (folder / "registration.json").exists():
+        return None
+    r = Registration.from_dict(json.loads((folder / "registration.json").read_text())["registration"])
+    (folder / "image_offsets.csv").replace(Path(out) / "image_offsets.csv")
+    return {"pixel_factor": r.factor, "levels": r.levels,
+            "offsets_px": {k: (o / p).round(4).tolist() for k, o, p in zip(r.keys, r.offsets_m, r.pixel_m)}}
