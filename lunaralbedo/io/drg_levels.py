@@ -48,4 +48,4 @@ def read_drg_decimated(info: RasterInfo, factor: int, lit_threshold: float | Non
             use = np.pad(use, pad).reshape(o1 - o0, f, w, f)
             value[o0:o1] = val.mean(axis=(1, 3))
             usable[o0:o1] = use.all(axis=(1, 3))
-    return value, usable, info.transform * Affine.scale(f)
+    return value, usable, info.transform @ Affine.scale(f)
