@@ -49,3 +49,18 @@ def read_drg_decimated(info: RasterInfo, factor: int, lit_threshold: float | Non
             value[o0:o1] = val.mean(axis=(1, 3))
             usable[o0:o1] = use.all(axis=(1, 3))
     return value, usable, info.transform @ Affine.scale(f)
+
+
+def write_moved(path, transform: Affine) -> None:
+    """Give the raster at ``path`` the georeference ``transform`` (its pixels unchanged), atomically: a copy with the
+    new transform replaces the file (a registered DRG, :func:`lunaralbedo.engine.registration.register_workdir`)."""
+    import shutil
+
+    import rasterio
+
+    from .atomic import atomic_path
+
+    with raster_errors(path), atomic_path(path) as tmp:
+        shutil.copyfile(path, tmp)
+        with rasterio.open(tmp, "r+") as ds:
+            ds.transform = transform
