@@ -58,7 +58,7 @@ def test_ingest_register_writes_drgs_with_the_shifts_it_reports(tmp_path):
         with rasterio.open(moved / "DRG" / info.path.name) as ds, rasterio.open(info.path) as ref:
             assert ds.transform.c == pytest.approx(ref.transform.c + dx, abs=1e-8)  # the CSV has 6 digits: ~1e-5 m
             assert ds.transform.f == pytest.approx(ref.transform.f + dy, abs=1e-8)  # the CSV has 6 digits: ~1e-5 m
-            assert np.array_equal(ds.read(), ref.read())
+            assert np.array_equal(ds.read(), ref.read(), equal_nan=True)
 
 
 def test_ingest_rejects_a_negative_max_shift(tmp_path):
