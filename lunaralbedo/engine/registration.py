@@ -237,7 +237,8 @@ def estimate(scene: Scene, progress=None) -> Registration:
     res = scene.images[0].lonlat_res
     box = _box(scene, res)
     n_obs = sum(im.width * im.height for im in scene.images)
-    factor = max(1, math.ceil(math.sqrt(n_obs / MAX_OBSERVATIONS)))
+    grid_px = (box[2] - box[0]) / res[0] * (box[3] - box[1]) / res[1]  # a box much larger than the images: its grid too
+    factor = max(1, math.ceil(math.sqrt(n_obs / MAX_OBSERVATIONS)), math.ceil(math.sqrt(grid_px / (4 * MAX_OBSERVATIONS))))
     thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
     images = [_Image(info, factor, thresh) for info in scene.images]
     pixel_m = np.array([pixel_metres(info) for info in scene.images])
@@ -248,43 +249,57 @@ def estimate(scene: Scene, progress=None) -> Registration:
     top = max(0, int(math.floor(math.log2(max(s.register_max_shift / factor, 1.0)))))
     normal = None
     for j in range(top, -1, -1):
+        t0 = time.perf_counter()
         lv = _Level(scene, images, 2**j, (res[0] * factor, res[1] * factor), box, max_m)
+        t1 = time.perf_counter()
         obs = lv.observations(images, shifts)
         if exposure is None:
             exposure = np.array([float(np.sum(o.value)) / max(float(np.sum(o.r)), 1e-300) if len(o.value) else 1.0 for o in obs])
             exposure /= np.exp(np.mean(np.log(exposure)))
         for _ in range(3):  # exposures and albedo of eqs. 3 and 4 at the level's first shifts
             exposure = reg.exposures(obs, reg.albedo(obs, exposure, lv.n_grid), exposure)
-        a = reg.albedo(obs, exposure, lv.n_grid)
-        q, wsum = reg.cost(obs, exposure, a)
-        damping, it = 1e-3, 0
-        level_px = pixel_m * factor * 2**j
-        for it in range(1, ITERATIONS + 1):
-            normal = reg.normal_equations(obs, exposure, a, lv.n_grid)
-            accepted = False
-            for _ in range(8):
-                delta = reg.step(normal, exposure, damping)
-                t_new = exposure + delta[:, 0]
-                t_new = np.where(t_new > 0, t_new, exposure * np.exp(delta[:, 0] / exposure))
-                s_new = np.clip(shifts + delta[:, 1:], -max_m[:, None], max_m[:, None])
-                obs_new = lv.observations(images, s_new)
-                a_new = reg.albedo(obs_new, t_new, lv.n_grid)
-                q_new, w_new = reg.cost(obs_new, t_new, a_new)
-                if q_new / max(w_new, 1e-300) <= q / max(wsum, 1e-300):
-                    moved = np.max(np.abs(s_new - shifts) / level_px[:, None])
-                    shifts, exposure, obs, a, q, wsum = s_new, t_new, obs_new, a_new, q_new, w_new
-                    damping, accepted = max(damping / 10, 1e-7), True
-                    break
-                damping *= 10
-            if not accepted or moved < STOP_PX:
-                break
-        levels.append({"pixel_factor": factor * 2**j, "iterations": it, "mean_sq_residual": q / max(wsum, 1e-300)})
+        shifts, exposure, obs, a, q, it, evals = _gauss_newton(lv, images, obs, shifts, exposure, max_m,
+                                                               pixel_m * factor * 2**j)
+        levels.append({"pixel_factor": factor * 2**j, "iterations": it, "evaluations": evals, "mean_sq_residual": q,
+                       "observations": int(sum(len(o.value) for o in obs)), "setup_s": round(t1 - t0, 4),
+                       "iterate_s": round(time.perf_counter() - t1, 4)})
         if progress:
-            progress(f"registration level {factor * 2**j}: {it} iterations, mean squared residual {levels[-1]['mean_sq_residual']:.4g}")
+            progress(f"registration level {factor * 2**j}: {it} iterations, mean squared residual {q:.4g}")
     normal = reg.normal_equations(obs, exposure, a, lv.n_grid)
     se = reg.standard_errors(normal, exposure)
     se[[len(o.value) == 0 for o in obs]] = np.nan
     return Registration(scene.keys, shifts, se, pixel_m, factor, levels)
+
+
+def _gauss_newton(lv, images, obs, shifts, exposure, max_m, level_px):
+    """Levenberg-Marquardt iterations of one level from ``shifts`` (K, 2 metres) and ``exposure``: returns the
+    shifts, exposures, observations, albedo, mean squared residual, iterations and cost evaluations.  A step is
+    taken when the mean squared residual does not grow (the observations near image edges change with the shifts);
+    the level ends when no shift moves by :data:`STOP_PX` of its pixels (``level_px``, metres per image)."""
+    a = reg.albedo(obs, exposure, lv.n_grid)
+    q, wsum = reg.cost(obs, exposure, a)
+    damping, it, evals = 1e-3, 0, 0
+    for it in range(1, ITERATIONS + 1):
+        normal = reg.normal_equations(obs, exposure, a, lv.n_grid)
+        accepted = False
+        for _ in range(8):
+            delta = reg.step(normal, exposure, damping)
+            t_new = exposure + delta[:, 0]
+            t_new = np.where(t_new > 0, t_new, exposure * np.exp(delta[:, 0] / exposure))
+            s_new = np.clip(shifts + delta[:, 1:], -max_m[:, None], max_m[:, None])
+            obs_new = lv.observations(images, s_new)
+            a_new = reg.albedo(obs_new, t_new, lv.n_grid)
+            q_new, w_new = reg.cost(obs_new, t_new, a_new)
+            evals += 1
+            if q_new / max(w_new, 1e-300) <= q / max(wsum, 1e-300):
+                moved = np.max(np.abs(s_new - shifts) / level_px[:, None])
+                shifts, exposure, obs, a, q, wsum = s_new, t_new, obs_new, a_new, q_new, w_new
+                damping, accepted = max(damping / 10, 1e-7), True
+                break
+            damping *= 10
+        if not accepted or moved < STOP_PX:
+            break
+    return shifts, exposure, obs, a, q / max(wsum, 1e-300), it, evals
 
 
 def shifted_scene(scene: Scene, offsets_m: np.ndarray) -> Scene:
