@@ -1,7 +1,7 @@
 """`make bench` item 14: the cost of the image-to-DEM registration (REGISTER_IMAGES 1).
 
-A strip shaped like real work (16 images of 1000 x 1000 px at 15 m, half overlapping, fresh craters, each image
-georeferenced off by up to 2 px) is registered in a fresh process: the time of each level, the time per image per
+A strip shaped like real work (12 images of 1000 x 1000 px at 0.002 deg = 61 m, half overlapping, fresh craters
+of 10-40 px radius, each image georeferenced off by up to 2 px) is registered in a fresh process: the time of each level, the time per image per
 Gauss-Newton iteration (one cost evaluation: every image resampled at its new shift, eq. 3's albedo, Q) and per
 image and level set-up (the level's DEM, geometry and reflectance), the peak memory, and the offsets against the
 truth.  ``--quick``: 6 images of 200 px.
@@ -41,9 +41,9 @@ print(json.dumps({"seconds": dt, "levels": r.levels, "factor": r.factor, "images
 
 
 def registration_cost(root: Path, q: bool, figures: dict) -> None:
-    n, px = (6, 200) if q else (16, 1000)
-    spec = SceneSpec(n_images=n, image_px=px, res_deg=0.0005, tile_size=0.25, misregister_px=2.0, fresh_craters=40.0,
-                     dem_relief_m=100.0, seed=14)
+    n, px = (6, 200) if q else (12, 1000)
+    spec = SceneSpec(n_images=n, image_px=px, res_deg=0.002, tile_size=1.0, misregister_px=2.0, fresh_craters=40.0,
+                     dem_relief_m=300.0, seed=14)
     d = scene(root, f"registration_{px}", spec)
     res = subprocess.run([sys.executable, "-c", CHILD, str(d)], capture_output=True, text=True, check=True)
     got = json.loads(res.stdout.splitlines()[-1])

@@ -49,12 +49,14 @@ MAX_OBSERVATIONS = 4_000_000
 #: Gauss-Newton iterations per level, at most; a level stops once no shift moves by STOP_PX of its pixels.
 ITERATIONS = 12
 STOP_PX = 0.002
-#: Order of the spline the images are sampled with (3: cubic).  At the finest level the pixels are not smoothed
-#: (smoothing the images and not the DEM's shading moved the shifts along the Sun's azimuth by up to 0.9 px),
-#: and each sample is weighted by the inverse of its noise variance after the spline
-#: (:func:`~lunaralbedo.model.registration.spline_noise_factor`): unweighted, the cost was 40 % lower with
-#: every image half a pixel off, where the spline averages the noise of neighbouring pixels.
-ORDER = 3
+#: Order of the spline the images are sampled with: 1, bilinear, as the solve resamples them onto the tiles.  On
+#: the strips of docs/solver.md a cubic spline gave 0.12-0.15 px RMS with a mean error of -0.17 px along the Sun's
+#: azimuth, bilinear 0.02-0.05 px.  At the finest level the pixels are not smoothed (smoothing the images and not
+#: the DEM's shading moved the shifts along the Sun's azimuth by up to 0.9 px), and each sample is weighted by the
+#: inverse of its noise variance after interpolation (:func:`~lunaralbedo.model.registration.spline_noise_factor`):
+#: unweighted (cubic), the cost was 40 % lower with every image half a pixel off, where interpolation averages the noise
+#: of neighbouring pixels.
+ORDER = 1
 #: Step (image pixels) of the central differences that give the spline's derivatives (np.gradient of the pixels
 #: missed a third of the slope of the sharp detail that carries the sub-pixel shift).
 DERIVATIVE_PX = 0.01

@@ -36,7 +36,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from .updates import albedo_terms
 
@@ -113,7 +112,7 @@ def normal_equations(obs: list[ImageObs], exposure: np.ndarray, a: np.ndarray, n
     c = np.zeros((3 * k_n, 3 * k_n))
     h = np.zeros(3 * k_n)
     h_a = np.zeros(n_grid)
-    rows, cols, vals = [], [], []
+    us = []
     q, n = 0.0, 0
     for k, (t, o) in enumerate(zip(exposure, obs)):
         av = np.nan_to_num(a[o.pix])
@@ -124,17 +123,23 @@ def normal_equations(obs: list[ImageObs], exposure: np.ndarray, a: np.ndarray, n
         h[3 * k:3 * k + 3] = (jac * w) @ res
         ja = -t * o.r
         h_a += np.bincount(o.pix, w * ja * res, n_grid)
-        u = (w * ja * inv_root[o.pix]) * jac  # b_g / sqrt(D_g)
-        for j in range(3):
-            rows.append(o.pix)
-            cols.append(np.full(len(o.pix), 3 * k + j))
-            vals.append(u[j])
+        us.append((w * ja * inv_root[o.pix]) * jac)  # b_g / sqrt(D_g)
         q += float(np.sum(w * res * res))
-        n += int(np.count_nonzero(w > 0))
-    if rows:
-        um = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n_grid, 3 * k_n))
-        c -= (um.T @ um).toarray()
-        h -= um.T @ (h_a * inv_root)
+        n += len(o.pix)
+    g = h_a * inv_root
+    spread = np.zeros((3, n_grid))  # one image's b_g / sqrt(D_g) on the grid at a time
+    span = [(int(o.pix.min()), int(o.pix.max())) if len(o.pix) else (1, 0) for o in obs]
+    for k, (o, u) in enumerate(zip(obs, us)):
+        h[3 * k:3 * k + 3] -= u @ g[o.pix]
+        spread[:, o.pix] = u
+        for j in range(k, k_n):  # the pairs that can share a pixel: sum_g b_gj b_gk^T / D_g
+            if span[j][0] > span[k][1] or span[k][0] > span[j][1]:
+                continue
+            blk = us[j] @ spread[:, obs[j].pix].T
+            c[3 * j:3 * j + 3, 3 * k:3 * k + 3] -= blk
+            if j != k:
+                c[3 * k:3 * k + 3, 3 * j:3 * j + 3] -= blk.T
+        spread[:, o.pix] = 0.0
     return Normal(c, h, q, n, int(np.count_nonzero(d > 0)))
 
 
