@@ -79,12 +79,12 @@ def test_offsets_and_albedo_recover_the_truth(rough, registered, tmp_path):
     truth = true_offsets(rough, keys)
     pixel_m = np.radians(0.01) * 1737400.0
     rms_px = float(np.sqrt(np.mean(((found - truth) / pixel_m) ** 2)))
-    assert rms_px < 0.4, (found / pixel_m, truth / pixel_m)  # measured 0.05 px
+    assert rms_px < 0.4, (found / pixel_m, truth / pixel_m)  # measured 0.02 px
     sc = score(registered, rough)
-    assert sc["albedo_rel_rmse"] <= 0.022 and sc["coverage"] > 0.95, sc  # measured 1.0 %
+    assert sc["albedo_rel_rmse"] <= 0.022 and sc["coverage"] > 0.95, sc  # measured 1.3 %
     # the defect is real: the same strip without registration
     solve(rough / "settings.txt", out=tmp_path / "plain", workers=1, plots=False)
-    assert score(tmp_path / "plain", rough)["albedo_rel_rmse"] > 0.04  # measured 8 %
+    assert score(tmp_path / "plain", rough)["albedo_rel_rmse"] > 0.04  # measured 6.5 %
     rep = json.loads((registered / "report.json").read_text())["registration"]
     assert rep["levels"][-1]["pixel_factor"] == 1 and len(rep["levels"]) == 3  # 4, 2, 1 pixels for 5 px at most
 
@@ -117,6 +117,15 @@ def test_standard_errors_match_the_scatter_of_repeated_noisy_estimates():
         predicted.append(reg.standard_errors(normal, t))
     spread, predicted = np.std(found, axis=0), np.mean(predicted, axis=0)
     assert np.allclose(spread, predicted, rtol=0.15), (spread, predicted)
+
+
+def test_shifts_stay_within_register_max_shift(rough):
+    s = replace(load_settings(rough / "settings.txt"), register_images=1, register_max_shift=0.5)
+    r = estimate(build_scene(s))
+    px = np.abs(r.offsets_m) / r.pixel_m[:, None]
+    truth = np.abs(true_offsets(rough, r.keys)) / r.pixel_m[:, None]
+    assert np.all(px <= 0.5 + 1e-9) and np.any(px > 0.49) and truth.max() > 1.0
+    assert [lv["pixel_factor"] for lv in r.levels] == [1]  # no coarse level for half a pixel
 
 
 def test_identical_bytes_for_one_and_two_workers(rough, registered, tmp_path):

@@ -38,7 +38,7 @@ from scipy import ndimage
 from ..constants import MOON_RADIUS_KM
 from ..io.atomic import atomic_write_text
 from ..io.drg_levels import read_drg_decimated
-from ..io.rasters import bounds_in, read_dem_onto_grid
+from ..io.rasters import bounds_in, geographic_crs, read_dem_onto_grid
 from ..model import geometry, registration as reg, shadows
 from .observations import saturation_of
 from .photometry import solver_model
@@ -57,8 +57,8 @@ STOP_PX = 0.002
 #: unweighted (cubic), the cost was 40 % lower with every image half a pixel off, where interpolation averages the noise
 #: of neighbouring pixels.
 ORDER = 1
-#: Step (image pixels) of the central differences that give the spline's derivatives (np.gradient of the pixels
-#: missed a third of the slope of the sharp detail that carries the sub-pixel shift).
+#: Step (image pixels) of the central differences that give the derivatives of the interpolant the cost sees
+#: (np.gradient of the pixels missed a third of the slope of the sharp detail that carries the sub-pixel shift).
 DERIVATIVE_PX = 0.01
 M_PER_DEG = math.radians(1.0) * MOON_RADIUS_KM * 1000.0
 FOLDER = "registration"  # under the solve's checkpoint folder
@@ -68,7 +68,7 @@ FOLDER = "registration"  # under the solve's checkpoint folder
 class Registration:
     """Per image (scene order): ``offsets_m`` and ``se_m`` ``(K, 2)`` (east, north, metres), ``pixel_m``
     (the image's pixel, metres), ``factor`` (pixels averaged at the finest level), ``levels`` (per level:
-    its pixel factor, iterations, final mean squared residual)."""
+    its pixel factor, iterations, cost evaluations, observations, mean squared residual, seconds)."""
 
     keys: list[str]
     offsets_m: np.ndarray
@@ -95,8 +95,6 @@ def metres_to_map(info) -> np.ndarray:
     if info.crs is None or info.crs.is_geographic:
         return np.array([[1.0 / (M_PER_DEG * math.cos(math.radians(lat))), 0.0], [0.0, 1.0 / M_PER_DEG]])
     from rasterio.warp import transform
-
-    from ..io.rasters import geographic_crs
 
     d = 1e-3  # degrees
     xs, ys = transform(geographic_crs(info.crs), info.crs, [lon, lon + d, lon], [lat, lat, lat + d])
@@ -236,8 +234,6 @@ def _map_coordinates(info, lon, lat):
         return lo + turn, la
     from rasterio.warp import transform
 
-    from ..io.rasters import geographic_crs
-
     xs, ys = transform(geographic_crs(info.crs), info.crs, lo.ravel(), la.ravel())
     return np.asarray(xs).reshape(lo.shape), np.asarray(ys).reshape(lo.shape)
 
@@ -335,17 +331,11 @@ def shifted_scene(scene: Scene, offsets_m: np.ndarray) -> Scene:
         t = Affine.translation(dx, dy) @ info.transform
         w, s, e, n = info.bounds
         bounds = (w + dx, s + dy, e + dx, n + dy)
-        geo = None if info.geo_bounds is None else bounds_in(info.crs, _geo(info.crs), bounds)
+        geo = None if info.geo_bounds is None else bounds_in(info.crs, geographic_crs(info.crs), bounds)
         images.append(dataclasses.replace(info, transform=t, bounds=bounds, geo_bounds=geo))
     padded = [t.padded_bounds for t in scene.tiles]
     tile_images = overlaps_per_box([im.lonlat_bounds for im in images], padded)
     return dataclasses.replace(scene, images=images, tile_images=tile_images)
-
-
-def _geo(crs):
-    from ..io.rasters import geographic_crs
-
-    return geographic_crs(crs)
 
 
 def write_offsets_csv(path: Path, r: Registration) -> None:
