@@ -53,8 +53,10 @@ def registration_cost(root: Path, q: bool, figures: dict) -> None:
           f"(max {got['max_px']:.3f}) from the truth, median standard error {got['median_se_px']:.3f} px", flush=True)
     for lv in got["levels"]:
         lv["set_up_ms_per_image"] = 1e3 * lv["setup_s"] / k
-        lv["ms_per_image_per_evaluation"] = 1e3 * lv["iterate_s"] / k / max(lv["evaluations"], 1)
+        lv["ms_per_image_per_iteration"] = 1e3 * lv["iterate_s"] / k / max(lv["iterations"], 1)
+        lv["ms_per_image_per_evaluation"] = 1e3 * lv["iterate_s"] / k / max(lv["evaluations"] + lv["iterations"], 1)
         print(f"    level {lv['pixel_factor']} px: {lv['observations']:,} observations, set-up "
-              f"{lv['set_up_ms_per_image']:.0f} ms per image, {lv['iterations']} iterations ({lv['evaluations']} cost "
-              f"evaluations), {lv['ms_per_image_per_evaluation']:.1f} ms per image per iteration", flush=True)
+              f"{lv['set_up_ms_per_image']:.0f} ms per image, {lv['iterations']} iterations ({lv['evaluations']} trial "
+              f"steps), {lv['ms_per_image_per_iteration']:.0f} ms per image per iteration "
+              f"({lv['ms_per_image_per_evaluation']:.0f} ms per image per resampling)", flush=True)
     figures["registration"] = got

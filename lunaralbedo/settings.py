@@ -51,7 +51,7 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     "CAST_SHADOWS": (int, None, (0, 1)),  # None: on whenever the model uses a DEM
     "REFLECTANCE": (str, None, None),  # the model by name (TOML); wins over REFLECTANCE_TYPE; allowed: the registry's names
     "REGISTER_IMAGES": (int, 0, (0, 1)),  # 1: a ground shift per image found with the albedo (engine/registration.py)
-    "REGISTER_MAX_SHIFT": (float, 5.0, None),  # the largest shift searched, pixels of the first DRG
+    "REGISTER_MAX_SHIFT": (float, 5.0, None),  # the largest shift searched, pixels of each image
 }
 
 

@@ -153,40 +153,36 @@ class _Image:
         spline = lambda pts: ndimage.map_coordinates(coef, pts, order=ORDER, mode="mirror", prefilter=False)  # noqa: E731
         val = spline(at)
         ok = ndimage.map_coordinates(u, at, order=1, mode="constant", cval=0.0) > 0.999
-        if self._levels[f][2]:  # raw pixels: every sample weighted by the inverse of its noise variance
-            weight = 1.0 / (reg.spline_noise_factor(row, ORDER) * reg.spline_noise_factor(col, ORDER))
-        else:  # smoothed (correlated) noise: the spline hardly changes its variance
-            weight = np.ones(len(val))
+        raw = self._levels[f][2]  # raw pixels: every sample weighted by the inverse of its noise variance
+        v_r, v_c = (reg.spline_noise_factor(row, ORDER), reg.spline_noise_factor(col, ORDER)) if raw else (1.0, 1.0)
+        weight = np.ones(len(val)) / (v_r * v_c)
         if not derivatives:
-            return val, None, None, ok, weight
+            return val, None, None, ok, weight, None
         h = DERIVATIVE_PX
         g_r = (spline(at + [[h], [0.0]]) - spline(at - [[h], [0.0]])) / (2 * h)
         g_c = (spline(at + [[0.0], [h]]) - spline(at - [[0.0], [h]])) / (2 * h)
         # I(g - s): d/ds = -(dI/dcol dcol/dmap + dI/drow drow/dmap) dmap/ds
         d_e = -(g_c * self.d_pix[0, 0] + g_r * self.d_pix[1, 0])
         d_n = -(g_c * self.d_pix[0, 1] + g_r * self.d_pix[1, 1])
-        return val, d_e, d_n, ok, weight
+        dw = None
+        if raw:  # d(1/(v_r v_c))/ds = -w (v_r'/v_r drow/ds + v_c'/v_c dcol/ds)
+            lr = reg.spline_noise_factor(row, ORDER, derivative=True) / v_r
+            lc = reg.spline_noise_factor(col, ORDER, derivative=True) / v_c
+            dw = (weight * (lc * self.d_pix[0, 0] + lr * self.d_pix[1, 0]), weight * (lc * self.d_pix[0, 1] + lr * self.d_pix[1, 1]))
+        return val, d_e, d_n, ok, weight, dw
 
 
 class _Level:
     """The common grid of one level: its DEM, and per image a window, map coordinates and reflectance."""
 
-    def __init__(self, scene: Scene, images: list[_Image], f: int, res: tuple[float, float], box, max_m):
-        s = scene.settings
-        model = solver_model(s)
+    def __init__(self, scene: Scene, images: list[_Image], f: int, res: tuple[float, float], box, max_m, fine: int = 1):
+        model = solver_model(scene.settings)
         self.f = f
         rx, ry = res[0] * f, res[1] * f
         west, south, east, north = box
         w, h = max(1, math.ceil((east - west) / rx - 1e-6)), max(1, math.ceil((north - south) / ry - 1e-6))
         self.shape = (h, w)
         t = Affine(rx, 0, west, 0, -ry, north)
-        dem = read_dem_onto_grid(scene.dems, t @ Affine.translation(-1, -1), (h + 2, w + 2), scene.crs, s.no_dem_data_val)
-        lon2, lat2 = geometry.lonlat_grid(t @ Affine.translation(-1, -1), (h + 2, w + 2))
-        lon, lat = lon2[0], lat2[:, 0]
-        pts = geometry.body_fixed(lon2, lat2, np.nan_to_num(dem))
-        normals = geometry.dem_normals(pts)[1:-1, 1:-1]
-        pts, dem = pts[1:-1, 1:-1], dem[1:-1, 1:-1]
-        lon, lat = lon[1:-1], lat[1:-1]
         self.windows = []
         for k, im in enumerate(images):
             bw, bs, be, bn = im.info.lonlat_bounds
@@ -197,15 +193,9 @@ class _Level:
             if c1 <= c0 or r1 <= r0:
                 self.windows.append(None)
                 continue
-            ci, ce, al = geometry.illumination(pts[r0:r1, c0:c1], normals[r0:r1, c0:c1], scene.sun[k], scene.spacecraft[k])
-            where = {}
-            if model.needs_location:
-                lo, la = np.meshgrid(lon[c0:c1], lat[r0:r1])
-                where = dict(lon=lo, lat=la)
-            r = np.asarray(model.reflectance_from(model.layers(ci, ce, al, **where), s.initial_params), np.float64)
-            base = np.isfinite(dem[r0:r1, c0:c1]) & (ci > 0)
-            base &= np.isfinite(r) & (r > 0)
-            x, y = _map_coordinates(im.info, lon[c0:c1], lat[r0:r1])
+            r, base = _reflectance(scene, model, k, t @ Affine.translation(c0, r0), (r1 - r0, c1 - c0), fine)
+            lon, lat = geometry.lonlat_grid(t @ Affine.translation(c0, r0), (r1 - r0, c1 - c0))
+            x, y = _map_coordinates(im.info, lon[0], lat[:, 0])
             rr, cc = np.nonzero(base)
             self.windows.append(dict(pix=((rr + r0) * w + cc + c0).astype(np.int64), x=x[rr, cc], y=y[rr, cc], r=r[rr, cc]))
         self.n_grid = h * w
@@ -219,10 +209,37 @@ class _Level:
                 z = np.zeros(0)
                 out.append(reg.ImageObs(np.zeros(0, np.int64), z, z, z, z, z))
                 continue
-            val, d_e, d_n, ok, weight = im.sample(self.f, win["x"], win["y"], s, derivatives)
-            pick = (lambda v: None) if d_e is None else (lambda v: v[ok])  # noqa: E731
-            out.append(reg.ImageObs(win["pix"][ok], val[ok], pick(d_e), pick(d_n), win["r"][ok], weight[ok]))
+            val, d_e, d_n, ok, weight, dw = im.sample(self.f, win["x"], win["y"], s, derivatives)
+            pick = lambda v: None if v is None else v[ok]  # noqa: E731
+            dw = dw or (None, None)
+            out.append(reg.ImageObs(win["pix"][ok], val[ok], pick(d_e), pick(d_n), win["r"][ok], weight[ok],
+                                    pick(dw[0]), pick(dw[1])))
         return out
+
+
+def _reflectance(scene: Scene, model, k: int, transform: Affine, shape: tuple[int, int], fine: int):
+    """Image ``k``'s reflectance over a window of a level grid (float64) and where it is usable (R > 0, lit, DEM).
+
+    With ``fine`` > 1 (the images' pixels are averaged over ``fine`` x ``fine``: :func:`estimate`), R is computed
+    on the images' own pixels and averaged likewise, so that it matches the averaged pixels (R taken at the block
+    centres moved the shifts along the Sun's azimuth by 0.3 px on make bench item 14's strip).
+    """
+    s = scene.settings
+    h, w = shape
+    hf, wf = h * fine, w * fine
+    outer = transform @ Affine.scale(1.0 / fine) @ Affine.translation(-1, -1)  # one pixel more all round: normals
+    dem = read_dem_onto_grid(scene.dems, outer, (hf + 2, wf + 2), scene.crs, s.no_dem_data_val)
+    lon, lat = geometry.lonlat_grid(outer, (hf + 2, wf + 2))
+    pts = geometry.body_fixed(lon, lat, np.nan_to_num(dem))
+    normals = geometry.dem_normals(pts)[1:-1, 1:-1]
+    ci, ce, al = geometry.illumination(pts[1:-1, 1:-1], normals, scene.sun[k], scene.spacecraft[k])
+    where = dict(lon=lon[1:-1, 1:-1], lat=lat[1:-1, 1:-1]) if model.needs_location else {}
+    r = np.asarray(model.reflectance_from(model.layers(ci, ce, al, **where), s.initial_params), np.float64)
+    ok = np.isfinite(dem[1:-1, 1:-1]) & (ci > 0) & np.isfinite(r) & (r > 0)
+    if fine > 1:
+        r = np.where(ok, r, 0.0).reshape(h, fine, w, fine).mean(axis=(1, 3))
+        ok = ok.reshape(h, fine, w, fine).all(axis=(1, 3))
+    return r, ok
 
 
 def _map_coordinates(info, lon, lat):
@@ -267,7 +284,7 @@ def estimate(scene: Scene, progress=None) -> Registration:
     normal = None
     for j in range(top, -1, -1):
         t0 = time.perf_counter()
-        lv = _Level(scene, images, 2**j, (res[0] * factor, res[1] * factor), box, max_m)
+        lv = _Level(scene, images, 2**j, (res[0] * factor, res[1] * factor), box, max_m, fine=factor if j == 0 else 1)
         t1 = time.perf_counter()
         obs = lv.observations(images, shifts)
         if exposure is None:

@@ -45,7 +45,8 @@ class ImageObs:
     """One image's observations on the registration grid (1-D, float64 or float32).
 
     ``pix``: flat grid index; ``value``: :math:`I_k(\\mathbf g - \\mathbf s_k)`; ``d_east``,
-    ``d_north``: its derivatives in the shift (per metre); ``r``: the reflectance; ``w``: the weight.
+    ``d_north``: its derivatives in the shift (per metre); ``r``: the reflectance; ``w``: the weight;
+    ``w_east``, ``w_north``: the weight's derivatives in the shift when it depends on it (or None).
     """
 
     pix: np.ndarray
@@ -54,6 +55,8 @@ class ImageObs:
     d_north: np.ndarray
     r: np.ndarray
     w: np.ndarray
+    w_east: np.ndarray | None = None
+    w_north: np.ndarray | None = None
 
 
 def albedo(obs: list[ImageObs], exposure: np.ndarray, n_grid: int) -> np.ndarray:
@@ -121,6 +124,9 @@ def normal_equations(obs: list[ImageObs], exposure: np.ndarray, a: np.ndarray, n
         jac = np.stack([-av * o.r, o.d_east, o.d_north]).astype(np.float64)  # (3, n_k)
         c[3 * k:3 * k + 3, 3 * k:3 * k + 3] = (jac * w) @ jac.T
         h[3 * k:3 * k + 3] = (jac * w) @ res
+        if o.w_east is not None:  # Q = sum w(s) r^2: half of its derivative through the weights too
+            h[3 * k + 1] += 0.5 * float(np.sum(o.w_east * res * res))
+            h[3 * k + 2] += 0.5 * float(np.sum(o.w_north * res * res))
         ja = -t * o.r
         h_a += np.bincount(o.pix, w * ja * res, n_grid)
         us.append((w * ja * inv_root[o.pix]) * jac)  # b_g / sqrt(D_g)
@@ -182,7 +188,7 @@ def standard_errors(normal: Normal, exposure: np.ndarray) -> np.ndarray:
         return np.where(var > 0, np.sqrt(np.abs(var)), np.nan)
 
 
-def spline_noise_factor(frac: np.ndarray, order: int = 3) -> np.ndarray:
+def spline_noise_factor(frac: np.ndarray, order: int = 3, derivative: bool = False) -> np.ndarray:
     r"""Variance of white unit noise after interpolation by the spline of ``order`` at fractional pixel positions.
 
     An interpolating spline through pixels :math:`p_j` gives :math:`\sum_j L(x - j)\,p_j` (L its cardinal
@@ -201,4 +207,6 @@ def spline_noise_factor(frac: np.ndarray, order: int = 3) -> np.ndarray:
     at = np.arange(8, 56)[None, :] + phis[:, None]
     weights = ndimage.map_coordinates(coef, at.reshape(1, -1), order=order, prefilter=False, mode="mirror")
     table = np.sum(weights.reshape(at.shape) ** 2, axis=1)
+    if derivative:
+        table = np.gradient(table, phis)
     return np.interp(np.mod(frac, 1.0), phis, table)
