@@ -49,12 +49,12 @@ MAX_OBSERVATIONS = 4_000_000
 #: Gauss-Newton iterations per level, at most; a level stops once no shift moves by STOP_PX of its pixels.
 ITERATIONS = 12
 STOP_PX = 0.002
-#: Order of the spline the images are sampled with: 1, bilinear, as the solve resamples them onto the tiles.  On
-#: the strips of docs/solver.md a cubic spline gave 0.12-0.15 px RMS with a mean error of -0.17 px along the Sun's
-#: azimuth, bilinear 0.02-0.05 px.  At the finest level the pixels are not smoothed (smoothing the images and not
-#: the DEM's shading moved the shifts along the Sun's azimuth by up to 0.9 px), and each sample is weighted by the
+#: Order of the spline the images are sampled with: 1, bilinear, as the solve resamples them onto the tiles (on the
+#: strips of docs/solver.md 0.02-0.04 px RMS; a cubic spline 0.04-0.05 px, and 0.10 instead of 0.17 px on make bench
+#: item 14's strip, 50 % slower).  At the finest level the pixels are not smoothed (smoothing the images and not the
+#: DEM's shading moved the shifts along the Sun's azimuth by up to 0.9 px), and each sample is weighted by the
 #: inverse of its noise variance after interpolation (:func:`~lunaralbedo.model.registration.spline_noise_factor`):
-#: unweighted (cubic), the cost was 40 % lower with every image half a pixel off, where interpolation averages the noise
+#: unweighted, the cost was 40 % lower with every image half a pixel off, where interpolation averages the noise
 #: of neighbouring pixels.
 ORDER = 1
 #: Step (image pixels) of the central differences that give the derivatives of the interpolant the cost sees
