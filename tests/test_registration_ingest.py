@@ -41,7 +41,7 @@ def test_solve_registers_moved_ingest_drgs(work, tmp_path):
     solve(replace(load_settings(work / "settings.txt"), register_images=1), out=out, workers=1, plots=False)
     found = read_offsets_csv(out / "image_offsets.csv")
     err = np.array([np.array(found[i.key]) / pixel_metres(i) - truth[i.key] for i in infos])
-    assert float(np.sqrt(np.mean(err**2))) < 0.4, err  # measured 0.06 px
+    assert float(np.sqrt(np.mean(err**2))) < 0.4, err  # measured 0.15 px
 
 
 def test_ingest_register_writes_drgs_with_the_shifts_it_reports(tmp_path):
