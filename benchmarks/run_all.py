@@ -25,7 +25,9 @@ Prints, in one run on this machine:
    code must spend per observation to decode the inputs, compute the geometry, keep the
    observations and write the DEM and weight-sum tiles, into new memory and into memory used
    again; then with the solver's own features added at their cheapest (the model layer, the
-   exposure initialisation's logarithms, cast shadows by a sweep) (needs item 6's scene and outputs).
+   exposure initialisation's logarithms, cast shadows by a sweep) (needs item 6's scene and outputs);
+14. the image-to-DEM registration (``benchmarks/registration_bench.py``): time per image per Gauss-Newton
+   iteration and per level, peak memory, offsets against the truth of a misregistered strip.
 
 Scenes are rendered once into ``bench_out/`` and reused.  ``--quick`` uses smaller scenes
 (a smoke run, not the figures of docs/performance.md).
@@ -90,7 +92,7 @@ def main() -> int:
     ap.add_argument("--out", default="bench_out")
     ap.add_argument("--quick", action="store_true", help="small scenes (smoke run)")
     ap.add_argument("--json", default=None, help="also write the figures as JSON here")
-    ap.add_argument("--only", default="1,2,3,4,5,6,7,8,9,10,11,12,13", help="comma-separated items to run (3 comes with 1)")
+    ap.add_argument("--only", default="1,2,3,4,5,6,7,8,9,10,11,12,13,14", help="comma-separated items to run (3 comes with 1)")
     ap.add_argument("--before", default=None, help="source tree of a previous implementation to measure too (items 6, 8, 10, 12)")
     args = ap.parse_args()
     root = (REPO / args.out).resolve()
@@ -121,6 +123,10 @@ def main() -> int:
         from floor_bench import prepare_floor  # noqa: E402
 
         prepare_floor(root, q, figures)
+    if 14 in only:
+        from registration_bench import registration_cost  # noqa: E402
+
+        registration_cost(root, q, figures)
     if args.json:
         Path(args.json).write_text(json.dumps(figures, indent=2))
     return 0

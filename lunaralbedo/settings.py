@@ -50,6 +50,8 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     "COMPUTE_ERRORS": (int, 1, (0, 1)),
     "CAST_SHADOWS": (int, None, (0, 1)),  # None: on whenever the model uses a DEM
     "REFLECTANCE": (str, None, None),  # the model by name (TOML); wins over REFLECTANCE_TYPE; allowed: the registry's names
+    "REGISTER_IMAGES": (int, 0, (0, 1)),  # 1: a ground shift per image found with the albedo (engine/registration.py)
+    "REGISTER_MAX_SHIFT": (float, 5.0, None),  # the largest shift searched, pixels of each image
 }
 
 
@@ -91,6 +93,8 @@ class Settings:
     use_normalized_cost_fun: int = 0
     compute_errors: int = 1
     cast_shadows: int | None = None
+    register_images: int = 0
+    register_max_shift: float = 5.0
     #: Values of the model-declared keys, ``((LEGACY_KEY, value), ...)``; read as attributes (``s.phase_coeff_c1``).
     model_settings: tuple[tuple[str, Any], ...] = ()
     source: Path | None = field(default=None, compare=False)
@@ -239,7 +243,11 @@ def _validate(values: dict[str, Any], where: str) -> None:
         raise SettingsError(f"{where}: NUM_PROCESSES must be >= 1, got {values['NUM_PROCESSES']}")
     if values["MAX_NUM_ITER"] < 0:
         raise SettingsError(f"{where}: MAX_NUM_ITER must be >= 0, got {values['MAX_NUM_ITER']}")
+    if not (0.0 <= values["REGISTER_MAX_SHIFT"] < float("inf")):
+        raise SettingsError(f"{where}: REGISTER_MAX_SHIFT must be a number of pixels >= 0, got {values['REGISTER_MAX_SHIFT']}")
     model = photometry.get(values["REFLECTANCE"] or values["REFLECTANCE_TYPE"])
+    if values["REGISTER_IMAGES"] and not model.needs_geometry:
+        raise SettingsError(f"{where}: REGISTER_IMAGES 1 needs a DEM: the {model.name} model uses none")
     if model.needs_geometry:
         for key in ("DEM_DIR", "SUN_POSITION_FILE", "SPACECRAFT_POSITION_FILE"):
             if values.get(key) is None:

@@ -33,9 +33,14 @@ from ._common import INGEST_KERNELS, announce_compiling, parallel_options, repor
               help="Align each DEM to these reference points (CSV lon,lat,radius km) or DEM first (see `align`).")
 @click.option("--nac-mosaic", is_flag=True, default=False,
               help="Mosaic LE/RE cubes of one observation (NACL/NACR, same StartTime) into one ideal camera first.")
+@click.option("--register", is_flag=True, default=False,
+              help="Register the DRGs to the DEM (the solver's REGISTER_IMAGES estimate) and write them with their "
+                   "georeference corrected; the shifts go to WORKDIR/image_offsets.csv.")
+@click.option("--register-max-shift", type=float, default=None,
+              help="Largest shift searched with --register, pixels [REGISTER_MAX_SHIFT's default, 5].")
 @reports_errors
 def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem_values, legacy_8bit, tile_size,
-            workers, scheduler, dem_align, nac_mosaic):
+            workers, scheduler, dem_align, nac_mosaic, register, register_max_shift):
     """Orthoproject CUBES onto the DEM and write WORKDIR/{DRG,DEM,meta,settings.txt}.
 
     DRGs are named <KEY>.tif, KEY = the cube name up to its first '.', cut or padded
@@ -44,9 +49,12 @@ def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem
     Moon-centred body-fixed (MOON_ME).  The output grid is the images' native resolution
     (as ISIS cam2map) and TILE_SIZE fits the solver's memory, unless --mpp / --tile-size.
     """
+    from ..errors import InputError
     from ..ingest.run import check_grid_options, ingest
 
     check_grid_options(mpp, tile_size, match_dem)
+    if register_max_shift is not None and not (register and 0 <= register_max_shift < float("inf")):
+        raise InputError(f"--register-max-shift must be a number of pixels >= 0 given with --register, got {register_max_shift}")
     if dem_align is not None or nac_mosaic:
         from ..nac.api import prepare_ingest
         from ..spice.kernels import expand_kernel_args
@@ -74,6 +82,13 @@ def command(cubes, dems, workdir, kernels, isisdata, mpp, match_dem, source, dem
             compiling = False  # the first cube's time holds the compilation, not the others'
             click.echo(f"{r.key}  {r.kind:<12} {r.source:<7} lon {w:.4f}..{e:.4f}  lat {s:.4f}..{n:.4f}  "
                        f"{r.valid_pixels} px  {speed}")
+    if register and report.done:
+        from ..engine.register_workdir import register_workdir
+
+        r = register_workdir(workdir, register_max_shift)
+        for key, off, px in zip(r.keys, r.offsets_m, r.pixel_m):
+            click.echo(f"{key}  registered: moved {off[0]:+.1f} m east, {off[1]:+.1f} m north ({off[0] / px:+.2f}, "
+                       f"{off[1] / px:+.2f} px)")
     lo0, lo1, la0, la1 = report.box
     click.echo(f"resolution {report.mpp:.4g} m/px; TILE_SIZE {report.tile_size:g} degrees")
     click.echo(f"footprint union lon {lo0:.4f}..{lo1:.4f} lat {la0:.4f}..{la1:.4f}; "

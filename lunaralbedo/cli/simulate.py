@@ -9,7 +9,8 @@ from ._common import reports_errors
 
 #: Options of the DRG strip that the ISIS mission does not take.
 _STRIP_ONLY = {"image_px": "--size", "res_deg": "--res", "exposure_spread": "--spread", "reflectance_type": "--reflectance",
-               "tile_size": "--tile-size", "noise_dn": "--noise"}
+               "tile_size": "--tile-size", "noise_dn": "--noise",
+               "misregister_px": "--misregister", "fresh_craters": "--craters"}
 
 
 @click.command("simulate")
@@ -25,6 +26,11 @@ _STRIP_ONLY = {"image_px": "--size", "res_deg": "--res", "exposure_spread": "--s
               help="REFLECTANCE_TYPE of the photometric model (drg; isis is Lunar-Lambertian).")
 @click.option("--tile-size", type=float, default=1.0, show_default=True, help="TILE_SIZE of the written settings (degrees; drg).")
 @click.option("--noise", "noise_dn", type=float, default=1.0, show_default=True, help="Gaussian noise, DN (drg).")
+@click.option("--misregister", "misregister_px", type=float, default=0.0, show_default=True,
+              help="Each DRG's georeference off by a random shift of up to this many pixels east and north (drg; "
+                   "the truth in truth.json: images.KEY.offset_east_m/offset_north_m).")
+@click.option("--craters", "fresh_craters", type=float, default=0.0, show_default=True,
+              help="Fresh bowl craters per square degree (rough terrain; drg).")
 @click.option("--seed", type=int, default=None, help="Random seed [drg: 7, isis: 20240601, the sample_data mission].")
 @reports_errors
 def command(out_dir, fmt, n_images, seed, **kwargs):

@@ -58,6 +58,8 @@ def _print_summary(result) -> None:
             click.echo("    " + identifiability_line(r["identifiability"]))
         for w in r.get("warnings", []):
             click.echo(f"    WARNING: {w}")
+    if rep.get("registration"):
+        click.echo(f"  images registered to the DEM: {result.out_dir}/image_offsets.csv")
     click.echo("  time " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()))
     click.echo(f"  results in {result.out_dir}/ (albedo/, error/, exposure.csv, phase.csv, report.json, *.png)")
 
@@ -103,6 +105,10 @@ def command(settings, out, method, legacy, workers, scheduler, cluster, queue, c
         _check_legacy_options(workers)
     runtime = cli_runtime(nodefile=str(nodefile) if nodefile else None)  # its variables checked before any work
     s = load_settings(settings)
+    if legacy and s.register_images:
+        from ..errors import SettingsError
+
+        raise SettingsError(f"{s.source}: REGISTER_IMAGES 1 is not a PhotometryTK feature; run without --legacy")
     if legacy:
         from ..engine.solve import default_out_dir
         from ..legacy import solve_legacy

@@ -76,7 +76,7 @@ class Scene:
         h.update(json.dumps(self.settings.to_dict(), sort_keys=True).encode())
         for im in self.images:
             st = im.path.stat()
-            h.update(f"{im.key}|{im.path}|{st.st_size}|{st.st_mtime_ns}".encode())
+            h.update(f"{im.key}|{im.path}|{st.st_size}|{st.st_mtime_ns}|{tuple(im.transform)}".encode())
         for d in self.dems:
             st = d.path.stat()
             h.update(f"{d.path}|{st.st_size}|{st.st_mtime_ns}".encode())

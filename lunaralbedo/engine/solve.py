@@ -57,7 +57,7 @@ MARKER = ".lunaralbedo"  # written first into every OUTDIR: marks it as ours
 _TILE_DIRS = ("albedo", "error", "DEM", "weightsSum")
 _OUTPUT_DIRS = (*_TILE_DIRS, "weight")
 _RESULT_FILES = ("report.json", "exposure.csv", "phase.csv", "exposure.png", "cost.png",
-                 "response.csv", "response.png", "loglik.png", "residuals.png")
+                 "response.csv", "response.png", "loglik.png", "residuals.png", "image_offsets.csv")
 
 
 @dataclass
@@ -207,6 +207,10 @@ def solve(
         out.mkdir(parents=True, exist_ok=True)
         (out / MARKER).write_text("lunaralbedo solve output folder\n")
         remove_stale_temporaries(out)
+        if settings.register_images:  # image-to-DEM registration: the images' georeference moved (engine/registration.py)
+            from .registration import register_scene
+
+            scene = register_scene(scene, out / CHECKPOINT_DIR, resume, timings)
         return _run(scene, out, method, max_iter, tolerance, executor, resume, timings, plots, (response, exposure_times))
     except (Exception, KeyboardInterrupt) as exc:
         typed = typed_error(exc)
@@ -380,6 +384,9 @@ def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timi
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "observations": costs,
     }
+    from .registration import finish
+
+    report["registration"] = finish(out / CHECKPOINT_DIR, out)  # image_offsets.csv into OUTDIR (None: not registered)
     _move_tiles_into_place(out)
     move_outputs(out / RESPONSE_DIR, out)
     outputs.write_json(out / "report.json", report)  # last: its presence means the run finished

@@ -12,11 +12,12 @@ from rasterio.crs import CRS
 from rasterio.enums import Resampling
 from rasterio.transform import Affine
 from rasterio.warp import reproject
-from rasterio.windows import Window
+from rasterio.windows import Window, from_bounds
+from rasterio.windows import transform as window_transform
 
 from .guard import raster_errors
 from .opened import open_raster
-from .rasters import RasterInfo, _grid_shifts, _overlaps, _source_window, aligned_offset
+from .rasters import RasterInfo, _grid_bounds, _grid_shifts, _overlaps, aligned_offset, bounds_in
 
 
 def read_drg_onto_grid(
@@ -93,8 +94,9 @@ def _read_drg_once(info, profile, dst_transform, dst_shape, dst_crs, lit_thresho
     h, w = dst_shape
     with raster_errors(info.path), open_raster(info.path) as ds:
         src_crs = ds.crs or dst_crs
+        src_t = info.transform  # the file's georeference, or as a registration moved it (engine/registration.py)
         same_crs = dst_crs is None or ds.crs is None or ds.crs == dst_crs
-        off = aligned_offset(ds.transform, dst_transform, dst_shape) if same_crs else None
+        off = aligned_offset(src_t, dst_transform, dst_shape) if same_crs else None
         if off is not None:  # the target's pixels are source pixels: copy them
             r, c = off
             r0, r1, c0, c1 = max(r, 0), min(r + h, ds.height), max(c, 0), min(c + w, ds.width)
@@ -112,13 +114,13 @@ def _read_drg_once(info, profile, dst_transform, dst_shape, dst_crs, lit_thresho
             inner = (slice(r0 - r, r1 - r), slice(c0 - c, c1 - c))
             out[0][inner], out[1][inner], out[2][inner], out[3][inner] = val, valid, wt, lit  # 0 where not valid
             return out
-        win = _source_window(ds, dst_transform, dst_shape, dst_crs)
+        win = from_bounds(*bounds_in(dst_crs, ds.crs, _grid_bounds(dst_transform, dst_shape)), src_t)
         win = Window(win.col_off - 2, win.row_off - 2, win.width + 4, win.height + 4).round_offsets().round_lengths()
         if not _overlaps(win, ds):
             return None
         win = win.intersection(Window(0, 0, ds.width, ds.height))
         val, valid, wt, usable = _drg_bands(ds, info, profile, win, lit_threshold, saturation, lut)
-        src_transform = ds.window_transform(win)
+        src_transform = window_transform(win, src_t)
     bands = [val, valid.astype(np.float32), wt] + ([usable.astype(np.float32)] if usable is not None else [])
     src = np.stack(bands)
     dst = np.zeros((len(bands), h, w), dtype=np.float32)

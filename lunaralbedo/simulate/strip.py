@@ -71,6 +71,7 @@ class SceneSpec:
     wrap_lon: bool = False  # DRGs east of 180 deg written at -180..180, SIMULATION_BOX as lon0:east-360
     film_contrast: float = 0.0  # > 0: DN through the S-shaped film curve of response.synthetic (seed 002)
     film_mid: float = 0.5  # exposure A*T*R at the curve's mid point
+    misregister_px: float = 0.0  # each DRG's stated georeference off by up to this many pixels east and north
 
     @classmethod
     def centred(cls, lon_center: float, lat_center: float = 0.0, **kwargs) -> "SceneSpec":
@@ -118,6 +119,8 @@ _LIMITS = {
     "tile_size": ("--tile-size", 0.0, None, True),
     "max_num_iter": ("max_num_iter", 1, None, False),
     "altitude_km": ("altitude_km", 0.0, None, True),
+    "misregister_px": ("--misregister", 0.0, None, False),
+    "fresh_craters": ("--craters", 0.0, None, False),
 }
 
 
@@ -137,6 +140,24 @@ def _write_field(path: Path, fn, transform: Affine, shape: tuple[int, int], noda
                 cw = min(chunk, w - c0)
                 lon, lat = geometry.lonlat_grid(transform @ Affine.translation(c0, 0), (h, cw))
                 dst.write(fn(lon, lat).astype(np.float32), 1, window=Window(c0, 0, cw, h))
+
+
+def misregistration(spec: SceneSpec) -> np.ndarray:
+    """``(n_images, 2)`` pixels (east, north) by which each DRG's stated georeference is off: uniform in
+    +-``misregister_px`` per component, from a generator of its own (a scene without misregistration is unchanged)."""
+    if spec.misregister_px <= 0:
+        return np.zeros((spec.n_images, 2))
+    return np.random.default_rng([spec.seed, 4242]).uniform(-spec.misregister_px, spec.misregister_px, (spec.n_images, 2))
+
+
+def offset_truth(stated_px, res_deg: float, lat_deg: float) -> dict:
+    """The truth of one image's registration: the shift to ADD to its stated ground position to put it on the DEM,
+    in pixels (``offset_px``: east, north) and in metres at the strip's mid latitude (``offset_east_m``,
+    ``offset_north_m``); an image stated ``d`` pixels east of its true place gets ``-d``."""
+    m_per_deg = np.radians(1.0) * MOON_RADIUS_KM * 1000.0
+    e, n = -float(stated_px[0]), -float(stated_px[1])
+    return {"offset_px": [e, n], "offset_east_m": e * res_deg * m_per_deg * float(np.cos(np.radians(lat_deg))),
+            "offset_north_m": n * res_deg * m_per_deg}
 
 
 def _sun_and_spacecraft(spec: SceneSpec, k: int, lon_c: float, lat_c: float, rng) -> tuple[np.ndarray, np.ndarray]:
@@ -224,6 +245,7 @@ def _render(out: Path, spec: SceneSpec) -> dict:
     if spec.cast_shadows:
         dem_all = dem_fn(*geometry.lonlat_grid(gt, (height + 2 * m, width + 2 * m)))
     sun_pos, sc_pos, keys = {}, {}, []
+    stated = misregistration(spec)
     for k in range(spec.n_images):
         key = f"SIM-IMG-{k:03d}"
         c0 = m + k * spec.step_px
@@ -248,6 +270,7 @@ def _render(out: Path, spec: SceneSpec) -> dict:
             film = FilmCurve(k=spec.film_contrast, x0=spec.film_mid)
         dn = forward.to_dn(forward.exposure_signal(albedo_fn(lon, lat), exposures[k], r), gain, spec.noise_dn, rng, film)
         alpha = np.full(dn.shape, 255, np.uint8)
+        transform = Affine.translation(stated[k, 0] * res, stated[k, 1] * res) @ transform  # where the file says it is
         if spec.wrap_lon and transform.c >= 180.0:  # the file says -180..-170 for 180..190
             transform = Affine.translation(-360.0, 0.0) @ transform
         write_geotiff(out / "DRG" / f"{key}_drg.tif", np.stack([dn, alpha]), transform, MOON_CRS)
@@ -287,7 +310,8 @@ def _render(out: Path, spec: SceneSpec) -> dict:
              "albedo": "truth/albedo.tif", "dem": "DEM/dem.tif", "frame": "Moon body-fixed (1737.4 km sphere), km",
              "gain": gain, "spec": asdict(spec),
              "images": {key: {"exposure": float(exposures[k]), "sun_km": sun_pos[key].tolist(),
-                              "spacecraft_km": sc_pos[key].tolist(), "drg": f"DRG/{key}_drg.tif"}
+                              "spacecraft_km": sc_pos[key].tolist(), "drg": f"DRG/{key}_drg.tif",
+                              **offset_truth(stated[k], res, spec.lat0 + height * res / 2)}
                         for k, key in enumerate(keys)}}
     write_truth(out, truth)
     return truth

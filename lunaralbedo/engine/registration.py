@@ -1,0 +1,404 @@
+"""Image-to-DEM registration (``REGISTER_IMAGES 1``): a ground shift per image found with the albedo and exposures.
+
+SPICE pointing puts an image tens to hundreds of metres from where it really lies on the DEM.
+Before the tile solve, :func:`estimate` finds per image the shift (east, north, metres) that,
+added to its stated georeference, minimises the cost Q of eq. 1 of the PhotometryTK manual
+jointly with the albedo and the exposures (:mod:`lunaralbedo.model.registration`: Gauss-Newton
+in the exposures and shifts with the albedo eliminated, Levenberg-Marquardt damped).  The
+reflectance comes from the DEM's normals, so the shading of the terrain anchors every image;
+no image is the reference.
+
+It works on an in-memory copy of the scene over SIMULATION_BOX: each image read once, averaged
+over ``factor`` x ``factor`` pixels so that the observations stay under
+:data:`MAX_OBSERVATIONS` (:func:`lunaralbedo.io.drg_levels.read_drg_decimated`), the DEM and the
+geometry resampled onto a common lon/lat grid.  Coarse to fine: grids of 2^j of those pixels
+(images smoothed to match) while 2^j does not exceed REGISTER_MAX_SHIFT, down to 1, each level
+starting from the last one's shifts and exposures; sub-pixel by bilinear sampling.  Shadows:
+the lit test of SHADOW_TYPE 1 and R > 0 (cast shadows are not modelled here).  Units: shifts
+and their standard errors in metres on the ground; REGISTER_MAX_SHIFT in pixels of each image.
+
+The shifted images then enter the solve through their georeference: :func:`shifted_scene` moves
+each image's transform, and the DRG is resampled onto the tiles there
+(:func:`lunaralbedo.io.drgs.read_drg_onto_grid`).  The run writes ``image_offsets.csv``.
+Everything runs in the driver process in a fixed order: the same bytes for any ``--workers``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from rasterio.transform import Affine
+from scipy import ndimage
+
+from ..constants import MOON_RADIUS_KM
+from ..io.atomic import atomic_write_text
+from ..io.drg_levels import read_drg_decimated
+from ..io.rasters import bounds_in, geographic_crs, read_dem_onto_grid
+from ..model import geometry, registration as reg, shadows
+from .observations import saturation_of
+from .photometry import solver_model
+from .scene import Scene, overlaps_per_box
+
+#: Most observations (image pixels over SIMULATION_BOX) of the finest level; more and the images are averaged.
+MAX_OBSERVATIONS = 4_000_000
+#: Gauss-Newton iterations per level, at most; a level stops once no shift moves by STOP_PX of its pixels.
+ITERATIONS = 12
+STOP_PX = 0.002
+#: Order of the spline the images are sampled with: 1, bilinear, as the solve resamples them onto the tiles (on the
+#: strips of docs/solver.md 0.02-0.04 px RMS; a cubic spline 0.04-0.05 px, and 0.10 instead of 0.17 px on make bench
+#: item 14's strip, 50 % slower).  At the finest level the pixels are not smoothed (smoothing the images and not the
+#: DEM's shading moved the shifts along the Sun's azimuth by up to 0.9 px), and each sample is weighted by the
+#: inverse of its noise variance after interpolation (:func:`~lunaralbedo.model.registration.spline_noise_factor`):
+#: unweighted, the cost was 40 % lower with every image half a pixel off, where interpolation averages the noise
+#: of neighbouring pixels.
+ORDER = 1
+#: Step (image pixels) of the central differences that give the derivatives of the interpolant the cost sees
+#: (np.gradient of the pixels missed a third of the slope of the sharp detail that carries the sub-pixel shift).
+DERIVATIVE_PX = 0.01
+M_PER_DEG = math.radians(1.0) * MOON_RADIUS_KM * 1000.0
+FOLDER = "registration"  # under the solve's checkpoint folder
+
+
+@dataclass
+class Registration:
+    """Per image (scene order): ``offsets_m`` and ``se_m`` ``(K, 2)`` (east, north, metres), ``pixel_m``
+    (the image's pixel, metres), ``factor`` (pixels averaged at the finest level), ``levels`` (per level:
+    its pixel factor, iterations, cost evaluations, observations, mean squared residual, seconds)."""
+
+    keys: list[str]
+    offsets_m: np.ndarray
+    se_m: np.ndarray
+    pixel_m: np.ndarray
+    factor: int
+    levels: list[dict]
+
+    def to_dict(self) -> dict:
+        return {"keys": self.keys, "offsets_m": self.offsets_m.tolist(), "se_m": np.nan_to_num(self.se_m, nan=-1).tolist(),
+                "pixel_m": self.pixel_m.tolist(), "factor": self.factor, "levels": self.levels}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Registration":
+        se = np.array(d["se_m"], float)
+        return cls(d["keys"], np.array(d["offsets_m"], float), np.where(se < 0, np.nan, se), np.array(d["pixel_m"], float),
+                   int(d["factor"]), d["levels"])
+
+
+def metres_to_map(info) -> np.ndarray:
+    """2x2 matrix: the DRG's map units per metre east (column 0) and north (column 1) at its centre."""
+    w, s, e, n = info.lonlat_bounds
+    lon, lat = (w + e) / 2, (s + n) / 2
+    if info.crs is None or info.crs.is_geographic:
+        return np.array([[1.0 / (M_PER_DEG * math.cos(math.radians(lat))), 0.0], [0.0, 1.0 / M_PER_DEG]])
+    from rasterio.warp import transform
+
+    d = 1e-3  # degrees
+    xs, ys = transform(geographic_crs(info.crs), info.crs, [lon, lon + d, lon], [lat, lat, lat + d])
+    east_m, north_m = d * M_PER_DEG * math.cos(math.radians(lat)), d * M_PER_DEG
+    return np.array([[(xs[1] - xs[0]) / east_m, (xs[2] - xs[0]) / north_m], [(ys[1] - ys[0]) / east_m, (ys[2] - ys[0]) / north_m]])
+
+
+def pixel_metres(info) -> float:
+    """The ground size of one pixel of ``info`` (metres: the square root of its area)."""
+    t = info.transform
+    return math.sqrt(abs(t.a * t.e - t.b * t.d) / abs(np.linalg.det(metres_to_map(info))))
+
+
+class _Image:
+    """One image held for the registration: its averaged pixels, smoothed per level, and how to sample them."""
+
+    def __init__(self, info, factor, thresh):
+        self.info = info
+        self.value, self.usable, self.transform = read_drg_decimated(info, factor, thresh, saturation_of(info.dtype))
+        self.inv = ~self.transform
+        self.m = metres_to_map(info)
+        a = np.array([[self.inv.a, self.inv.b], [self.inv.d, self.inv.e]]) @ self.m  # (col,row) per metre (east,north)
+        self.d_pix = a
+        self._levels = {}
+
+    def level(self, f: int):
+        """Spline coefficients, usable mask (float) and whether the pixels are raw, at level factor ``f``
+        (smoothed for f > 1)."""
+        if f not in self._levels:
+            u = self.usable.astype(np.float64)
+            v = self.value.astype(np.float64) * u
+            sigma = 0.5 * f if f > 1 else 0.0  # coarse levels: smoothed to their pixel
+            if sigma > 0:
+                wsum = ndimage.gaussian_filter(u, sigma, mode="constant")
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    v = np.where(wsum > 1e-6, ndimage.gaussian_filter(v, sigma, mode="constant") / wsum, 0.0)
+                u = ndimage.minimum_filter(u, size=2 * math.ceil(sigma) + 1, mode="constant")
+            if not u.all() and u.any():  # unusable pixels take their nearest usable value: no edge rings the spline
+                near = ndimage.distance_transform_edt(u == 0, return_distances=False, return_indices=True)
+                v = v[tuple(near)]
+            coef = ndimage.spline_filter(v, order=ORDER, mode="mirror") if ORDER > 1 else v
+            u = ndimage.minimum_filter(u, size=ORDER + 2, mode="constant")  # the spline's neighbours are usable too
+            self._levels[f] = (coef, u, sigma == 0)
+        return self._levels[f]
+
+    def sample(self, f, x, y, shift_m, derivatives: bool = True):
+        """Value, d/d(east), d/d(north) (per metre; None without ``derivatives``) and usable flag at map points
+        ``x, y`` moved back by ``shift_m``: the spline of the level's image, its derivatives by central differences
+        of the spline itself over :data:`DERIVATIVE_PX` (the derivative of the interpolant the cost sees)."""
+        coef, u, _ = self.level(f)
+        dx, dy = self.m @ shift_m
+        inv = self.inv
+        col = inv.a * (x - dx) + inv.b * (y - dy) + inv.c - 0.5
+        row = inv.d * (x - dx) + inv.e * (y - dy) + inv.f - 0.5
+        at = np.stack([row, col])
+        spline = lambda pts: ndimage.map_coordinates(coef, pts, order=ORDER, mode="mirror", prefilter=False)  # noqa: E731
+        val = spline(at)
+        ok = ndimage.map_coordinates(u, at, order=1, mode="constant", cval=0.0) > 0.999
+        raw = self._levels[f][2]  # raw pixels: every sample weighted by the inverse of its noise variance
+        v_r, v_c = (reg.spline_noise_factor(row, ORDER), reg.spline_noise_factor(col, ORDER)) if raw else (1.0, 1.0)
+        weight = np.ones(len(val)) / (v_r * v_c)
+        if not derivatives:
+            return val, None, None, ok, weight, None
+        h = DERIVATIVE_PX
+        g_r = (spline(at + [[h], [0.0]]) - spline(at - [[h], [0.0]])) / (2 * h)
+        g_c = (spline(at + [[0.0], [h]]) - spline(at - [[0.0], [h]])) / (2 * h)
+        # I(g - s): d/ds = -(dI/dcol dcol/dmap + dI/drow drow/dmap) dmap/ds
+        d_e = -(g_c * self.d_pix[0, 0] + g_r * self.d_pix[1, 0])
+        d_n = -(g_c * self.d_pix[0, 1] + g_r * self.d_pix[1, 1])
+        dw = None
+        if raw:  # d(1/(v_r v_c))/ds = -w (v_r'/v_r drow/ds + v_c'/v_c dcol/ds)
+            lr = reg.spline_noise_factor(row, ORDER, derivative=True) / v_r
+            lc = reg.spline_noise_factor(col, ORDER, derivative=True) / v_c
+            dw = (weight * (lc * self.d_pix[0, 0] + lr * self.d_pix[1, 0]), weight * (lc * self.d_pix[0, 1] + lr * self.d_pix[1, 1]))
+        return val, d_e, d_n, ok, weight, dw
+
+
+class _Level:
+    """The common grid of one level: its DEM, and per image a window, map coordinates and reflectance."""
+
+    def __init__(self, scene: Scene, images: list[_Image], f: int, res: tuple[float, float], box, max_m, fine: int = 1):
+        model = solver_model(scene.settings)
+        self.f = f
+        rx, ry = res[0] * f, res[1] * f
+        west, south, east, north = box
+        w, h = max(1, math.ceil((east - west) / rx - 1e-6)), max(1, math.ceil((north - south) / ry - 1e-6))
+        self.shape = (h, w)
+        t = Affine(rx, 0, west, 0, -ry, north)
+        self.windows = []
+        for k, im in enumerate(images):
+            bw, bs, be, bn = im.info.lonlat_bounds
+            pad_lon = max_m[k] / (M_PER_DEG * math.cos(math.radians((bs + bn) / 2))) + rx
+            pad_lat = max_m[k] / M_PER_DEG + ry
+            c0, c1 = max(0, int((bw - pad_lon - west) // rx)), min(w, math.ceil((be + pad_lon - west) / rx))
+            r0, r1 = max(0, int((north - bn - pad_lat) // ry)), min(h, math.ceil((north - bs + pad_lat) / ry))
+            if c1 <= c0 or r1 <= r0:
+                self.windows.append(None)
+                continue
+            r, base = _reflectance(scene, model, k, t @ Affine.translation(c0, r0), (r1 - r0, c1 - c0), fine)
+            lon, lat = geometry.lonlat_grid(t @ Affine.translation(c0, r0), (r1 - r0, c1 - c0))
+            x, y = _map_coordinates(im.info, lon[0], lat[:, 0])
+            rr, cc = np.nonzero(base)
+            self.windows.append(dict(pix=((rr + r0) * w + cc + c0).astype(np.int64), x=x[rr, cc], y=y[rr, cc], r=r[rr, cc]))
+        self.n_grid = h * w
+
+    def observations(self, images, shifts, derivatives: bool = True) -> list[reg.ImageObs]:
+        """Every image's observations at ``shifts`` (K, 2 metres); without ``derivatives`` (a trial step's cost)
+        their ``d_east``, ``d_north`` are None."""
+        out = []
+        for im, win, s in zip(images, self.windows, shifts):
+            if win is None:
+                z = np.zeros(0)
+                out.append(reg.ImageObs(np.zeros(0, np.int64), z, z, z, z, z))
+                continue
+            val, d_e, d_n, ok, weight, dw = im.sample(self.f, win["x"], win["y"], s, derivatives)
+            pick = lambda v: None if v is None else v[ok]  # noqa: E731
+            dw = dw or (None, None)
+            out.append(reg.ImageObs(win["pix"][ok], val[ok], pick(d_e), pick(d_n), win["r"][ok], weight[ok],
+                                    pick(dw[0]), pick(dw[1])))
+        return out
+
+
+def _reflectance(scene: Scene, model, k: int, transform: Affine, shape: tuple[int, int], fine: int):
+    """Image ``k``'s reflectance over a window of a level grid (float64) and where it is usable (R > 0, lit, DEM).
+
+    With ``fine`` > 1 (the images' pixels are averaged over ``fine`` x ``fine``: :func:`estimate`), R is computed
+    on the images' own pixels and averaged likewise, so that it matches the averaged pixels (R taken at the block
+    centres moved the shifts along the Sun's azimuth by 0.3 px on make bench item 14's strip).
+    """
+    s = scene.settings
+    h, w = shape
+    hf, wf = h * fine, w * fine
+    outer = transform @ Affine.scale(1.0 / fine) @ Affine.translation(-1, -1)  # one pixel more all round: normals
+    dem = read_dem_onto_grid(scene.dems, outer, (hf + 2, wf + 2), scene.crs, s.no_dem_data_val)
+    lon, lat = geometry.lonlat_grid(outer, (hf + 2, wf + 2))
+    pts = geometry.body_fixed(lon, lat, np.nan_to_num(dem))
+    normals = geometry.dem_normals(pts)[1:-1, 1:-1]
+    ci, ce, al = geometry.illumination(pts[1:-1, 1:-1], normals, scene.sun[k], scene.spacecraft[k])
+    where = dict(lon=lon[1:-1, 1:-1], lat=lat[1:-1, 1:-1]) if model.needs_location else {}
+    r = np.asarray(model.reflectance_from(model.layers(ci, ce, al, **where), s.initial_params), np.float64)
+    ok = np.isfinite(dem[1:-1, 1:-1]) & (ci > 0) & np.isfinite(r) & (r > 0)
+    if fine > 1:
+        r = np.where(ok, r, 0.0).reshape(h, fine, w, fine).mean(axis=(1, 3))
+        ok = ok.reshape(h, fine, w, fine).all(axis=(1, 3))
+    return r, ok
+
+
+def _map_coordinates(info, lon, lat):
+    """The grid's lon/lat (1-D, degrees) in the DRG's CRS, as 2-D arrays (longitudes brought next to the DRG's)."""
+    lo, la = np.meshgrid(lon, lat)
+    if info.crs is None or info.crs.is_geographic:
+        w, _, e, _ = info.bounds
+        turn = 360.0 * np.round(((w + e) / 2 - lo) / 360.0)
+        return lo + turn, la
+    from rasterio.warp import transform
+
+    xs, ys = transform(geographic_crs(info.crs), info.crs, lo.ravel(), la.ravel())
+    return np.asarray(xs).reshape(lo.shape), np.asarray(ys).reshape(lo.shape)
+
+
+def _box(scene: Scene, res: tuple[float, float]) -> tuple[float, float, float, float]:
+    """SIMULATION_BOX cut to the images' footprints by whole pixels of ``res`` (degrees), so that the grid's pixels
+    are the tiles' (which start at the box's north-west corner): ``(west, south, east, north)`` degrees."""
+    b = np.array([im.lonlat_bounds for im in scene.images])
+    lon0, lon1, lat0, lat1 = scene.settings.simulation_box
+    west = lon0 + max(0, math.floor((b[:, 0].min() - lon0) / res[0])) * res[0]
+    north = lat1 - max(0, math.floor((lat1 - b[:, 3].max()) / res[1])) * res[1]
+    return west, max(lat0, b[:, 1].min()), min(lon1, b[:, 2].max()), north
+
+
+def estimate(scene: Scene, progress=None) -> Registration:
+    """The shift of every image of ``scene`` (module docstring); ``progress(str)`` hears each level's result."""
+    s = scene.settings
+    res = scene.images[0].lonlat_res
+    box = _box(scene, res)
+    n_obs = sum(im.width * im.height for im in scene.images)
+    grid_px = (box[2] - box[0]) / res[0] * (box[3] - box[1]) / res[1]  # a box much larger than the images: its grid too
+    factor = max(1, math.ceil(math.sqrt(n_obs / MAX_OBSERVATIONS)), math.ceil(math.sqrt(grid_px / (4 * MAX_OBSERVATIONS))))
+    thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
+    images = [_Image(info, factor, thresh) for info in scene.images]
+    pixel_m = np.array([pixel_metres(info) for info in scene.images])
+    max_m = s.register_max_shift * pixel_m
+    k_n = len(images)
+    shifts, exposure = np.zeros((k_n, 2)), None
+    levels = []
+    top = max(0, int(math.floor(math.log2(max(s.register_max_shift / factor, 1.0)))))
+    normal = None
+    for j in range(top, -1, -1):
+        t0 = time.perf_counter()
+        lv = _Level(scene, images, 2**j, (res[0] * factor, res[1] * factor), box, max_m, fine=factor if j == 0 else 1)
+        t1 = time.perf_counter()
+        obs = lv.observations(images, shifts)
+        if exposure is None:
+            exposure = np.array([float(np.sum(o.value)) / max(float(np.sum(o.r)), 1e-300) if len(o.value) else 1.0 for o in obs])
+            exposure /= np.exp(np.mean(np.log(exposure)))
+        for _ in range(3):  # exposures and albedo of eqs. 3 and 4 at the level's first shifts
+            exposure = reg.exposures(obs, reg.albedo(obs, exposure, lv.n_grid), exposure)
+        shifts, exposure, obs, a, q, it, evals = _gauss_newton(lv, images, obs, shifts, exposure, max_m,
+                                                               pixel_m * factor * 2**j)
+        levels.append({"pixel_factor": factor * 2**j, "iterations": it, "evaluations": evals, "mean_sq_residual": q,
+                       "observations": int(sum(len(o.value) for o in obs)), "setup_s": round(t1 - t0, 4),
+                       "iterate_s": round(time.perf_counter() - t1, 4)})
+        if progress:
+            progress(f"registration level {factor * 2**j}: {it} iterations, mean squared residual {q:.4g}")
+    obs = lv.observations(images, shifts)
+    normal = reg.normal_equations(obs, exposure, a, lv.n_grid)
+    se = reg.standard_errors(normal, exposure)
+    se[[len(o.value) == 0 for o in obs]] = np.nan
+    return Registration(scene.keys, shifts, se, pixel_m, factor, levels)
+
+
+def _gauss_newton(lv, images, obs, shifts, exposure, max_m, level_px):
+    """Levenberg-Marquardt iterations of one level from ``shifts`` (K, 2 metres) and ``exposure``: returns the
+    shifts, exposures, observations, albedo, mean squared residual, iterations and cost evaluations.  A step is
+    taken when the mean squared residual does not grow (the observations near image edges change with the shifts);
+    the level ends when no shift moves by :data:`STOP_PX` of its pixels (``level_px``, metres per image)."""
+    a = reg.albedo(obs, exposure, lv.n_grid)
+    q, n = reg.cost(obs, exposure, a)
+    damping, it, evals = 1e-3, 0, 0
+    for it in range(1, ITERATIONS + 1):
+        if obs and obs[0].d_east is None:
+            obs = lv.observations(images, shifts)  # the accepted step's, now with the derivatives
+        normal = reg.normal_equations(obs, exposure, a, lv.n_grid)
+        accepted = False
+        for _ in range(8):
+            delta = reg.step(normal, exposure, damping)
+            t_new = exposure + delta[:, 0]
+            t_new = np.where(t_new > 0, t_new, exposure * np.exp(delta[:, 0] / exposure))
+            s_new = np.clip(shifts + delta[:, 1:], -max_m[:, None], max_m[:, None])
+            obs_new = lv.observations(images, s_new, derivatives=False)
+            a_new = reg.albedo(obs_new, t_new, lv.n_grid)
+            q_new, n_new = reg.cost(obs_new, t_new, a_new)
+            evals += 1
+            if q_new / max(n_new, 1) <= q / max(n, 1):
+                moved = np.max(np.abs(s_new - shifts) / level_px[:, None])
+                shifts, exposure, obs, a, q, n = s_new, t_new, obs_new, a_new, q_new, n_new
+                damping, accepted = max(damping / 10, 1e-7), True
+                break
+            damping *= 10
+        if not accepted or moved < STOP_PX:
+            break
+    return shifts, exposure, obs, a, q / max(n, 1), it, evals
+
+
+def shifted_scene(scene: Scene, offsets_m: np.ndarray) -> Scene:
+    """``scene`` with each image's georeference moved by its offset (metres east, north), and the images of every
+    tile found again for the moved footprints."""
+    images = []
+    for info, off in zip(scene.images, offsets_m):
+        dx, dy = metres_to_map(info) @ np.asarray(off, float)
+        t = Affine.translation(dx, dy) @ info.transform
+        w, s, e, n = info.bounds
+        bounds = (w + dx, s + dy, e + dx, n + dy)
+        geo = None if info.geo_bounds is None else bounds_in(info.crs, geographic_crs(info.crs), bounds)
+        images.append(dataclasses.replace(info, transform=t, bounds=bounds, geo_bounds=geo))
+    padded = [t.padded_bounds for t in scene.tiles]
+    tile_images = overlaps_per_box([im.lonlat_bounds for im in images], padded)
+    return dataclasses.replace(scene, images=images, tile_images=tile_images)
+
+
+def write_offsets_csv(path: Path, r: Registration) -> None:
+    """``key,east_m,north_m,east_se_m,north_se_m``: the shift added to each image's stated ground position to put it on
+    the DEM, and its standard errors (metres; empty where not determined), atomically."""
+    fmt = lambda v: "" if not np.isfinite(v) else f"{v:.6g}"  # noqa: E731
+    lines = ["key,east_m,north_m,east_se_m,north_se_m"]
+    lines += [f"{k},{o[0]:.6g},{o[1]:.6g},{fmt(e[0])},{fmt(e[1])}" for k, o, e in zip(r.keys, r.offsets_m, r.se_m)]
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def read_offsets_csv(path: Path) -> dict[str, tuple[float, float]]:
+    """``{key: (east_m, north_m)}`` from an ``image_offsets.csv``."""
+    rows = Path(path).read_text().splitlines()[1:]
+    return {r.split(",")[0]: (float(r.split(",")[1]), float(r.split(",")[2])) for r in rows if r.strip()}
+
+
+def register_scene(scene: Scene, checkpoint: Path, resume: bool, timings: dict | None = None) -> Scene:
+    """The scene with its images registered: the shifts of a resumed run's checkpoint (when it is this scene's),
+    else :func:`estimate`'s, kept in ``checkpoint/registration/`` (``registration.json``, ``image_offsets.csv``);
+    ``timings["register"]`` gets the seconds it took."""
+    t0 = time.perf_counter()
+    folder = Path(checkpoint) / FOLDER
+    state = folder / "registration.json"
+    fp = scene.fingerprint()
+    r = None
+    if resume and state.exists():
+        saved = json.loads(state.read_text())
+        if saved.get("fingerprint") == fp:
+            r = Registration.from_dict(saved["registration"])
+    if r is None:
+        r = estimate(scene)
+        folder.mkdir(parents=True, exist_ok=True)
+        write_offsets_csv(folder / "image_offsets.csv", r)
+        atomic_write_text(state, json.dumps({"fingerprint": fp, "registration": r.to_dict()}) + "\n")
+    if timings is not None:
+        timings["register"] = time.perf_counter() - t0
+    return shifted_scene(scene, r.offsets_m)
+
+
+def finish(checkpoint: Path, out: Path) -> dict | None:
+    """Move ``image_offsets.csv`` into OUTDIR; the report's ``registration`` entry (None when not registered)."""
+    folder = Path(checkpoint) / FOLDER
+    if not (folder / "registration.json").exists():
+        return None
+    r = Registration.from_dict(json.loads((folder / "registration.json").read_text())["registration"])
+    (folder / "image_offsets.csv").replace(Path(out) / "image_offsets.csv")
+    return {"pixel_factor": r.factor, "levels": r.levels,
+            "offsets_px": {k: (o / p).round(4).tolist() for k, o, p in zip(r.keys, r.offsets_m, r.pixel_m)}}
