@@ -84,10 +84,12 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
     sparse = box != (0, tile.height, 0, tile.width)  # a part of the tile: the blocks outside it not stored
     known = partial(entry.save_rows, shape=(tile.height, tile.width), transform=tile.transform, crs=scene.crs,
                     sparse=sparse)
-    for kind in KNOWN_OUTPUTS:  # the rows no image reaches: left to the fill values, never computed
-        entry.skip_rows(f"{kind}.tif", tile.height - (box[1] - r0), shape=(tile.height, tile.width),
-                        transform=tile.transform, crs=scene.crs, sparse=sparse, **OUTPUT_OPTIONS[kind])
-    ROWS.advance(tile.height - (box[1] - r0))
+    skipped = tile.height - (box[1] - r0)  # the rows no image reaches: left to the fill values, never computed
+    for kind in (KNOWN_OUTPUTS if scene.model.needs_geometry else ("weightsSum",)) if skipped else ():
+        entry.skip_rows(f"{kind}.tif", skipped, shape=(tile.height, tile.width), transform=tile.transform,
+                        crs=scene.crs, sparse=sparse, **OUTPUT_OPTIONS[kind])
+    if skipped:
+        ROWS.advance(skipped)
 
     def reduce(block):  # the initialisation sums and the chunk-major runs of a block
         b0, b1, obs, per_pixel, cols = block

@@ -260,9 +260,10 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     valid = 0
     no_err = np.empty(0, np.float32)
     try:
-        for f in files.values():  # the rows no image reaches: no-data
-            f.skip(h - (r1 - r0))
-        ROWS.advance(h - (r1 - r0))
+        if h - (r1 - r0):  # the rows no image reaches (observations.footprint): no-data
+            for f in files.values():
+                f.skip(h - (r1 - r0))
+            ROWS.advance(h - (r1 - r0))
         for b0, b1, obs, per_pixel, c0 in _blocks(folder, meta):  # one block's rows of the outputs held at a time
             alb = np.empty((b1 - b0, x1 - x0), np.float32)
             err = np.empty((b1 - b0, x1 - x0), np.float32) if want_err else no_err
