@@ -35,7 +35,8 @@ the block, a worker holds the cast-shadow DEM (4 bytes per pixel with its margin
 or of the block's band of rows when the tile's would exceed ``terrain.WHOLE_DEM_BYTES``
 (:class:`~.terrain.TileShadows`); the tile outputs are written a block of rows at a time
 (:class:`~lunaralbedo.io.geotiff.GeoTiffRows`), so no whole-tile raster is held: the memory
-follows the block whatever the tile size (docs/performance.md).
+follows the block whatever the tile size (docs/performance.md), and a tile far bigger than its
+images is gone through over their footprint only (:func:`footprint`), so that its time follows them too.
 """
 from __future__ import annotations
 
