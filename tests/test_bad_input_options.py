@@ -74,8 +74,36 @@ def test_mini_rf_is_refused_before_its_clock(realdata, tmp_path):
     rf = realdata / "isis" / "LSZ_04866_1CD_XKU_89N109_V1_lev1.crop.cub"
     # with the LRO SCLK loaded its clock count "UNK" would fail to parse: the refusal comes first
     res = ingest(rf, "--dem", realdata / "isis" / GLD100, "--kernels", realdata / "lro", out=tmp_path / "work")
-    msg = assert_clean_failure(res, 2, rf, "not supported", absent=tmp_path / "work")
-    assert "SCLK" not in msg and "radar" in msg
+    msg = assert_clean_failure(res, 2, rf, "radar (Mini-RF) is not supported: ", absent=tmp_path / "work")
+    assert "SCLK" not in msg and "UNK" not in msg
+
+
+@pytest.mark.usefixtures("clean_spice_pool")
+def test_mini_rf_backplanes_are_refused_before_its_clock(realdata, tmp_path):
+    rf = realdata / "isis" / "LSZ_04866_1CD_XKU_89N109_V1_lev1.crop.cub"
+    res = cli("backplanes", rf, "-o", tmp_path / "bp.tif", "--kernels", realdata / "lro")
+    msg = assert_clean_failure(res, 2, rf, "radar (Mini-RF) is not supported: ", absent=tmp_path / "bp.tif")
+    assert "SCLK" not in msg and "UNK" not in msg
+
+
+@pytest.mark.usefixtures("clean_spice_pool")
+def test_mini_rf_positions_with_the_lro_sclk_are_timed_from_start_time(realdata, tmp_path):
+    """ISIS's MiniRF camera times a radar cube from its StartTime: with the LRO SCLK loaded, its clock counts
+    (``UNK``) are not parsed, and the centre line (alpha line 4909 of the crop, 0.004651130362 s a line) is at
+    StartTime + 4908.5 lines, the time ISIS campt gives (docs/ingest.md)."""
+    import spiceypy
+
+    from lunaralbedo.io.positions import read_positions
+
+    rf = realdata / "isis" / "LSZ_04866_1CD_XKU_89N109_V1_lev1.crop.cub"
+    sun, sc = tmp_path / "sun.txt", tmp_path / "sc.txt"
+    res = cli("positions", rf, "--kernels", realdata / "kernels" / "generic", "--kernels", realdata / "lro",
+              "--sun", sun, "--spacecraft", sc)
+    assert res.exit_code == 0, res.stderr
+    et = float(res.stdout.split(" ET ")[1].split()[0])
+    spiceypy.furnsh(str(realdata / "kernels" / "generic" / "naif0012.tls"))
+    assert et == pytest.approx(spiceypy.str2et("2010-07-16T05:37:58.417299") + 4908.5 * 0.004651130362, abs=1e-5)
+    assert 1737.4 + 30 < np.linalg.norm(read_positions(sc)["LSZ_04866_1"]) < 1737.4 + 150
 
 
 # --- solve --------------------------------------------------------------------------------------------

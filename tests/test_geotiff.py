@@ -60,7 +60,7 @@ def test_missing_rows_or_an_abort_leave_nothing_at_the_target(tmp_path):
     g.abort()
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # no file, no temporary
     with pytest.raises(ValueError, match="do not fit"):
-        GeoTiffRows(tmp_path / "v.tif", a.shape, TR, MOON_CRS).write(a[:, :30], 0)
+        GeoTiffRows(tmp_path / "v.tif", a.shape, TR, MOON_CRS).write(a[:, :30], 0, col0=20)
 
 
 def _sparse_tile():

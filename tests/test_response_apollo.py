@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lunaralbedo.engine.observations import response_observations
+from lunaralbedo.engine.response_pass import response_observations
 from lunaralbedo.engine.scene import build_scene
 from lunaralbedo.response.fit import fit_response
 from lunaralbedo.parallel import make_executor

@@ -9,6 +9,7 @@ from rasterio.errors import NotGeoreferencedWarning
 from rasterio.transform import Affine
 
 from ..camera.build import build_camera
+from ..camera.timing import refuse_radar
 from ..errors import IsisError
 from ..ingest.observation import open_observation
 from ..io.geotiff import write_geotiff
@@ -72,6 +73,7 @@ def camera_geometry(label: IsisLabel, band: int = 1, dem=None, ellipsoid: bool =
     nbands = label.shape[0]
     if not 1 <= band <= nbands:
         raise IsisError(f"{label.path}: band {band} out of range 1..{nbands}")
+    refuse_radar(label, "no camera model for radar (SAR) geometry, so no backplanes")  # before its kernels or clock
     shape = resolve_shape(label, dem, ellipsoid, isisdata)
     with open_observation(label.path, label.path.stem[:11], kernels, isisdata, source) as obs:
         camera = build_camera(obs.label, obs.ephemeris, obs.code, band=band)

@@ -12,7 +12,7 @@ from .ideal import is_ideal, spec_from_label
 from .lunar import build_lunar_camera
 from .model import CameraModel, DetectorMap
 from .optics import ApolloMetricDistortion, FocalPlane, LroNacDistortion, NoDistortion, RadialOdk
-from .timing import camera_kind, frame_et, is_line_scanner, line_timing, naif_value
+from .timing import camera_kind, frame_et, is_line_scanner, line_timing, naif_value, refuse_radar
 
 
 def _tuple(v, n=None):
@@ -75,8 +75,7 @@ def build_camera(label: IsisLabel, ephemeris, code: int, band: int = 1) -> Camer
         from .pushframe import build_pushframe
 
         return build_pushframe(label, ephemeris, band)
-    if kind == "radar":
-        raise IsisError(f"{label.path}: {kind} geometry is not supported for orthoprojection (positions are)")
+    refuse_radar(label, "no camera model for radar (SAR) geometry (`lunaralbedo positions` gives its positions)")
     lunar = build_lunar_camera(label, ephemeris, code)  # Kaguya MI/TC, Clementine UVVIS, Chandrayaan-2 TMC-2
     if lunar is not None:
         return lunar

@@ -121,6 +121,8 @@ def line_timing(label: IsisLabel, code: int | None) -> LineTiming:
         if name == KAGUYA_MI:
             rate = _seconds(inst.get("CorrectedSamplingInterval", inst[next(k for k in LINE_RATE_KEYS if k in inst)]))
         et0 = utc_to_et(label, "StartTime")
+    elif camera_kind(label) == "radar":  # ISIS MiniRF camera: StartTime; its clock counts are "UNK", never parsed
+        et0 = utc_to_et(label, "StartTime")
     elif ik is not None and preroll is not None and naif_value(label, f"INS{code}_ADDITIONAL_PREROLL") is not None:
         rate = rate * (1.0 + ik("MULTIPLI_LINE_ERROR")) + ik("ADDITIVE_LINE_ERROR")
         et0 = _sclk_et(label, str(value_of(preroll)), code) + ik("CONSTANT_TIME_OFFSET") + ik("ADDITIONAL_PREROLL") * rate
@@ -133,6 +135,18 @@ def line_timing(label: IsisLabel, code: int | None) -> LineTiming:
     if rate <= 0:
         raise SpiceError(f"{label.path}: LineExposureDuration must be positive")
     return LineTiming(et0=et0, rate=rate)
+
+
+#: What a radar cube cannot be used for, in the words of :func:`refuse_radar`.
+RADAR_REFUSAL = "radar (Mini-RF) is not supported"
+
+
+def refuse_radar(label: IsisLabel, what: str) -> None:
+    """Raise :class:`IsisError` (exit 2) when ``label`` is a radar cube (Mini-RF), which cannot be orthoprojected:
+    ``<cube>: radar (Mini-RF) is not supported: <what>``.  Called before its kernels or clock counts are read
+    (a Mini-RF label's counts are ``UNK``)."""
+    if label.has("Instrument") and not label.is_map_projected and camera_kind(label) == "radar":
+        raise IsisError(f"{label.path}: {RADAR_REFUSAL}: {what}")
 
 
 def center_et(label: IsisLabel, code: int | None) -> float:

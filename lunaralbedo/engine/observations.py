@@ -35,14 +35,14 @@ the block, a worker holds the cast-shadow DEM (4 bytes per pixel with its margin
 or of the block's band of rows when the tile's would exceed ``terrain.WHOLE_DEM_BYTES``
 (:class:`~.terrain.TileShadows`); the tile outputs are written a block of rows at a time
 (:class:`~lunaralbedo.io.geotiff.GeoTiffRows`), so no whole-tile raster is held: the memory
-follows the block whatever the tile size (docs/performance.md).
+follows the block whatever the tile size (docs/performance.md), and a tile far bigger than its
+images is gone through over their footprint only (:func:`footprint`), so that its time follows them too.
 """
 from __future__ import annotations
 
 
 import numpy as np
 from numba import njit
-from rasterio.enums import Resampling
 
 from ..constants import MIN_COS_INCIDENCE_MODEL, MOON_RADIUS_KM
 from ..io.drgs import pixels_on_grid, read_drg_onto_grid
@@ -51,10 +51,9 @@ from ..io.rasters import read_dem_onto_grid
 from ..model import geometry, shadows
 from ..model.longitude import overlap_shifts
 from ..parallel.ahead import ahead, helper
-from ..response.model import Observations
 from ..runtime import BLOCK_MB
 from .scene import Scene
-from .terrain import TileShadows
+from .terrain import FIRST_MARGIN_PX, WHOLE_DEM_BYTES, TileShadows
 
 #: Default working memory of one block of a tile in the prepare and iterate steps (bytes); ``Runtime.block_mb`` sets it.
 BLOCK_BYTES = int(BLOCK_MB * 2**20)
@@ -88,11 +87,12 @@ def image_window(tile, bounds) -> tuple[int, int, int, int] | None:
     return tile.grid.pixel_box((west + min(shifts), south, east + max(shifts), north), margin=1)
 
 
-def tile_windows(scene: Scene, t: int) -> list[tuple[int, tuple[int, int, int, int] | None]]:
+def tile_windows(scene: Scene, t: int, tile=None) -> list[tuple[int, tuple[int, int, int, int] | None]]:
     """``(k, window)`` of every image of tile ``t``: :func:`image_window`, cut to the DRG's own pixels when it lies
     on the tile's grid (:func:`~lunaralbedo.io.drgs.pixels_on_grid`; read pixel for pixel, no pixel beyond them is
-    valid, so the reads need not pad the window with empty pixels); None where nothing is left."""
-    tile = scene.tiles[t]
+    valid, so the reads need not pad the window with empty pixels); None where nothing is left.  ``tile``: the part
+    of tile ``t`` worked on (:meth:`~.tiles.Tile.part`; default the whole tile), whose pixels the windows count."""
+    tile = scene.tiles[t] if tile is None else tile
     out = []
     for k in map(int, scene.tile_images[t]):
         win = image_window(tile, scene.images[k].lonlat_bounds)
@@ -109,17 +109,50 @@ def block_budget(scene: Scene) -> float:
     return scene.runtime.block_bytes
 
 
-def block_rows(scene: Scene, t: int, ahead: int = 0) -> int:
+#: A tile whose DEM (float32, with the first cast-shadow margin) exceeds this is gone through over its images'
+#: footprint only (:func:`footprint`): the size from which its cast-shadow DEM is read in bands
+#: (:data:`~.terrain.WHOLE_DEM_BYTES`); smaller tiles are gone through whole, as ever.
+FOOTPRINT_TILE_BYTES = WHOLE_DEM_BYTES
+
+
+def footprint(scene: Scene, t: int) -> tuple[int, int, int, int]:
+    """``(r0, r1, c0, c1)``: the rows and columns of tile ``t`` that the prepare step goes through.
+
+    The whole tile when its DEM (float32, with the first cast-shadow margin) fits
+    :data:`FOOTPRINT_TILE_BYTES` (~5700 x 5700 px).  A bigger tile, which a TILE_SIZE many times its
+    images' extent gives (1 m/px NAC strips in a 4-degree tile: 121 000 x 121 000 px), is worked on only over
+    the bounding box of its images' windows, widened to whole :data:`~lunaralbedo.io.geotiff.BLOCK`-px blocks
+    of the tile outputs (``(0, 0, 0, 0)`` when no image reaches it): its terrain, geometry and cast-shadow DEM
+    are read there (with the shadow margin), and the rest of the tile, where no image has a pixel, keeps the
+    outputs' fill values (no-data albedo, error and DEM, zero weight sums) without being computed or read.
+    The cost then follows the images' footprint, not the tile's area (docs/scaling.md).
+    """
+    tile = scene.tiles[t]
+    h, w = tile.height, tile.width
+    side = 2 * FIRST_MARGIN_PX
+    if (h + side) * (w + side) * 4 <= FOOTPRINT_TILE_BYTES:
+        return 0, h, 0, w
+    wins = [win for _, win in tile_windows(scene, t) if win is not None]
+    if not wins:
+        return 0, 0, 0, 0
+    b = OUTPUT_BLOCK
+    r0, c0 = min(x[0] for x in wins) // b * b, min(x[2] for x in wins) // b * b
+    r1, c1 = min(h, -(-max(x[1] for x in wins) // b) * b), min(w, -(-max(x[3] for x in wins) // b) * b)
+    return r0, r1, c0, c1
+
+
+def block_rows(scene: Scene, t: int, ahead: int = 0, tile=None) -> int:
     """Rows per block of tile ``t``: the most that fit :data:`BLOCK_BYTES` (see module docstring), with
     ``ahead`` more windows of the largest width being read and reduced at once (helper threads); a tile cut
     into blocks gets a multiple of the tile outputs' 256-row blocks when that many fit (each block of the
-    GeoTIFFs is then compressed and written once: :mod:`lunaralbedo.io.geotiff`)."""
+    GeoTIFFs is then compressed and written once: :mod:`lunaralbedo.io.geotiff`).  ``tile``: the part of the
+    tile worked on (:meth:`~.tiles.Tile.part`; default the whole tile)."""
     forced = scene.runtime.block_rows
-    tile = scene.tiles[t]
+    tile = scene.tiles[t] if tile is None else tile
     if forced:
         return max(1, min(tile.height, int(forced)))
     budget = block_budget(scene)
-    widths = [win[3] - win[2] for _, win in tile_windows(scene, t) if win is not None]
+    widths = [win[3] - win[2] for _, win in tile_windows(scene, t, tile) if win is not None]
     per_row = ((tile.width + 2) * ROW_PIXEL_BYTES + sum(widths) * WINDOW_PIXEL_BYTES
                + max(widths, default=0) * (READ_PIXEL_BYTES + AHEAD_PIXEL_BYTES * ahead))
     rows = max(1, min(tile.height, int(budget // per_row)))
@@ -181,9 +214,10 @@ def saturation_of(dtype: str) -> float | None:
     return float(np.iinfo(dt).max) if dt.kind in "ui" else None
 
 
-def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None, helpers: int = 0):
+def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None, helpers: int = 0, box=None):
     """Read and reduce every image over tile ``t``, block by block: yields ``(b0, b1, observations, per-pixel arrays,
-    cols)``, ``cols = (c0, c1)`` the columns of the per-pixel sums (module docstring).
+    cols)``, ``cols = (c0, c1)`` the columns of the per-pixel sums (module docstring).  ``box``: the part of the tile
+    gone through (:func:`footprint`, the default): rows, columns and pixel numbers count from its corner.
 
     See the module docstring for the arrays.  The ``usable`` flag (valid, lit, not
     saturated, not in a cast shadow, DEM, incidence <= 85 degrees and cos e > 0) and the
@@ -196,13 +230,15 @@ def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None, helpers: 
     """
     s = scene.settings
     model = scene.model
-    tile = scene.tiles[t]
+    tile = scene.tiles[t].part(footprint(scene, t) if box is None else box)
+    if not tile.height or not tile.width:
+        return
     geometry_needed = model.needs_geometry
     cast = TileShadows(scene, tile, scene.tile_images[t]) if geometry_needed and s.uses_cast_shadows else None
-    windows = tile_windows(scene, t)
+    windows = tile_windows(scene, t, tile)
     depth = helpers if helpers > 1 else 0
     pool = helper("windows", depth) if depth else None
-    for b0, b1 in row_blocks(tile.height, block_rows(scene, t, depth)):
+    for b0, b1 in row_blocks(tile.height, block_rows(scene, t, depth, tile)):
         cols = [(w[2], w[3]) for _, w in windows if w is not None and w[0] < b1 and w[1] > b0]
         span = (min(c for c, _ in cols), max(c for _, c in cols)) if cols else (0, 0)
         band = cast.for_rows(b0, b1) if cast is not None else None  # the tile's terrain, or its band of these rows
@@ -325,62 +361,3 @@ def _gather_block(scene: Scene, tile, b0, b1, windows, geo, cast, model, lut, po
     if geo is not None:
         per_pixel["dem"] = geo.dem
     return obs, per_pixel
-
-
-# --------------------------------------------------------------------------- the response pass (solve --response estimate)
-#: Observations per tile handed to the camera-response fit (a fixed stride over pixels beyond it).
-MAX_PIXELS_PER_TILE = 40_000
-
-
-def response_tile(t: int, *, scene: Scene, max_pixels: int = MAX_PIXELS_PER_TILE) -> dict:
-    """Real observations of tile ``t``: flat pixel index, image index, DN, reflectance R (Kim et al., eq. 6)."""
-    s = scene.settings
-    tile = scene.tiles[t]
-    shape = (tile.height, tile.width)
-    geo = tile_geometry(scene, tile) if s.needs_geometry else None
-    thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
-    step = max(1, int(np.ceil(tile.height * tile.width / max_pixels)))
-    pick = np.arange(0, tile.height * tile.width, step)
-    where = {}
-    if scene.model.needs_location:  # a model with per-point parameters (a Hapke parameter map) needs the ground points
-        lon, lat = geometry.lonlat_axes(tile.transform, shape)
-        where = dict(lon=np.broadcast_to(lon[None, :], shape), lat=np.broadcast_to(lat[:, None], shape))
-    out = {k: [] for k in ("pixel", "image", "dn", "factor")}
-    for k in scene.tile_images[t]:
-        got = read_drg_onto_grid(scene.images[k], scene.profiles[k], tile.transform, shape, scene.crs, thresh,
-                                 resampling=Resampling.nearest)
-        if got is None:
-            continue
-        val, ok, _, use = got
-        use = use & (val > 0)
-        r = np.ones(shape, np.float32)
-        if geo is not None:
-            _, pts, normals, bad = geo
-            ci, ce, al = geometry.illumination(pts, normals, scene.sun[k], scene.spacecraft[k])
-            use &= ~bad & (ci >= MIN_COS_INCIDENCE_MODEL) & (ce > 0)
-            r = scene.model.reflectance(ci, ce, al, s.initial_params, **where)
-            use &= r > 0
-        sel = pick[use.ravel()[pick]]
-        out["pixel"].append(sel)
-        out["image"].append(np.full(len(sel), k, np.int32))
-        out["dn"].append(np.rint(val.ravel()[sel]).astype(np.int16))
-        out["factor"].append(np.asarray(r, np.float32).ravel()[sel])
-    return {name: (np.concatenate(v) if v else np.zeros(0)) for name, v in out.items()} | {"n_pixels": tile.height * tile.width}
-
-
-def _response_reduce(scene: Scene, parts: list[dict]) -> Observations:
-    base, cols = 0, {k: [] for k in ("pixel", "image", "dn", "factor")}
-    for p in parts:  # fixed tile order
-        cols["pixel"].append(p["pixel"].astype(np.int64) + base)
-        for k in ("image", "dn", "factor"):
-            cols[k].append(p[k])
-        base += p["n_pixels"]
-    c = {k: np.concatenate(v) for k, v in cols.items()}
-    return Observations(c["pixel"], c["image"].astype(np.int32), c["dn"].astype(np.int64), base, len(scene.images),
-                        c["factor"].astype(np.float64))
-
-
-def response_observations(scene: Scene, executor) -> Observations:
-    """The response pass: :func:`response_tile` over every tile, concatenated in tile order."""
-    parts = executor.map(response_tile, list(range(len(scene.tiles))), "response", shared=("scene",), scene=scene)
-    return _response_reduce(scene, parts)

@@ -21,7 +21,7 @@ from ..parallel.ahead import ahead, helper
 from ..parallel.progress import ROWS
 from . import kernels, observations, runs
 from .scene import Scene
-from .tilework import CACHE_LAYOUT, OUTPUT_OPTIONS, cache_dir
+from .tilework import CACHE_LAYOUT, KNOWN_OUTPUTS, OUTPUT_OPTIONS, cache_dir
 
 #: Blocks whose observations take at most this many bytes are reduced (initialisation sums,
 #: chunk-major runs) on a helper thread while the next block is gathered, when the prepare
@@ -77,10 +77,19 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
     pairs: dict = {}
     blocks = []
     tile = scene.tiles[t]
-    width = tile.width
+    box = observations.footprint(scene, t)  # the rows and columns gone through: all but for tiles far bigger than
+    r0, c0, width = box[0], box[2], box[3] - box[2]  # their images, whose other pixels keep the outputs' fill values
     n_obs = 0
     # the tile outputs known once it is prepared (its DEM and blending sums), written a block of rows at a time
-    known = partial(entry.save_rows, shape=(tile.height, width), transform=tile.transform, crs=scene.crs)
+    sparse = box != (0, tile.height, 0, tile.width)  # a part of the tile: the blocks outside it not stored
+    known = partial(entry.save_rows, shape=(tile.height, tile.width), transform=tile.transform, crs=scene.crs,
+                    sparse=sparse)
+    skipped = tile.height - (box[1] - r0)  # the rows no image reaches: left to the fill values, never computed
+    for kind in (KNOWN_OUTPUTS if scene.model.needs_geometry else ("weightsSum",)) if skipped else ():
+        entry.skip_rows(f"{kind}.tif", skipped, shape=(tile.height, tile.width), transform=tile.transform,
+                        crs=scene.crs, sparse=sparse, **OUTPUT_OPTIONS[kind])
+    if skipped:
+        ROWS.advance(skipped)
 
     def reduce(block):  # the initialisation sums and the chunk-major runs of a block
         b0, b1, obs, per_pixel, cols = block
@@ -91,13 +100,13 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
         return b0, b1, cols, per_pixel, _init_sums(scene, obs, width), pm
 
     big = lambda block: sum(a.nbytes for a in block[2].values()) > AHEAD_BYTES  # noqa: E731
-    for b0, b1, cols, per_pixel, part, pm in ahead(reduce, observations.gather_blocks(scene, t, lut, helpers),
+    for b0, b1, cols, per_pixel, part, pm in ahead(reduce, observations.gather_blocks(scene, t, lut, helpers, box),
                                              helper("reduce") if helpers > 1 else None, here=big):
         if "dem" in per_pixel:  # every column (a view of the tile's terrain: copied, the writer holds only these rows)
-            known("DEM.tif", np.array(per_pixel.pop("dem"), np.float32), b0, **OUTPUT_OPTIONS["DEM"])
+            known("DEM.tif", np.array(per_pixel.pop("dem"), np.float32), r0 + b0, col0=c0, **OUTPUT_OPTIONS["DEM"])
         sums = np.zeros((b1 - b0, width), np.float32)  # 0 in the columns no image's window reaches
         sums[:, cols[0]:cols[1]] = per_pixel["weights_sum"]
-        known("weightsSum.tif", sums, b0, **OUTPUT_OPTIONS["weightsSum"])
+        known("weightsSum.tif", sums, r0 + b0, col0=c0, **OUTPUT_OPTIONS["weightsSum"])
         for k, rs, n in zip(part["index"], part["r_sum"], part["r_count"]):
             acc = r_sums.setdefault(k, [0.0, 0.0])
             acc[0] += rs
@@ -117,6 +126,7 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
         "pairs": [[j, k, n_, d] for (j, k), (n_, d) in sorted(pairs.items())],
         "tile": scene.tiles[t].name,
         "blocks": blocks,
+        "box": list(box),
         "observations": n_obs,
         "layout": CACHE_LAYOUT,
     }

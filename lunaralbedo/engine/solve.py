@@ -36,7 +36,8 @@ from ..parallel.progress import ROWS
 from ..parallel.workers import trim_malloc
 from ..runtime import Runtime
 from ..response.solve_hook import check_resume, known_exposures, lut_digest, move_outputs, report_parts, resolve_response
-from .observations import ROW_PIXEL_BYTES, block_budget, response_observations
+from .observations import ROW_PIXEL_BYTES, block_budget
+from .response_pass import response_observations
 from .options import DEFAULT_TOLERANCE, METHODS
 from .tiles import budget_warning
 from .scene import Scene, build_scene

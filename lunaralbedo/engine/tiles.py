@@ -10,7 +10,7 @@ their neighbours; outputs are cropped back to the unpadded tile.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from affine import Affine
 
@@ -121,6 +121,14 @@ class Tile:
     def padded_transform(self) -> Affine:
         return self.padded.transform
 
+    def part(self, box: tuple[int, int, int, int]) -> "Tile":
+        """Rows ``r0:r1``, columns ``c0:c1`` of this tile (``box = (r0, r1, c0, c1)``) as a tile of their own (the same
+        pixels and padding) (the part of a big tile its images cover, :func:`.observations.footprint`)."""
+        r0, r1, c0, c1 = box
+        if (r0, r1, c0, c1) == (0, self.height, 0, self.width):
+            return self
+        return replace(self, grid=self.grid.window(c0, r0, c1 - c0, r1 - r0))
+
     @property
     def inner(self) -> tuple[slice, slice]:
         """Slices of the padded grid that give the unpadded tile."""
@@ -160,8 +168,8 @@ def make_tiles(
 
 def budget_warning(tiles: list[Tile], budget_bytes: float, bytes_per_pixel: float) -> str | None:
     """A one-line warning naming TILE_SIZE when the largest tile needs more than ``budget_bytes`` of working
-    memory at ``bytes_per_pixel`` (it is then done in blocks of rows: slower, most of a big tile's
-    pixels are empty), with the TILE_SIZE that fits; None when every tile fits."""
+    memory at ``bytes_per_pixel`` (it is then done in blocks of rows, a tile far bigger than its images only over
+    their footprint: :func:`.observations.footprint`), with the TILE_SIZE that fits; None when every tile fits."""
     if not tiles:
         return None
     big = max(tiles, key=lambda t: t.height * t.width)
@@ -171,5 +179,6 @@ def budget_warning(tiles: list[Tile], budget_bytes: float, bytes_per_pixel: floa
     rows = max(1, int(budget_bytes // (bytes_per_pixel * big.width)))
     fits = tile_side_deg(big.res_x, budget_bytes, bytes_per_pixel, max_deg=big.size_deg)
     return (f"TILE_SIZE {big.size_deg:g} gives tiles of {big.width:,} x {big.height:,} px, more than one block of the "
-            f"{budget_bytes / 2**20:,.0f} MiB memory budget: each is done in {math.ceil(big.height / rows):,} blocks "
-            f"of {rows:,} rows; TILE_SIZE {fits:g} (or ingest's default) would fit one block")
+            f"{budget_bytes / 2**20:,.0f} MiB memory budget: each is done in blocks of {rows:,} rows (at most "
+            f"{math.ceil(big.height / rows):,}: only those its images cover); TILE_SIZE {fits:g} (or ingest's "
+            f"default) would fit one block")

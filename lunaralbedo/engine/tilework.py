@@ -251,16 +251,22 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     if (out_dir / "weightsSum" / name).exists() and (skip_done or not (folder / "block_0000").exists()):
         return {**_tile_images(scene, t, idx), "valid_pixels": count_finite(out_dir / "albedo" / name), "reused": True}
     want_err = bool(s.compute_errors and len(idx))
-    rows_file = partial(GeoTiffRows, shape=(h, w_), transform=tile.transform, crs=scene.crs, threads=write_threads)
+    r0, r1, x0, x1 = meta.get("box", (0, h, 0, w_))  # the part of the tile its blocks cover (observations.footprint)
+    rows_file = partial(GeoTiffRows, shape=(h, w_), transform=tile.transform, crs=scene.crs, threads=write_threads,
+                        sparse=[r0, r1, x0, x1] != [0, h, 0, w_])  # blocks outside a part: not stored
     files = {"albedo": rows_file(out_dir / "albedo" / name, **OUTPUT_OPTIONS["albedo"])}
     if want_err:
         files["error"] = rows_file(out_dir / "error" / name, **OUTPUT_OPTIONS["error"])
     valid = 0
     no_err = np.empty(0, np.float32)
     try:
+        if h - (r1 - r0):  # the rows no image reaches (observations.footprint): no-data
+            for f in files.values():
+                f.skip(h - (r1 - r0))
+            ROWS.advance(h - (r1 - r0))
         for b0, b1, obs, per_pixel, c0 in _blocks(folder, meta):  # one block's rows of the outputs held at a time
-            alb = np.empty((b1 - b0, w_), np.float32)
-            err = np.empty((b1 - b0, w_), np.float32) if want_err else no_err
+            alb = np.empty((b1 - b0, x1 - x0), np.float32)
+            err = np.empty((b1 - b0, x1 - x0), np.float32) if want_err else no_err
             if len(obs["index"]):
                 r, w, texp = tile_model(scene, obs, state)
                 finalise_runs(obs["chunks"], obs["run_start"], obs["run_pixel"], obs["run_image"], obs["image"],
@@ -269,9 +275,9 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
             else:
                 alb[:], err[:] = np.nan, np.nan
             valid += int(np.count_nonzero(np.isfinite(alb)))
-            files["albedo"].write(alb, b0)
+            files["albedo"].write(alb, r0 + b0, x0)
             if want_err:
-                files["error"].write(err, b0)
+                files["error"].write(err, r0 + b0, x0)
             del alb, err
             ROWS.advance(b1 - b0)
         for f in files.values():  # each renamed into place complete

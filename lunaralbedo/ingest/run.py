@@ -139,13 +139,13 @@ def _ingest_one(res: CubeResult, obs, dem: DemMosaic, mpp_deg, drg_dir: Path, le
 def refuse_unsupported(path) -> None:
     """Raise :class:`InputError` for an image ``ingest`` cannot orthoproject (radar: Mini-RF), before its
     kernels are loaded or its times parsed (a radar label's clock counts may be ``UNK``)."""
-    from ..camera.timing import camera_kind
+    from ..camera.timing import RADAR_REFUSAL, camera_kind
     from ..isis.labels import read_label
 
     label = read_label(path)
     if label.has("Instrument") and not label.is_map_projected and camera_kind(label) == "radar":
-        raise InputError(f"{path}: radar images (Mini-RF, SAR) are not supported by ingest: no orthoprojection "
-                         "model for radar geometry (`lunaralbedo positions` gives their positions)")
+        raise InputError(f"{path}: {RADAR_REFUSAL}: ingest has no orthoprojection model for radar (SAR) geometry "
+                         "(`lunaralbedo positions` gives its positions)")
 
 
 def _native_mpp(item, *, extra, isisdata, source, dem: DemMosaic):

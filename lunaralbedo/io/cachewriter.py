@@ -116,15 +116,21 @@ class Entry:
         self.writer._put(self, lambda: save_stack(self.tmp / name, arrays, meta),
                          sum(int(getattr(a, "nbytes", 0)) for a in arrays.values()))
 
-    def save_rows(self, name: str, rows: np.ndarray, row0: int, shape: tuple[int, int], **geotiff) -> None:
-        """Queue rows ``row0:row0 + len(rows)`` of the one-band GeoTIFF ``name`` of ``shape`` inside this entry
-        (:class:`~.geotiff.GeoTiffRows`, made with ``geotiff`` at its first rows, finished by :meth:`complete`);
-        ``rows`` must not change after.  The file's other rows are never held here."""
-        def write():
-            if name not in self._rows:
-                self._rows[name] = GeoTiffRows(self.tmp / name, shape, **geotiff)
-            self._rows[name].write(rows, row0)
-        self.writer._put(self, write, int(rows.nbytes))
+    def save_rows(self, name: str, rows: np.ndarray, row0: int, shape: tuple[int, int], col0: int = 0,
+                  **geotiff) -> None:
+        """Queue rows ``row0:row0 + len(rows)`` (columns ``col0:``) of the one-band GeoTIFF ``name`` of ``shape``
+        inside this entry (:class:`~.geotiff.GeoTiffRows`, made with ``geotiff`` at its first rows, finished by
+        :meth:`complete`); ``rows`` must not change after.  The file's other rows are never held here."""
+        self.writer._put(self, lambda: self._file(name, shape, geotiff).write(rows, row0, col0), int(rows.nbytes))
+
+    def skip_rows(self, name: str, n: int, shape: tuple[int, int], **geotiff) -> None:
+        """Queue ``n`` rows of :meth:`save_rows`'s file ``name`` left to its fill value (:meth:`.GeoTiffRows.skip`)."""
+        self.writer._put(self, lambda: self._file(name, shape, geotiff).skip(n))
+
+    def _file(self, name: str, shape, geotiff: dict) -> GeoTiffRows:
+        if name not in self._rows:
+            self._rows[name] = GeoTiffRows(self.tmp / name, shape, **geotiff)
+        return self._rows[name]
 
     def complete(self, meta: dict) -> None:
         """Queue ``meta.json`` and the rename that makes the entry appear, complete, at its place."""

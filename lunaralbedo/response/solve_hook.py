@@ -1,7 +1,7 @@
 """Camera response inside ``solve`` (Kim et al., unaligned case): estimate g, or load it, before the prepare pass.
 
 ``--response estimate``: the engine's *response pass*
-(:func:`lunaralbedo.engine.observations.response_observations`) reads every DRG over each
+(:func:`lunaralbedo.engine.response_pass.response_observations`) reads every DRG over each
 tile with nearest-neighbour resampling (real observations: integer DN on the tile grid),
 computes the reflectance model R (the photometric model's reflectance with its initial
 parameters) and returns a fixed subsample of ``(pixel, image, DN, R)`` in tile order
