@@ -24,7 +24,6 @@ class Recorder:
 
 def test_row_bar_moves_block_by_block(tmp_path, monkeypatch):
     render_scene(tmp_path / "scene", SceneSpec(n_images=3, image_px=60, tile_size=0.25, max_num_iter=2, seed=5))
-    monkeypatch.setenv("LUNARALBEDO_BLOCK_ROWS", "7")  # blocks of 7 rows, as a tile over the memory budget is done
     rec = Recorder()
     import lunaralbedo.engine.prepare as prepare
     import lunaralbedo.engine.solve as solve
@@ -32,8 +31,9 @@ def test_row_bar_moves_block_by_block(tmp_path, monkeypatch):
 
     for mod in (prepare, solve, tilework):
         monkeypatch.setattr(mod, "ROWS", rec)
+    # blocks of 7 rows, as a tile over the memory budget is done
     res = lunaralbedo.solve(tmp_path / "scene" / "settings.txt", out=tmp_path / "out", workers=1, progress=True,
-                            plots=False, tolerance=0)
+                            plots=False, tolerance=0, runtime=lunaralbedo.Runtime(block_rows=7))
     names = [p[0] for p in rec.passes]
     assert names[0] == "prepare" and names[-1] == "write tiles" and names.count("iteration 1") == 1
     assert len(names) == 2 + res.iterations
