@@ -21,6 +21,7 @@ the model; the chosen model validates them.  This module knows no model by name.
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,6 +51,14 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     "COMPUTE_ERRORS": (int, 1, (0, 1)),
     "CAST_SHADOWS": (int, None, (0, 1)),  # None: on whenever the model uses a DEM
     "REFLECTANCE": (str, None, None),  # the model by name (TOML); wins over REFLECTANCE_TYPE; allowed: the registry's names
+    # real images (docs/solver.md "Real images"): outliers, haze, exposures in physical units; not read by --legacy
+    "REJECT_OUTLIERS": (int, 1, (0, 1)),  # each image's observations that stand out from their neighbourhood
+    "ROBUST_LOSS": (str, "cauchy", ("cauchy", "huber", "none")),  # IRLS loss where >= 3 images overlap
+    "ROBUST_THRESHOLD": (float, 3.0, None),  # k: the loss's scale in robust standard deviations (MAD)
+    "FLOAT_HAZE": (int, 0, (0, 1)),  # per-image additive haze I = T A R + H
+    "EXPOSURE_MODE": (str, "solve", ("solve", "fixed", "prior")),
+    "EXPOSURE_FILE": (Path, None, None),  # key,exposure CSV for EXPOSURE_MODE fixed/prior
+    "EXPOSURE_PRIOR_SIGMA": (float, 0.02, None),  # relative standard deviation of the exposure prior
 }
 
 
@@ -91,6 +100,13 @@ class Settings:
     use_normalized_cost_fun: int = 0
     compute_errors: int = 1
     cast_shadows: int | None = None
+    reject_outliers: int = 1
+    robust_loss: str = "cauchy"
+    robust_threshold: float = 3.0
+    float_haze: int = 0
+    exposure_mode: str = "solve"
+    exposure_file: Path | None = None
+    exposure_prior_sigma: float = 0.02
     #: Values of the model-declared keys, ``((LEGACY_KEY, value), ...)``; read as attributes (``s.phase_coeff_c1``).
     model_settings: tuple[tuple[str, Any], ...] = ()
     source: Path | None = field(default=None, compare=False)
@@ -239,6 +255,9 @@ def _validate(values: dict[str, Any], where: str) -> None:
         raise SettingsError(f"{where}: NUM_PROCESSES must be >= 1, got {values['NUM_PROCESSES']}")
     if values["MAX_NUM_ITER"] < 0:
         raise SettingsError(f"{where}: MAX_NUM_ITER must be >= 0, got {values['MAX_NUM_ITER']}")
+    for key in ("ROBUST_THRESHOLD", "EXPOSURE_PRIOR_SIGMA"):
+        if not (math.isfinite(values[key]) and values[key] > 0):
+            raise SettingsError(f"{where}: {key} must be a number > 0, got {values[key]}")
     model = photometry.get(values["REFLECTANCE"] or values["REFLECTANCE_TYPE"])
     if model.needs_geometry:
         for key in ("DEM_DIR", "SUN_POSITION_FILE", "SPACECRAFT_POSITION_FILE"):

@@ -25,11 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ResumeError, SettingsError, SolverError, typed_error
+from ..errors import InputError, ResumeError, SettingsError, SolverError, typed_error
 from ..io import outputs
 from ..io.atomic import remove_stale_temporaries, remove_tree
 from ..io.guard import check_output_dir
-from ..model import exposure_init, updates
+from ..model import exposure_init, exposure_prior, updates
 from ..settings import Settings, load_settings
 from ..parallel import local_workers, make_executor
 from ..parallel.workers import trim_malloc
@@ -131,16 +131,40 @@ def _reduce_iteration(n_images: int, n_params: int, parts) -> updates.PassSums:
     return total
 
 
-def _update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref: np.ndarray, fixed: bool = False) -> SolveState:
-    """One update of exposures (eq. 4) and parameters (eq. 5); ``fixed``: the exposures are known (kept)."""
-    t = state.exposure if fixed else updates.exposure_update(state.exposure, sums.exp_num, sums.exp_den)
+def given_exposures(settings: Settings, exposure_times, keys: list[str]) -> tuple[str, np.ndarray | None]:
+    """The exposure mode and the given exposures: ``--exposure-times FILE`` (fixed), else EXPOSURE_MODE with
+    EXPOSURE_FILE (``fixed``/``prior`` without a file: every exposure 1, the calibrated I/F case)."""
+    if exposure_times is not None:
+        return "fixed", known_exposures(exposure_times, keys)
+    mode = settings.exposure_mode
+    if mode == "solve":
+        return mode, None
+    f = settings.exposure_file
+    if f is None:
+        return mode, np.ones(len(keys))
+    try:
+        return mode, known_exposures(f, keys)
+    except InputError as exc:
+        raise InputError(f"EXPOSURE_FILE {exc}") from None
+
+
+def _update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref: np.ndarray, fixed: bool = False,
+            prior: float | None = None) -> SolveState:
+    """One update of exposures (eq. 4) and parameters (eq. 5); ``fixed``: the exposures are known (kept);
+    ``prior``: the relative sigma of a Gaussian prior around ``t_ref`` (:mod:`lunaralbedo.model.exposure_prior`)."""
+    if fixed:
+        t = state.exposure
+    elif prior is not None:
+        t = exposure_prior.exposure_update_prior(state.exposure, sums.exp_num, sums.exp_den, t_ref, prior, sums.q, sums.n_obs)
+    else:
+        t = updates.exposure_update(state.exposure, sums.exp_num, sums.exp_den)
     c = state.params
     if model.parameters and sums.n_obs:
         if method == "seed":
             c = updates.phase_update_seed(c, sums.jtj, sums.jtr)
         else:
             c = updates.phase_update_damped(c, sums.jtj, sums.jtr, (sums.alpha_min, sums.alpha_max), model.phase_curve)
-    if method != "seed" and not fixed:
+    if method != "seed" and not fixed and prior is None:
         # A*T leaves one global scale free: pin the geometric mean of T to the initial one.
         t = t * np.exp(np.mean(np.log(t_ref)) - np.mean(np.log(t)))
     return SolveState(np.asarray(t, dtype=np.float64), np.asarray(c, dtype=np.float64))
@@ -225,7 +249,8 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     tiles = list(range(len(scene.tiles)))
     t1 = time.perf_counter()
     # camera response (seed 002): g for the prepare step, fixed exposures (engine/response.py)
-    t_known = known_exposures(resp[1], scene.keys) if resp[1] is not None else None
+    mode, t_given = given_exposures(s, resp[1], scene.keys)
+    t_known = t_given if mode == "fixed" else None
     lut, resp_report = resolve_response(resp[0], scene, executor, out / RESPONSE_DIR, t_known, ck, plots)
     check_resume(ck, lut, t_known)
     if lut is not None:  # the cached stacks hold g(DN): one cache per response, never a stale one on --resume
@@ -237,7 +262,12 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
 
     metas = _prepare(on_tiles, executor, lut)
     executor.place("tiles", {t: TASK_OBSERVATIONS + sum(m["r_count"]) for t, m in zip(tiles, metas)})
-    t_init = _reduce_init(scene, metas, method) if t_known is None else t_known
+    if mode == "prior" and method == "overlap":  # the overlaps' relative exposures at the prior's overall scale
+        t_seed = _reduce_init(scene, metas, method)
+        t_init = t_seed * np.exp(np.mean(np.log(t_given)) - np.mean(np.log(t_seed)))
+    else:
+        t_init = _reduce_init(scene, metas, method) if t_given is None else t_given
+    t_ref = t_given if mode == "prior" else t_init
     timings["prepare"] = time.perf_counter() - t1
     if ck is None:
         ck = {
@@ -266,7 +296,8 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
         ck["q"].append(sums.q)
         converged = q_prev is not None and abs(q_prev - sums.q) <= tol * max(sums.q, 1e-300)
         if not converged:
-            state = _update(state, sums, method, s.model, t_init, fixed=t_known is not None)
+            state = _update(state, sums, method, s.model, t_ref, fixed=t_known is not None,
+                            prior=s.exposure_prior_sigma if mode == "prior" else None)
             ck["params_history"].append(state.params.tolist())
         ck.update(iteration=ck["iteration"] + 1, exposure=state.exposure.tolist(), params=state.params.tolist(), done=converged)
         outputs.write_json(out / STATE_FILE, ck)
@@ -358,6 +389,7 @@ def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timi
         "resumed": resume_info if any(resume_info.values()) else None,
         **report_parts(ck.get("response")),
         "exposure_fixed": bool(ck.get("exposure_fixed")),
+        "exposure_mode": "fixed" if ck.get("exposure_fixed") else scene.settings.exposure_mode,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "observations": costs,
     }
