@@ -686,8 +686,8 @@ def test_a_one_worker_solve_runs_its_tiles_on_every_cpu_and_writes_the_same_file
     at_once = min(cpus, n_tiles, solve_module.MAX_THREADS)
     assert len(ran["iterate"]) == len(ran["finalise"]) == at_once, ran
     each = max(1, cpus // at_once)
-    assert set(seen) == {("albedo", each), ("error", each), ("DEM", 1), ("weightsSum", 1)}, seen
-    assert len(seen) == 4 * n_tiles
+    assert set(seen) == {("albedo", each), ("error", each), ("outliers", each), ("DEM", 1), ("weightsSum", 1)}, seen
+    assert len(seen) == 5 * n_tiles
     same_results(reference, out)
     # finalise within its memory bound (here: one tile's rasters): one tile at a time, GDAL's threads on the CPUs
     monkeypatch.setattr(solve_module, "FINALISE_BYTES", 1)

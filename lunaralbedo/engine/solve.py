@@ -37,11 +37,12 @@ from .response import check_resume, known_exposures, lut_digest, move_outputs, r
 from .observations import ROW_PIXEL_BYTES, block_budget
 from .scene import Scene, build_scene
 from .prepare import WRITER, prepare_tile
+from . import robust
 from .tilework import SolveState, finalize_tile, iterate_tile
 
 METHODS = ("overlap", "seed")
 #: Modules local workers import as they start (the tile tasks' own, with NumPy, numba, rasterio).
-WORKER_PRELOAD = ("lunaralbedo.engine.prepare", "lunaralbedo.engine.tilework")
+WORKER_PRELOAD = ("lunaralbedo.engine.prepare", "lunaralbedo.engine.tilework", "lunaralbedo.engine.robust")
 #: A tile task's fixed cost in observations (~2 ms of a worker's time at ~9 ns per observation),
 #: for sharing the tiles' iterations evenly among workers (:meth:`~lunaralbedo.parallel.DaskExecutor.place`).
 TASK_OBSERVATIONS = 250_000
@@ -53,7 +54,7 @@ CACHE_DIR = f"{CHECKPOINT_DIR}/cache"
 TILES_DIR = f"{CHECKPOINT_DIR}/tiles"  # finalised tiles, moved into OUTDIR at the end
 RESPONSE_DIR = f"{CHECKPOINT_DIR}/response"  # camera response files (engine/response.py), moved likewise
 MARKER = ".lunaralbedo"  # written first into every OUTDIR: marks it as ours
-_TILE_DIRS = ("albedo", "error", "DEM", "weightsSum")
+_TILE_DIRS = ("albedo", "error", "DEM", "weightsSum", "outliers")
 _OUTPUT_DIRS = (*_TILE_DIRS, "weight")
 _RESULT_FILES = ("report.json", "exposure.csv", "phase.csv", "exposure.png", "cost.png",
                  "response.csv", "response.png", "loglik.png", "residuals.png")
@@ -167,7 +168,7 @@ def _update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref
     if method != "seed" and not fixed and prior is None:
         # A*T leaves one global scale free: pin the geometric mean of T to the initial one.
         t = t * np.exp(np.mean(np.log(t_ref)) - np.mean(np.log(t)))
-    return SolveState(np.asarray(t, dtype=np.float64), np.asarray(c, dtype=np.float64))
+    return SolveState(np.asarray(t, dtype=np.float64), np.asarray(c, dtype=np.float64), robust=state.robust, haze=state.haze)
 
 
 def solve(
@@ -281,20 +282,33 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
             "done": False,
             "response": resp_report,
             "exposure_fixed": t_known is not None,
+            "robust": 0,  # generation of the robust weights (engine/robust.py)
+            "q_robust": [],  # the generation each Q of "q" was computed with
+            "outliers": None,
         }
         outputs.write_json(out / STATE_FILE, ck)
-    state = SolveState(np.array(ck["exposure"]), np.array(ck["params"], dtype=np.float64))
+    state = SolveState(np.array(ck["exposure"]), np.array(ck["params"], dtype=np.float64), robust=ck["robust"])
     resume_info = {"tiles_prepared_before": sum(bool(m.get("reused")) for m in metas), "iterations_done_before": ck["iteration"]}
     n_obs = sum(int(m["observations"]) for m in metas) if all("observations" in m for m in metas) else None
     t2 = time.perf_counter()
     want_phase = bool(s.model.parameters)
+    reweights = robust.SCHEDULE if robust.enabled(s) else ()
     while not ck["done"] and ck["iteration"] < max_iter:
+        gen = ck["robust"]
+        if gen < len(reweights) and (ck["iteration"] >= reweights[gen] or ck.get("reweight_now")):
+            state = _reweight(on_tiles, executor, scene, state, ck, method == "overlap" and t_given is None)
+            outputs.write_json(out / STATE_FILE, ck)
+            robust.drop_generation(cache, gen)
         parts = on_tiles(iterate_tile, f"iteration {ck['iteration'] + 1}", state=state, want_phase=want_phase,
                          threads=_threads(executor))  # one process: tiles on its CPUs, summed in tile order
         sums = _reduce_iteration(len(scene.images), len(s.model.parameters), parts)
         q_prev = ck["q"][-1] if ck["q"] else None
         ck["q"].append(sums.q)
         converged = q_prev is not None and abs(q_prev - sums.q) <= tol * max(sums.q, 1e-300)
+        converged = converged and ck["q_robust"][-1:] == [ck["robust"]]  # a Q of other weights is not comparable
+        ck["q_robust"].append(ck["robust"])
+        if converged and ck["robust"] < len(reweights):  # settled before the last reweight: reweight now, go on
+            converged, ck["reweight_now"] = False, True
         if not converged:
             state = _update(state, sums, method, s.model, t_ref, fixed=t_known is not None,
                             prior=s.exposure_prior_sigma if mode == "prior" else None)
@@ -317,6 +331,21 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     costs = stage_costs(timings, n_obs, ck["iteration"] - resume_info["iterations_done_before"])
     return _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info,
                               costs)
+
+
+def _reweight(on_tiles, executor, scene, state, ck, reinit: bool) -> SolveState:
+    """A reweight pass (:mod:`.robust`): the next generation of robust weights; their per-image counts go into ``ck``."""
+    gen = ck["robust"] + 1
+    init = gen == 1 and reinit  # the overlaps' exposures again, without the rejected observations
+    parts = on_tiles(robust.reweight_tile, f"outliers {gen}", state=state, gen=gen, pairs=init, threads=_threads(executor))
+    counts = np.zeros((3, len(scene.images)))
+    pairs: dict = {}
+    for p in parts:  # fixed tile order
+        np.add.at(counts.T, p["index"], p["counts"].T)
+        exposure_init.merge_pair_sums(pairs, {tuple(k): tuple(v) for k, v in p["pairs"]})
+    t = exposure_init.overlap_exposure(pairs, np.log(state.exposure)) if init else state.exposure
+    ck.update(robust=gen, reweight_now=False, outliers=counts.tolist(), exposure=np.asarray(t).tolist())
+    return SolveState(np.asarray(t, np.float64), state.params, robust=gen, haze=state.haze)
 
 
 def stage_costs(timings: dict, n_obs: int | None, passes: int) -> dict:
@@ -390,6 +419,7 @@ def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timi
         **report_parts(ck.get("response")),
         "exposure_fixed": bool(ck.get("exposure_fixed")),
         "exposure_mode": "fixed" if ck.get("exposure_fixed") else scene.settings.exposure_mode,
+        "outliers": robust.report(keys, ck.get("outliers"), ck.get("robust", 0)),
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "observations": costs,
     }

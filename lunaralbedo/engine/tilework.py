@@ -32,7 +32,7 @@ import numpy as np
 from ..io.cache import MemoryCache, discard, load_meta, load_stack
 from ..io.geotiff import GeoTiffRows
 from ..io.rasters import count_finite
-from ..model import shadows, updates
+from ..model import outliers, shadows, updates
 from . import kernels, runs
 from .finalise_kernels import finalise_runs
 from .scene import Scene
@@ -44,6 +44,14 @@ class SolveState:
 
     exposure: np.ndarray  # (K,) per image
     params: np.ndarray  # (P,) fitted parameters of the photometric model (Lunar-Lambert: c1, c2)
+    robust: int = 0  # generation of the robust weights (:mod:`.robust`; 0: the cached weights as they are)
+    haze: np.ndarray | None = None  # (K,) additive haze per image, DRG units (FLOAT_HAZE 1; None: no haze)
+
+    def haze_of(self, index) -> np.ndarray:
+        """The haze of the images ``index`` (float32; zeros without haze)."""
+        if self.haze is None:
+            return np.zeros(len(index), np.float32)
+        return np.asarray(self.haze, np.float64)[np.asarray(index)].astype(np.float32)
 
 
 @dataclass
@@ -93,7 +101,8 @@ WEIGHTS_SUM_PREDICTOR = 2
 KNOWN_OUTPUTS = ("DEM", "weightsSum")
 #: GeoTIFF options (:func:`lunaralbedo.io.geotiff.geotiff_profile`) of each tile output.
 OUTPUT_OPTIONS = {"albedo": {"nodata": float("nan")}, "error": {"nodata": float("nan"), "predictor": ERROR_PREDICTOR},
-                  "DEM": {"nodata": float("nan")}, "weightsSum": {"predictor": WEIGHTS_SUM_PREDICTOR}}
+                  "DEM": {"nodata": float("nan")}, "weightsSum": {"predictor": WEIGHTS_SUM_PREDICTOR},
+                  "outliers": {"nodata": float("nan")}}
 
 
 def cache_dir(cache_root: Path, scene: Scene, t: int) -> Path:
@@ -146,6 +155,31 @@ def pixel_stack(folder: Path, cache_root: Path) -> dict:
     return STACKS.get(folder, lambda arrays, meta: _split(arrays)[0], group=cache_root)
 
 
+#: Each block's effective (robust) weights in this process: block folder -> (generation, weights).
+_EFFECTIVE: dict[str, tuple[int, np.ndarray]] = {}
+
+
+def effective_weights(block: Path, arrays: dict, gen: int) -> np.ndarray:
+    """The weights of a cached block's observations in generation ``gen`` of the robust weights
+    (:mod:`.robust`; 0: the cached ones), read once per process and generation."""
+    if gen <= 0:
+        return arrays["weight"]
+    got = _EFFECTIVE.get(str(block))
+    if got is None or got[0] != gen:
+        w = np.load(block.parent / f"robust_{gen}" / f"{block.name}.npy")
+        if len(w) != len(arrays["weight"]):
+            raise FileNotFoundError(f"{block}: robust weights of another preparation; run without --resume")
+        got = _EFFECTIVE[str(block)] = (gen, w)
+    return got[1]
+
+
+def _weighted(block: Path, arrays: dict, state: "SolveState") -> dict:
+    """A block's observations with the state's effective weights."""
+    if not state.robust:
+        return arrays
+    return {**arrays, "weight": effective_weights(block, arrays, state.robust)}
+
+
 def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> TileSums:
     """Partial sums of one iteration over tile ``t`` (eqs. 1, 3, 4, 5): its blocks' sums added in block order.
 
@@ -165,6 +199,7 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
         arrays = pixel_stack(folder / f"block_{i:04d}", cache_root)
         if not len(arrays["index"]):
             continue
+        arrays = _weighted(folder / f"block_{i:04d}", arrays, state)
         part = TileSums(index=arrays["index"], n_params=out.n_params, exp_num=np.zeros(len(arrays["index"])),
                         exp_den=np.zeros(len(arrays["index"])))
         iterate_block(arrays, scene.settings, state, phase, part)
@@ -244,6 +279,14 @@ def _normal_equations(arrays, alb, texp, r, dr, ratio, thresh):
 
 
 # --------------------------------------------------------------------------- finalise
+def _lost(obs: dict, effective: np.ndarray, rows: int, width: int) -> np.ndarray:
+    """The ``outliers/`` rows of a block: per pixel the fraction of weight the robust weights took away."""
+    if not len(obs["index"]):
+        return np.full((rows, width), np.nan, np.float32)
+    pix = runs.observation_pixels(obs)
+    return outliers.lost_fraction(obs["weight"], effective, pix, rows * width).reshape(rows, width)
+
+
 def _tile_images(scene: Scene, t: int, used) -> dict:
     """Images used over tile ``t`` and those that overlap it without a usable pixel (shadow, no DEM, ...)."""
     used = set(int(k) for k in used)
@@ -280,6 +323,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     idx = np.asarray(meta["index"], np.int32)
     for i in range(len(meta["blocks"])):
         STACKS.discard(folder / f"block_{i:04d}")  # the iterations are over: free the memory
+        _EFFECTIVE.pop(str(folder / f"block_{i:04d}"), None)
     h, w_ = tile.height, tile.width
     name = f"{tile.name}.tif"
     if (out_dir / "weightsSum" / name).exists() and (skip_done or not (folder / "block_0000").exists()):
@@ -289,12 +333,18 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     files = {"albedo": rows_file(out_dir / "albedo" / name, **OUTPUT_OPTIONS["albedo"])}
     if want_err:
         files["error"] = rows_file(out_dir / "error" / name, **OUTPUT_OPTIONS["error"])
+    if state.robust:
+        files["outliers"] = rows_file(out_dir / "outliers" / name, **OUTPUT_OPTIONS["outliers"])
     valid = 0
     no_err = np.empty(0, np.float32)
     try:
-        for b0, b1, obs, per_pixel, c0 in _blocks(folder, meta):  # one block's rows of the outputs held at a time
+        for i, (b0, b1, obs, per_pixel, c0) in enumerate(_blocks(folder, meta)):  # one block's rows held at a time
             alb = np.empty((b1 - b0, w_), np.float32)
             err = np.empty((b1 - b0, w_), np.float32) if want_err else no_err
+            if state.robust:
+                base = obs
+                obs = _weighted(folder / f"block_{i:04d}", obs, state) if len(obs["index"]) else obs
+                files["outliers"].write(_lost(base, obs["weight"], b1 - b0, w_), b0)
             if len(obs["index"]):
                 r, w, texp = tile_model(scene, obs, state)
                 finalise_runs(obs["chunks"], obs["run_start"], obs["run_pixel"], obs["run_image"], obs["image"],
