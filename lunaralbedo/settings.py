@@ -54,7 +54,7 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     # real images (docs/solver.md "Real images"): outliers, haze, exposures in physical units; not read by --legacy
     "REJECT_OUTLIERS": (int, 1, (0, 1)),  # each image's observations that stand out from their neighbourhood
     "ROBUST_LOSS": (str, "cauchy", ("cauchy", "huber", "none")),  # IRLS loss where >= 3 images overlap
-    "ROBUST_THRESHOLD": (float, 3.0, None),  # k: the loss's scale in robust standard deviations (MAD)
+    "ROBUST_THRESHOLD": (float, 5.0, None),  # k: the loss's scale in robust standard deviations (MAD)
     "FLOAT_HAZE": (int, 0, (0, 1)),  # per-image additive haze I = T A R + H
     "EXPOSURE_MODE": (str, "solve", ("solve", "fixed", "prior")),
     "EXPOSURE_FILE": (Path, None, None),  # key,exposure CSV for EXPOSURE_MODE fixed/prior
@@ -102,7 +102,7 @@ class Settings:
     cast_shadows: int | None = None
     reject_outliers: int = 1
     robust_loss: str = "cauchy"
-    robust_threshold: float = 3.0
+    robust_threshold: float = 5.0
     float_haze: int = 0
     exposure_mode: str = "solve"
     exposure_file: Path | None = None

@@ -30,7 +30,8 @@ def same_results(a: Path, b: Path) -> None:
     names = sorted(p.relative_to(a) for p in (a / "albedo").rglob("*.tif"))
     assert names, "no albedo tiles"
     assert names == sorted(p.relative_to(b) for p in (b / "albedo").rglob("*.tif"))
-    for sub in ("albedo", "error", "DEM", "weightsSum"):
+    for sub in ("albedo", "error", "DEM", "weightsSum", "outliers"):
+        assert sorted(p.name for p in (a / sub).glob("*.tif")) == sorted(p.name for p in (b / sub).glob("*.tif")), sub
         for p in sorted((a / sub).glob("*.tif")):
             assert filecmp.cmp(p, b / sub / p.name, shallow=False), f"{sub}/{p.name} differs"
     for f in RESULT_FILES:
