@@ -29,7 +29,7 @@ from ..errors import InputError, ResumeError, SettingsError, SolverError, typed_
 from ..io import outputs
 from ..io.atomic import remove_stale_temporaries, remove_tree
 from ..io.guard import check_output_dir
-from ..model import exposure_init, exposure_prior, updates
+from ..model import exposure_init, exposure_prior, haze, updates
 from ..settings import Settings, load_settings
 from ..parallel import local_workers, make_executor
 from ..parallel.workers import trim_malloc
@@ -56,7 +56,7 @@ RESPONSE_DIR = f"{CHECKPOINT_DIR}/response"  # camera response files (engine/res
 MARKER = ".lunaralbedo"  # written first into every OUTDIR: marks it as ours
 _TILE_DIRS = ("albedo", "error", "DEM", "weightsSum", "outliers")
 _OUTPUT_DIRS = (*_TILE_DIRS, "weight")
-_RESULT_FILES = ("report.json", "exposure.csv", "phase.csv", "exposure.png", "cost.png",
+_RESULT_FILES = ("report.json", "exposure.csv", "haze.csv", "phase.csv", "exposure.png", "cost.png",
                  "response.csv", "response.png", "loglik.png", "residuals.png")
 
 
@@ -129,6 +129,7 @@ def _reduce_iteration(n_images: int, n_params: int, parts) -> updates.PassSums:
     total = updates.PassSums(n_images, n_params)
     for p in parts:  # fixed tile order: identical sums for any number of workers
         total.add(p)
+    total.haze_parts = [(p.index, p.haze_g, p.haze_s) for p in parts if p.haze_g is not None]
     return total
 
 
@@ -153,7 +154,14 @@ def _update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref
             prior: float | None = None) -> SolveState:
     """One update of exposures (eq. 4) and parameters (eq. 5); ``fixed``: the exposures are known (kept);
     ``prior``: the relative sigma of a Gaussian prior around ``t_ref`` (:mod:`lunaralbedo.model.exposure_prior`)."""
-    if fixed:
+    h = state.haze
+    if h is not None:  # FLOAT_HAZE: one joint (T, H) step with the albedo eliminated (model/haze.py)
+        g, mat = haze.assemble(len(state.exposure), sums.haze_parts)
+        mode = "fixed" if fixed else ("prior" if prior is not None else "solve")
+        t, h = haze.joint_step(state.exposure, h, g, mat, mode, t0=t_ref,
+                               prior_weight=exposure_prior.prior_weight(t_ref, prior) if prior is not None else None,
+                               noise_var=max(sums.q / sums.n_obs, 1e-12) if sums.n_obs else 1.0)
+    elif fixed:
         t = state.exposure
     elif prior is not None:
         t = exposure_prior.exposure_update_prior(state.exposure, sums.exp_num, sums.exp_den, t_ref, prior, sums.q, sums.n_obs)
@@ -168,7 +176,7 @@ def _update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref
     if method != "seed" and not fixed and prior is None:
         # A*T leaves one global scale free: pin the geometric mean of T to the initial one.
         t = t * np.exp(np.mean(np.log(t_ref)) - np.mean(np.log(t)))
-    return SolveState(np.asarray(t, dtype=np.float64), np.asarray(c, dtype=np.float64), robust=state.robust, haze=state.haze)
+    return SolveState(np.asarray(t, dtype=np.float64), np.asarray(c, dtype=np.float64), robust=state.robust, haze=h)
 
 
 def solve(
@@ -285,9 +293,11 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
             "robust": 0,  # generation of the robust weights (engine/robust.py)
             "q_robust": [],  # the generation each Q of "q" was computed with
             "outliers": None,
+            "haze": [0.0] * len(scene.images) if s.float_haze else None,  # FLOAT_HAZE: per image, DRG units
         }
         outputs.write_json(out / STATE_FILE, ck)
-    state = SolveState(np.array(ck["exposure"]), np.array(ck["params"], dtype=np.float64), robust=ck["robust"])
+    state = SolveState(np.array(ck["exposure"]), np.array(ck["params"], dtype=np.float64), robust=ck["robust"],
+                       haze=None if ck.get("haze") is None else np.array(ck["haze"], np.float64))
     resume_info = {"tiles_prepared_before": sum(bool(m.get("reused")) for m in metas), "iterations_done_before": ck["iteration"]}
     n_obs = sum(int(m["observations"]) for m in metas) if all("observations" in m for m in metas) else None
     t2 = time.perf_counter()
@@ -313,7 +323,10 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
             state = _update(state, sums, method, s.model, t_ref, fixed=t_known is not None,
                             prior=s.exposure_prior_sigma if mode == "prior" else None)
             ck["params_history"].append(state.params.tolist())
-        ck.update(iteration=ck["iteration"] + 1, exposure=state.exposure.tolist(), params=state.params.tolist(), done=converged)
+        ck.update(iteration=ck["iteration"] + 1, exposure=state.exposure.tolist(), params=state.params.tolist(), done=converged,
+                  haze=None if state.haze is None else state.haze.tolist())
+        if sums.haze_parts:
+            ck["haze_inseparable"] = [scene.keys[k] for k in haze.inseparable(haze.assemble(len(scene.images), sums.haze_parts)[1])]
         outputs.write_json(out / STATE_FILE, ck)
     timings["iterate"] = time.perf_counter() - t2
     t3 = time.perf_counter()
@@ -399,8 +412,10 @@ def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timi
         outputs.write_phase_csv(out / "phase.csv", names, ck["params_history"])
     for key, prof in zip(keys, scene.profiles):
         outputs.write_weight_profile(out / "weight" / f"{key}_weight.txt", prof)
+    if state.haze is not None:
+        outputs.write_haze_csv(out / "haze.csv", keys, state.haze)
     if plots:
-        outputs.plot_exposures(out / "exposure.png", keys, state.exposure, t_init)
+        outputs.plot_exposures(out / "exposure.png", keys, state.exposure, t_init, haze=state.haze)
         if ck["q"]:
             outputs.plot_cost(out / "cost.png", ck["q"])
     report = {
@@ -420,6 +435,8 @@ def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timi
         "exposure_fixed": bool(ck.get("exposure_fixed")),
         "exposure_mode": "fixed" if ck.get("exposure_fixed") else scene.settings.exposure_mode,
         "outliers": robust.report(keys, ck.get("outliers"), ck.get("robust", 0)),
+        "haze": None if state.haze is None else dict(zip(keys, state.haze.tolist())),
+        "haze_inseparable": ck.get("haze_inseparable", []),
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "observations": costs,
     }

@@ -33,7 +33,7 @@ from ..io.cache import MemoryCache, discard, load_meta, load_stack
 from ..io.geotiff import GeoTiffRows
 from ..io.rasters import count_finite
 from ..model import outliers, shadows, updates
-from . import kernels, runs
+from . import haze_kernels, kernels, runs
 from .finalise_kernels import finalise_runs
 from .scene import Scene
 
@@ -71,6 +71,8 @@ class TileSums:
     alpha_min: float = np.inf
     alpha_max: float = -np.inf
     n_obs: int = 0
+    haze_g: np.ndarray | None = None  # FLOAT_HAZE: gradient of (T_k, H_k), local images interleaved (engine/haze_kernels)
+    haze_s: np.ndarray | None = None  # FLOAT_HAZE: reduced normal matrix of (T_k, H_k)
 
     def __post_init__(self):
         if self.jtj is None:
@@ -132,7 +134,11 @@ def tile_model(scene: Scene, obs, state: SolveState):
     mask (eq. 1), and the exposures of the block's local images (float32; ``obs["run_image"]``
     numbers them), which :func:`.finalise_kernels.finalise_runs` takes.
     """
-    s = scene.settings
+    return block_model(scene.settings, obs, state)
+
+
+def block_model(s, obs, state: SolveState):
+    """:func:`tile_model` with the run's settings ``s``."""
     texp = state.exposure[obs["index"]].astype(np.float32)
     r = np.asarray(s.model.reflectance_from(obs, state.params), dtype=np.float32)
     w = obs["weight"]
@@ -173,11 +179,24 @@ def effective_weights(block: Path, arrays: dict, gen: int) -> np.ndarray:
     return got[1]
 
 
+def hazed(arrays: dict, state: "SolveState") -> dict:
+    """A block's observations with each image's haze taken off their values (FLOAT_HAZE 1; as they are without)."""
+    if state.haze is None:
+        return arrays
+    value = np.asarray(arrays["image"], np.float32) - state.haze_of(arrays["index"])[runs.observation_images(arrays)]
+    return {**arrays, "image": value}
+
+
 def _weighted(block: Path, arrays: dict, state: "SolveState") -> dict:
     """A block's observations with the state's effective weights."""
     if not state.robust:
         return arrays
-    return {**arrays, "weight": effective_weights(block, arrays, state.robust)}
+    w = effective_weights(block, arrays, state.robust)
+    if state.haze is None:
+        return {**arrays, "weight": w}
+    with np.errstate(invalid="ignore", divide="ignore"):  # the robust factor m, for the haze step's noise weights
+        m = np.where(arrays["weight"] > 0, w / arrays["weight"], 0).astype(np.float32)
+    return {**arrays, "weight": w, "robust_factor": m}
 
 
 def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> TileSums:
@@ -199,11 +218,17 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
         arrays = pixel_stack(folder / f"block_{i:04d}", cache_root)
         if not len(arrays["index"]):
             continue
-        arrays = _weighted(folder / f"block_{i:04d}", arrays, state)
+        arrays = hazed(_weighted(folder / f"block_{i:04d}", arrays, state), state)
         part = TileSums(index=arrays["index"], n_params=out.n_params, exp_num=np.zeros(len(arrays["index"])),
                         exp_den=np.zeros(len(arrays["index"])))
         iterate_block(arrays, scene.settings, state, phase, part)
         at = np.array([pos[k] for k in part.index.tolist()], np.intp)
+        if part.haze_g is not None:
+            at2 = np.stack([2 * at, 2 * at + 1], axis=1).reshape(-1)
+            out.haze_g = np.zeros(2 * len(idx)) if out.haze_g is None else out.haze_g
+            out.haze_s = np.zeros((2 * len(idx),) * 2) if out.haze_s is None else out.haze_s
+            out.haze_g[at2] += part.haze_g
+            out.haze_s[np.ix_(at2, at2)] += part.haze_s
         out.q += part.q
         out.exp_num[at] += part.exp_num
         out.exp_den[at] += part.exp_den
@@ -248,12 +273,20 @@ def iterate_block(arrays: dict, s, state: SolveState, phase: bool, out: TileSums
     # those of the cache (no dynamic shadow test), else the kernel's (0.2-0.3 ns per observation and pass)
     known_range = shadow == kernels.NO_SHADOW_TEST and "alpha_range" in arrays
     alpha = arrays["alpha"] if (n_par and "alpha" in arrays and not known_range) else arrays["image"][:0]
+    with_haze = state.haze is not None
     alb = np.full(runs.pixel_extent(arrays) if n_par > 2 else 0, np.nan, np.float32)
     jtj, jtr = np.zeros((n_cols, n_cols)), np.zeros(n_cols)
     q, n_obs, amin, amax = kernels.iterate_runs(
         kind, arrays["chunks"], arrays["run_start"], arrays["run_pixel"], arrays["run_image"], arrays["image"],
         arrays["weight"], *layers, params, texp,
         n_par, n_cols, shadow, ratio, np.float32(s.shadow_thresh), alpha, out.exp_num, out.exp_den, jtj, jtr, alb)
+    if with_haze:  # the joint (T, H) step's sums (the values are haze-subtracted: :func:`hazed`)
+        r_h, w_h, t_h = block_model(s, arrays, state)
+        w_n = np.where(w_h > 0, arrays.get("robust_factor", np.float32(1.0)), 0).astype(np.float32)  # noise weights
+        n_loc = len(arrays["index"])
+        out.haze_g, out.haze_s = np.zeros(2 * n_loc), np.zeros((2 * n_loc, 2 * n_loc))
+        haze_kernels.haze_runs(arrays["chunks"], arrays["run_start"], arrays["run_pixel"], arrays["run_image"],
+                               arrays["image"], r_h, w_n, t_h, out.haze_g, out.haze_s)
     if n_par > 2:  # no such model yet: the normal equations in NumPy
         jtj, jtr = _normal_equations(arrays, alb, texp, layers[0], dr, ratio if shadow == kernels.SHADOW_ON_LAYER else None,
                                      s.shadow_thresh if shadow != kernels.NO_SHADOW_TEST else None)
@@ -346,6 +379,7 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
                 obs = _weighted(folder / f"block_{i:04d}", obs, state) if len(obs["index"]) else obs
                 files["outliers"].write(_lost(base, obs["weight"], b1 - b0, w_), b0)
             if len(obs["index"]):
+                obs = hazed(obs, state)
                 r, w, texp = tile_model(scene, obs, state)
                 finalise_runs(obs["chunks"], obs["run_start"], obs["run_pixel"], obs["run_image"], obs["image"],
                               texp, r, w, per_pixel.get("wblend_sum", per_pixel["weights_sum"]),
