@@ -90,3 +90,34 @@ def test_joint_step_solves_a_linear_problem_in_one_step():
     t, h = haze.joint_step(np.ones(2), np.zeros(2), g, csr_matrix(s), mode="fixed")
     assert t.tolist() == [1.0, 1.0]
     assert h == pytest.approx([0.5, -0.3], rel=1e-4)
+
+
+def test_resume_after_an_interrupted_pass_gives_the_same_bytes(tmp_path, monkeypatch):
+    """The checkpoint holds the haze and the robust weights' generation: a run stopped in its third pass
+    (after the second reweight pass) and resumed writes the bytes of an uninterrupted run."""
+    from lunaralbedo.engine import solve as solve_module
+
+    d = tmp_path / "scene"
+    render_scene(d, SceneSpec(haze_dn=(5.0, 15.0), outlier_fraction=0.01, n_images=4, image_px=80, seed=6))
+    s = _with(d / "settings.txt", d / "haze.txt", FLOAT_HAZE=1)
+    n_tiles = len(solve(s, out=tmp_path / "ref", workers=1, plots=False, tolerance=0.0, max_iter=5).tiles)
+    real, calls = solve_module.iterate_tile, []
+
+    def stopped(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2 * n_tiles + 1:  # the third pass
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(solve_module, "iterate_tile", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        solve(s, out=tmp_path / "out", workers=1, plots=False, tolerance=0.0, max_iter=5)
+    state = json.loads((tmp_path / "out" / "checkpoint" / "state.json").read_text())
+    assert state["iteration"] == 2 and state["robust"] == 2 and len(state["haze"]) == 4
+    monkeypatch.setattr(solve_module, "iterate_tile", real)
+    solve(s, out=tmp_path / "out", workers=1, plots=False, tolerance=0.0, max_iter=5, resume=True)
+    for name in ("haze.csv", "exposure.csv"):
+        assert (tmp_path / "ref" / name).read_bytes() == (tmp_path / "out" / name).read_bytes(), name
+    for sub in ("albedo", "outliers"):
+        files = sorted((tmp_path / "ref" / sub).glob("*.tif"))
+        assert files and all(p.read_bytes() == (tmp_path / "out" / sub / p.name).read_bytes() for p in files), sub
