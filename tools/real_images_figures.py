@@ -78,10 +78,50 @@ def outliers_figure(work: Path) -> None:
     plt.close(fig)
 
 
+def haze_figure(work: Path) -> None:
+    import csv
+
+    from lunaralbedo.io.outputs import read_exposure_csv
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), constrained_layout=True)
+    for seed, marker in ((7, "o"), (8, "s"), (9, "^")):
+        scene = work / f"haze{seed}"
+        truth = render_scene(scene, SceneSpec(haze_dn=(5.0, 15.0), seed=seed))
+        _run(scene, work / f"haze{seed}_off", f"haze{seed}_off")
+        _run(scene, work / f"haze{seed}_on", f"haze{seed}_on", FLOAT_HAZE=1)
+        keys = list(truth["images"])
+        with open(work / f"haze{seed}_on" / "haze.csv", newline="") as f:
+            got = {r["key"]: float(r["haze"]) for r in csv.DictReader(f)}
+        true_h = [truth["images"][k]["haze"] for k in keys]
+        axes[0].plot(true_h, [got[k] for k in keys], marker, label=f"seed {seed}")
+        t_true = np.array([truth["images"][k]["exposure"] for k in keys])
+        for out, style in ((f"haze{seed}_off", ":"), (f"haze{seed}_on", "-")):
+            est = read_exposure_csv(work / out / "exposure.csv")
+            ratio = np.array([est[k] for k in keys]) / t_true
+            axes[1].plot(np.arange(len(keys)), 100 * (ratio / np.exp(np.mean(np.log(ratio))) - 1), style + marker,
+                         label=f"seed {seed}, FLOAT_HAZE {0 if 'off' in out else 1}")
+    axes[0].plot([5, 15], [5, 15], color="grey", lw=0.8)
+    axes[0].set_xlabel("true haze, DN")
+    axes[0].set_ylabel("haze.csv, DN")
+    axes[0].set_title("haze per image (FLOAT_HAZE 1)")
+    axes[0].legend(fontsize=7)
+    axes[1].axhline(0, color="grey", lw=0.5)
+    axes[1].set_xlabel("image")
+    axes[1].set_ylabel("exposure error, %")
+    axes[1].set_title("exposures without (dotted) and with the haze solved")
+    axes[1].legend(fontsize=6, ncol=2)
+    fig.suptitle("6-image strips with 5-15 DN of haze per image", fontsize=10)
+    fig.savefig(DOCS / "solver-haze.png", dpi=110)
+    plt.close(fig)
+
+
 def main() -> None:
-    work = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tempfile.mkdtemp(prefix="real_images_"))
+    args = [a for a in sys.argv[1:] if not a.startswith("--")]
+    work = Path(args[0]) if args else Path(tempfile.mkdtemp(prefix="real_images_"))
     work.mkdir(parents=True, exist_ok=True)
-    outliers_figure(work)
+    if "--haze-only" not in sys.argv:
+        outliers_figure(work)
+    haze_figure(work)
 
 
 if __name__ == "__main__":
