@@ -62,6 +62,11 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
 }
 
 
+#: Keys of the default solver only (real images): :func:`legacy_text` leaves them out at their defaults.
+_UNWRITTEN_DEFAULTS = ("REJECT_OUTLIERS", "ROBUST_LOSS", "ROBUST_THRESHOLD", "FLOAT_HAZE", "EXPOSURE_MODE", "EXPOSURE_FILE",
+                       "EXPOSURE_PRIOR_SIGMA")
+
+
 def _model_keys_spec() -> dict[str, tuple[type, Any, tuple | None]]:
     """Keys declared by the registered models (read at each call: a model registered later counts)."""
     return photometry.declared_settings()
@@ -185,6 +190,8 @@ def legacy_text(values: dict[str, Any], comment: str = "") -> str:
         if key == "REFLECTANCE" and values.get(key) is None:
             continue  # a model with a legacy code is written as REFLECTANCE_TYPE
         v = values.get(key, default)
+        if key in _UNWRITTEN_DEFAULTS and v == default:
+            continue  # not PhotometryTK's: written only when set, so the file stays readable by older readers
         if v is None:
             v = ""
         elif key == "SIMULATION_BOX":

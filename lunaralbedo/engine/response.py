@@ -31,6 +31,7 @@ from ..io.drgs import read_drg_onto_grid
 from ..model import geometry, shadows
 from ..model.response import Observations
 from ..model.response_fit import fit_response
+from ..settings import Settings
 from .scene import Scene
 from .observations import tile_geometry
 
@@ -46,6 +47,23 @@ def known_exposures(path: str | Path, keys: list[str]) -> np.ndarray:
     if missing:
         raise InputError(f"{path}: no exposure for image key(s) {', '.join(missing[:5])}")
     return np.array([table[k] for k in keys], np.float64)
+
+
+def given_exposures(settings: Settings, exposure_times, keys: list[str]) -> tuple[str, np.ndarray | None]:
+    """The exposure mode and the given exposures: ``--exposure-times FILE`` (fixed), else EXPOSURE_MODE with
+    EXPOSURE_FILE (``fixed``/``prior`` without a file: every exposure 1, the calibrated I/F case)."""
+    if exposure_times is not None:
+        return "fixed", known_exposures(exposure_times, keys)
+    mode = settings.exposure_mode
+    if mode == "solve":
+        return mode, None
+    f = settings.exposure_file
+    if f is None:
+        return mode, np.ones(len(keys))
+    try:
+        return mode, known_exposures(f, keys)
+    except InputError as exc:
+        raise InputError(f"EXPOSURE_FILE {exc}") from None
 
 
 def response_tile(t: int, *, scene: Scene, max_pixels: int = MAX_PIXELS_PER_TILE) -> dict:

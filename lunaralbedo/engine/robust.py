@@ -139,6 +139,23 @@ def _loss_factors(arrays, signal, tr, keep, base, w_prev, pix, img, n_img, s) ->
     return m
 
 
+def reweight_pass(on_tiles, threads: int, scene: Scene, state: SolveState, ck: dict, reinit: bool) -> SolveState:
+    """A reweight pass over the tiles (``on_tiles``: the solve's map over them): the next generation of robust
+    weights, their per-image counts into the checkpoint ``ck``; with ``reinit`` (after the first pass) the
+    exposures initialised again from the overlaps of the observations kept."""
+    gen = ck["robust"] + 1
+    init = gen == 1 and reinit  # the overlaps' exposures again, without the rejected observations
+    parts = on_tiles(reweight_tile, f"outliers {gen}", state=state, gen=gen, pairs=init, threads=threads)
+    counts = np.zeros((3, len(scene.images)))
+    pairs: dict = {}
+    for p in parts:  # fixed tile order
+        np.add.at(counts.T, p["index"], p["counts"].T)
+        exposure_init.merge_pair_sums(pairs, {tuple(k): tuple(v) for k, v in p["pairs"]})
+    t = exposure_init.overlap_exposure(pairs, np.log(state.exposure)) if init else state.exposure
+    ck.update(robust=gen, reweight_now=False, outliers=counts.tolist(), exposure=np.asarray(t).tolist())
+    return SolveState(np.asarray(t, np.float64), state.params, robust=gen, haze=state.haze)
+
+
 def drop_generation(cache_root: Path, gen: int) -> None:
     """Delete every tile's effective weights of generation ``gen`` (superseded and checkpointed)."""
     import shutil

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, ResumeError, SettingsError, SolverError, typed_error
+from ..errors import ResumeError, SettingsError, SolverError, typed_error
 from ..io import outputs
 from ..io.atomic import remove_stale_temporaries, remove_tree
 from ..io.guard import check_output_dir
@@ -33,7 +33,7 @@ from ..model import exposure_init, exposure_prior, haze, updates
 from ..settings import Settings, load_settings
 from ..parallel import local_workers, make_executor
 from ..parallel.workers import trim_malloc
-from .response import check_resume, known_exposures, lut_digest, move_outputs, report_parts, resolve_response
+from .response import check_resume, given_exposures, lut_digest, move_outputs, report_parts, resolve_response
 from .observations import ROW_PIXEL_BYTES, block_budget
 from .scene import Scene, build_scene
 from .prepare import WRITER, prepare_tile
@@ -131,23 +131,6 @@ def _reduce_iteration(n_images: int, n_params: int, parts) -> updates.PassSums:
         total.add(p)
     total.haze_parts = [(p.index, p.haze_g, p.haze_s) for p in parts if p.haze_g is not None]
     return total
-
-
-def given_exposures(settings: Settings, exposure_times, keys: list[str]) -> tuple[str, np.ndarray | None]:
-    """The exposure mode and the given exposures: ``--exposure-times FILE`` (fixed), else EXPOSURE_MODE with
-    EXPOSURE_FILE (``fixed``/``prior`` without a file: every exposure 1, the calibrated I/F case)."""
-    if exposure_times is not None:
-        return "fixed", known_exposures(exposure_times, keys)
-    mode = settings.exposure_mode
-    if mode == "solve":
-        return mode, None
-    f = settings.exposure_file
-    if f is None:
-        return mode, np.ones(len(keys))
-    try:
-        return mode, known_exposures(f, keys)
-    except InputError as exc:
-        raise InputError(f"EXPOSURE_FILE {exc}") from None
 
 
 def _update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref: np.ndarray, fixed: bool = False,
@@ -306,7 +289,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     while not ck["done"] and ck["iteration"] < max_iter:
         gen = ck["robust"]
         if gen < len(reweights) and (ck["iteration"] >= reweights[gen] or ck.get("reweight_now")):
-            state = _reweight(on_tiles, executor, scene, state, ck, method == "overlap" and t_given is None)
+            state = robust.reweight_pass(on_tiles, _threads(executor), scene, state, ck, method == "overlap" and t_given is None)
             outputs.write_json(out / STATE_FILE, ck)
             robust.drop_generation(cache, gen)
         parts = on_tiles(iterate_tile, f"iteration {ck['iteration'] + 1}", state=state, want_phase=want_phase,
@@ -344,21 +327,6 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     costs = stage_costs(timings, n_obs, ck["iteration"] - resume_info["iterations_done_before"])
     return _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info,
                               costs)
-
-
-def _reweight(on_tiles, executor, scene, state, ck, reinit: bool) -> SolveState:
-    """A reweight pass (:mod:`.robust`): the next generation of robust weights; their per-image counts go into ``ck``."""
-    gen = ck["robust"] + 1
-    init = gen == 1 and reinit  # the overlaps' exposures again, without the rejected observations
-    parts = on_tiles(robust.reweight_tile, f"outliers {gen}", state=state, gen=gen, pairs=init, threads=_threads(executor))
-    counts = np.zeros((3, len(scene.images)))
-    pairs: dict = {}
-    for p in parts:  # fixed tile order
-        np.add.at(counts.T, p["index"], p["counts"].T)
-        exposure_init.merge_pair_sums(pairs, {tuple(k): tuple(v) for k, v in p["pairs"]})
-    t = exposure_init.overlap_exposure(pairs, np.log(state.exposure)) if init else state.exposure
-    ck.update(robust=gen, reweight_now=False, outliers=counts.tolist(), exposure=np.asarray(t).tolist())
-    return SolveState(np.asarray(t, np.float64), state.params, robust=gen, haze=state.haze)
 
 
 def stage_costs(timings: dict, n_obs: int | None, passes: int) -> dict:
