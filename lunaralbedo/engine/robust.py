@@ -72,7 +72,7 @@ def _kept_pairs(arrays: dict, scene: Scene, state: SolveState, w_new: np.ndarray
     img, pix = runs.observation_images(arrays), runs.observation_pixels(arrays)
     value = np.asarray(arrays["image"], np.float32) - state.haze_of(arrays["index"])[img]
     sel = np.flatnonzero((np.asarray(w_lit) > 0) & (r > 0) & (value > 0))
-    sel = sel[np.lexsort((pix[sel], img[sel]))]
+    sel = sel[np.argsort(img[sel], kind="stable")]  # image-major; each image's pixels ascend in the runs' order
     start = np.searchsorted(img[sel], np.arange(len(arrays["index"]) + 1))
     return exposure_init.pair_sums(pix[sel], start, value[sel], r[sel], np.asarray(arrays["index"]), width)
 
@@ -90,21 +90,25 @@ def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndar
     used = (np.asarray(w_lit) > 0) & (tr > 0)
     n_img = len(arrays["index"])
     flag = np.zeros(len(base), bool)
-    if s.reject_outliers:
+    if s.reject_outliers and state.robust:  # the spatial test ran in the first pass: its rejections stay
+        flag = used & (np.asarray(w_prev) == 0) & (base > 0)
+    elif s.reject_outliers:
         with np.errstate(divide="ignore", invalid="ignore"):
             loga = np.where(used, np.log(np.maximum(signal, 1e-6) / tr), np.nan)
         e = np.full(len(base), np.nan)
         tau = np.zeros(len(base))
+        order = np.argsort(img, kind="stable")  # image by image
+        bounds = np.searchsorted(img[order], np.arange(n_img + 1))
         for k in range(n_img):
-            sel = np.flatnonzero((img == k) & used)
+            sel = order[bounds[k]:bounds[k + 1]]
+            sel = sel[used[sel]]
             if not len(sel):
                 continue
             row, col = pix[sel] // width, pix[sel] % width
             r0, c0 = row.min(), col.min()
             raster = np.full((row.max() - r0 + 1, col.max() - c0 + 1), np.nan)
             raster[row - r0, col - c0] = loga[sel]
-            e[sel] = loga[sel] - outliers.nan_median_filter(raster)[row - r0, col - c0]
-            tau[sel] = max(outliers.TAU_MIN, outliers.SIGMAS * outliers.robust_sigma(e[sel]))
+            e[sel], tau[sel] = outliers.neighbourhood_deviation(raster, row - r0, col - c0)
         flag = outliers.spatial_outliers(e, pix, tau)
     keep = used & ~flag
     m = np.ones(len(base))
@@ -121,13 +125,13 @@ def _loss_factors(arrays, signal, tr, keep, base, w_prev, pix, img, n_img, s) ->
     with np.errstate(divide="ignore", invalid="ignore"):
         m_prev = np.where(base > 0, np.asarray(w_prev, np.float64) / base, 0.0)
     w = np.where(keep, base * m_prev, 0.0)
-    _, inv = np.unique(pix, return_inverse=True)
-    albedo = np.bincount(inv, signal * tr * w) / np.maximum(np.bincount(inv, tr * tr * w), 1e-300)
-    res = signal - albedo[inv] * tr
-    many = keep & (np.bincount(inv, keep.astype(np.float64))[inv] >= outliers.MIN_IMAGES_FOR_LOSS)
     m = np.ones(len(base))
+    inv = pix
+    many = keep & (np.bincount(inv, keep.astype(np.float64))[inv] >= outliers.MIN_IMAGES_FOR_LOSS)
     if np.count_nonzero(many) < outliers.MIN_SCALE_OBS:
         return m
+    albedo = np.bincount(inv, signal * tr * w) / np.maximum(np.bincount(inv, tr * tr * w), 1e-300)
+    res = signal - albedo[inv] * tr
     pooled = outliers.robust_sigma(res[many])
     for k in range(n_img):
         sel = many & (img == k)

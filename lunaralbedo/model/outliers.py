@@ -35,6 +35,8 @@ Pure NumPy / SciPy, no I/O.
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy import ndimage
 
@@ -70,6 +72,40 @@ def nan_median_filter(x: np.ndarray, size: int = WINDOW) -> np.ndarray:
     return out
 
 
+def neighbourhood_deviation(raster: np.ndarray, rows: np.ndarray, cols: np.ndarray, size: int = WINDOW):
+    r""":math:`e` at ``(rows, cols)`` of one image's ``raster`` of :math:`\log a` (NaN: no observation), and :math:`\tau`.
+
+    The median of every window is what the test needs, but it is the expensive part; so
+    first the mean of each window's valid values (two box filters, O(1) a pixel) gives
+    :math:`d = \log a - \operatorname{mean}_N \log a` everywhere and the image's threshold
+    :math:`\tau` (from :math:`d`'s robust spread); only where :math:`|d| > \tau/2` -- a defect pulls
+    the mean of its window by less than half its own deviation while it covers less than
+    half the window -- the median of the window is taken (:func:`nan_median_filter`'s rule:
+    NaN with fewer than half the window valid).  Elsewhere :math:`e = d`, below :math:`\tau/2`.
+    """
+    x = np.asarray(raster, np.float64)
+    valid = np.isfinite(x)
+    box = ndimage.uniform_filter(np.where(valid, x, 0.0), size, mode="constant")
+    frac = ndimage.uniform_filter(valid.astype(np.float64), size, mode="constant")
+    v = x[rows, cols]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(frac * size * size >= (size * size + 1) // 2, box / frac, np.nan)[rows, cols]
+    e = v - mean
+    tau = max(TAU_MIN, SIGMAS * robust_sigma(e)) if np.isfinite(e).any() else TAU_MIN
+    cand = np.flatnonzero(np.abs(np.nan_to_num(e)) > tau / 2)
+    if len(cand):
+        h = size // 2
+        pad = np.pad(x, h, constant_values=np.nan)
+        off = np.arange(size)
+        win = pad[rows[cand][:, None, None] + off[None, :, None], cols[cand][:, None, None] + off[None, None, :]]
+        win = win.reshape(len(cand), -1)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # windows without a valid value: NaN, as wanted
+            med = np.nanmedian(win, axis=1)
+        e[cand] = np.where(2 * np.isfinite(win).sum(axis=1) > size * size, v[cand] - med, np.nan)
+    return e, tau
+
+
 def robust_sigma(x: np.ndarray) -> float:
     """1.4826 × the median absolute deviation from the median of ``x`` (finite values; NaN for none)."""
     x = np.asarray(x, np.float64)
@@ -85,12 +121,12 @@ def spatial_outliers(e: np.ndarray, pixel: np.ndarray, tau: np.ndarray) -> np.nd
     Parameters
     ----------
     e : :math:`e` per observation (NaN: not tested, e.g. not used or no neighbourhood).
-    pixel : the pixel of each observation (int, any numbering).
+    pixel : the pixel of each observation (int >= 0, e.g. its number in the block).
     tau : the threshold :math:`\tau_k` of each observation's image.
     """
     ok = np.isfinite(e)
     ev = np.where(ok, e, 0.0)
-    _, inv = np.unique(pixel, return_inverse=True)
+    inv = np.asarray(pixel, np.int64)  # pixel numbers 0..n-1 (a block's): counted directly
     s = np.bincount(inv, ev)
     m = np.bincount(inv, ok.astype(np.float64))
     others = m[inv] - ok
