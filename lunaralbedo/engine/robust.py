@@ -23,8 +23,19 @@ from . import runs
 from .scene import Scene
 from .tilework import SolveState, cache_dir, effective_weights, pixel_stack, tile_model
 
-#: Reweight passes run before these iterations (0: before the first; counted from 0).
+#: Reweight passes run before these iterations (0: before the first; counted from 0).  The second (IRLS with
+#: the settled albedo) runs only where the robust loss applies: pixels with three or more images remain.
 SCHEDULE = (0, 2)
+
+
+def passes(settings, ck: dict) -> tuple[int, ...]:
+    """The reweight schedule of a run (:data:`SCHEDULE`; none when it does not reweight, one when the first pass
+    found no observation the robust loss applies to)."""
+    if not enabled(settings):
+        return ()
+    if ck.get("robust", 0) >= 1 and not ck.get("loss_observations"):
+        return SCHEDULE[:1]
+    return SCHEDULE
 
 
 def enabled(settings) -> bool:
@@ -48,13 +59,15 @@ def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, 
     width = scene.tiles[t].width
     counts = np.zeros((3, len(idx)))
     pair_totals: dict = {}
+    loss_obs = 0
     for i in range(len(meta["blocks"])):
         block = folder / f"block_{i:04d}"
         arrays = pixel_stack(block, cache_root)
         if not len(arrays["index"]):
             continue
         w_prev = effective_weights(block, arrays, state.robust)
-        w_new, c = block_weights(arrays, scene, state, w_prev, width)
+        w_new, c, n_loss = block_weights(arrays, scene, state, w_prev, width)
+        loss_obs += n_loss
         if pairs:
             exposure_init.merge_pair_sums(pair_totals, _kept_pairs(arrays, scene, state, w_new, width))
         pos = {k: j for j, k in enumerate(idx.tolist())}
@@ -63,7 +76,7 @@ def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, 
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as f:
                 np.save(f, w_new, allow_pickle=False)
-    return {"index": idx, "counts": counts, "pairs": sorted(pair_totals.items())}
+    return {"index": idx, "counts": counts, "pairs": sorted(pair_totals.items()), "loss_observations": loss_obs}
 
 
 def _kept_pairs(arrays: dict, scene: Scene, state: SolveState, w_new: np.ndarray, width: int) -> dict:
@@ -111,17 +124,18 @@ def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndar
             e[sel], tau[sel] = outliers.neighbourhood_deviation(raster, row - r0, col - c0)
         flag = outliers.spatial_outliers(e, pix, tau)
     keep = used & ~flag
-    m = np.ones(len(base))
+    m, n_loss = np.ones(len(base)), 0
     if s.robust_loss != "none":
-        m = _loss_factors(arrays, signal, tr, keep, base, w_prev, pix, img, n_img, s)
+        m, n_loss = _loss_factors(arrays, signal, tr, keep, base, w_prev, pix, img, n_img, s)
     w_new = np.where(flag, 0.0, base * m).astype(np.float32)
     counts = np.stack([np.bincount(img, used, n_img), np.bincount(img, used & flag, n_img),
                        np.bincount(img, np.where(keep, 1.0 - m, 0.0), n_img)])
-    return w_new, counts
+    return w_new, counts, n_loss
 
 
 def _loss_factors(arrays, signal, tr, keep, base, w_prev, pix, img, n_img, s) -> np.ndarray:
-    """The robust loss's IRLS factors m (1 where fewer than three images remain on a pixel)."""
+    """The robust loss's IRLS factors m (1 where fewer than three images remain on a pixel) and how many observations
+    it applies to."""
     with np.errstate(divide="ignore", invalid="ignore"):
         m_prev = np.where(base > 0, np.asarray(w_prev, np.float64) / base, 0.0)
     w = np.where(keep, base * m_prev, 0.0)
@@ -129,7 +143,7 @@ def _loss_factors(arrays, signal, tr, keep, base, w_prev, pix, img, n_img, s) ->
     inv = pix
     many = keep & (np.bincount(inv, keep.astype(np.float64))[inv] >= outliers.MIN_IMAGES_FOR_LOSS)
     if np.count_nonzero(many) < outliers.MIN_SCALE_OBS:
-        return m
+        return m, 0
     albedo = np.bincount(inv, signal * tr * w) / np.maximum(np.bincount(inv, tr * tr * w), 1e-300)
     res = signal - albedo[inv] * tr
     pooled = outliers.robust_sigma(res[many])
@@ -140,7 +154,7 @@ def _loss_factors(arrays, signal, tr, keep, base, w_prev, pix, img, n_img, s) ->
         scale = outliers.robust_sigma(res[sel]) if np.count_nonzero(sel) >= outliers.MIN_SCALE_OBS else pooled
         if scale > 0:
             m[sel] = outliers.loss_weights(res[sel] / scale, s.robust_loss, s.robust_threshold)
-    return m
+    return m, int(np.count_nonzero(many))
 
 
 def reweight_pass(on_tiles, threads: int, scene: Scene, state: SolveState, ck: dict, reinit: bool) -> SolveState:
@@ -156,7 +170,8 @@ def reweight_pass(on_tiles, threads: int, scene: Scene, state: SolveState, ck: d
         np.add.at(counts.T, p["index"], p["counts"].T)
         exposure_init.merge_pair_sums(pairs, {tuple(k): tuple(v) for k, v in p["pairs"]})
     t = exposure_init.overlap_exposure(pairs, np.log(state.exposure)) if init else state.exposure
-    ck.update(robust=gen, reweight_now=False, outliers=counts.tolist(), exposure=np.asarray(t).tolist())
+    ck.update(robust=gen, reweight_now=False, outliers=counts.tolist(), exposure=np.asarray(t).tolist(),
+              loss_observations=sum(int(p["loss_observations"]) for p in parts))
     return SolveState(np.asarray(t, np.float64), state.params, robust=gen, haze=state.haze)
 
 

@@ -285,8 +285,8 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     n_obs = sum(int(m["observations"]) for m in metas) if all("observations" in m for m in metas) else None
     t2 = time.perf_counter()
     want_phase = bool(s.model.parameters)
-    reweights = robust.SCHEDULE if robust.enabled(s) else ()
     while not ck["done"] and ck["iteration"] < max_iter:
+        reweights = robust.passes(s, ck)
         gen = ck["robust"]
         if gen < len(reweights) and (ck["iteration"] >= reweights[gen] or ck.get("reweight_now")):
             state = robust.reweight_pass(on_tiles, _threads(executor), scene, state, ck, method == "overlap" and t_given is None)
@@ -300,6 +300,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
         converged = q_prev is not None and abs(q_prev - sums.q) <= tol * max(sums.q, 1e-300)
         converged = converged and ck["q_robust"][-1:] == [ck["robust"]]  # a Q of other weights is not comparable
         ck["q_robust"].append(ck["robust"])
+        reweights = robust.passes(s, ck)
         if converged and ck["robust"] < len(reweights):  # settled before the last reweight: reweight now, go on
             converged, ck["reweight_now"] = False, True
         if not converged:
