@@ -66,10 +66,10 @@ def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, 
         if not len(arrays["index"]):
             continue
         w_prev = effective_weights(block, arrays, state.robust)
-        w_new, c, n_loss = block_weights(arrays, scene, state, w_prev, width)
+        w_new, c, n_loss, kept = block_weights(arrays, scene, state, w_prev, width)
         loss_obs += n_loss
         if pairs:
-            exposure_init.merge_pair_sums(pair_totals, _kept_pairs(arrays, scene, state, w_new, width))
+            exposure_init.merge_pair_sums(pair_totals, _kept_pairs(arrays, *kept, width))
         pos = {k: j for j, k in enumerate(idx.tolist())}
         counts[:, [pos[k] for k in np.asarray(arrays["index"]).tolist()]] += c
         path = weights_path(block, gen)
@@ -79,19 +79,18 @@ def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, 
     return {"index": idx, "counts": counts, "pairs": sorted(pair_totals.items()), "loss_observations": loss_obs}
 
 
-def _kept_pairs(arrays: dict, scene: Scene, state: SolveState, w_new: np.ndarray, width: int) -> dict:
-    """Overlap log-ratio sums ``{(j, k): (n, sum d)}`` of a block's observations with weight left (image-major order)."""
-    r, w_lit, _ = tile_model(scene, {**arrays, "weight": w_new}, state)
+def _kept_pairs(arrays: dict, value, r, keep, width: int) -> dict:
+    """Overlap log-ratio sums ``{(j, k): (n, sum d)}`` of a block's kept observations (``value``: haze-subtracted)."""
     img, pix = runs.observation_images(arrays), runs.observation_pixels(arrays)
-    value = np.asarray(arrays["image"], np.float32) - state.haze_of(arrays["index"])[img]
-    sel = np.flatnonzero((np.asarray(w_lit) > 0) & (r > 0) & (value > 0))
+    sel = np.flatnonzero(keep & (value > 0))
     sel = sel[np.argsort(img[sel], kind="stable")]  # image-major; each image's pixels ascend in the runs' order
     start = np.searchsorted(img[sel], np.arange(len(arrays["index"]) + 1))
-    return exposure_init.pair_sums(pix[sel], start, value[sel], r[sel], np.asarray(arrays["index"]), width)
+    return exposure_init.pair_sums(pix[sel], start, value[sel].astype(np.float32), r[sel], np.asarray(arrays["index"]), width)
 
 
 def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndarray, width: int):
-    """The effective weights of one block (float32) and its ``(3, local images)`` counts (used, rejected, down-weighted)."""
+    """The effective weights of one block (float32), its ``(3, local images)`` counts (used, rejected, down-weighted),
+    the observations the robust loss applies to, and ``(values less haze, R, kept)`` per observation."""
     s = scene.settings
     base = np.asarray(arrays["weight"], np.float32)
     r, w_lit, texp = tile_model(scene, arrays, state)
@@ -130,7 +129,7 @@ def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndar
     w_new = np.where(flag, 0.0, base * m).astype(np.float32)
     counts = np.stack([np.bincount(img, used, n_img), np.bincount(img, used & flag, n_img),
                        np.bincount(img, np.where(keep, 1.0 - m, 0.0), n_img)])
-    return w_new, counts, n_loss
+    return w_new, counts, n_loss, (signal, r, keep)
 
 
 def _loss_factors(arrays, signal, tr, keep, base, w_prev, pix, img, n_img, s) -> np.ndarray:
