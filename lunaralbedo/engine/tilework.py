@@ -162,21 +162,26 @@ def pixel_stack(folder: Path, cache_root: Path) -> dict:
 
 
 #: Each block's effective (robust) weights in this process: block folder -> (generation, weights).
-_EFFECTIVE: dict[str, tuple[int, np.ndarray]] = {}
+_EFFECTIVE: dict[str, tuple[int, np.ndarray, np.ndarray]] = {}
 
 
 def effective_weights(block: Path, arrays: dict, gen: int) -> np.ndarray:
     """The weights of a cached block's observations in generation ``gen`` of the robust weights
     (:mod:`.robust`; 0: the cached ones), read once per process and generation."""
-    if gen <= 0:
-        return arrays["weight"]
+    return _effective(block, arrays, gen)[0] if gen > 0 else arrays["weight"]
+
+
+def _effective(block: Path, arrays: dict, gen: int) -> tuple[np.ndarray, np.ndarray]:
+    """Generation ``gen``'s weights of a block and their robust factors m (float32), read and divided once a process."""
     got = _EFFECTIVE.get(str(block))
     if got is None or got[0] != gen:
         w = np.load(block.parent / f"robust_{gen}" / f"{block.name}.npy")
         if len(w) != len(arrays["weight"]):
             raise FileNotFoundError(f"{block}: robust weights of another preparation; run without --resume")
-        got = _EFFECTIVE[str(block)] = (gen, w)
-    return got[1]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            m = np.where(arrays["weight"] > 0, w / arrays["weight"], 0).astype(np.float32)
+        got = _EFFECTIVE[str(block)] = (gen, w, m)
+    return got[1], got[2]
 
 
 def hazed(arrays: dict, state: "SolveState") -> dict:
@@ -191,12 +196,10 @@ def _weighted(block: Path, arrays: dict, state: "SolveState") -> dict:
     """A block's observations with the state's effective weights."""
     if not state.robust:
         return arrays
-    w = effective_weights(block, arrays, state.robust)
+    w, m = _effective(block, arrays, state.robust)
     if state.haze is None:
         return {**arrays, "weight": w}
-    with np.errstate(invalid="ignore", divide="ignore"):  # the robust factor m, for the haze step's noise weights
-        m = np.where(arrays["weight"] > 0, w / arrays["weight"], 0).astype(np.float32)
-    return {**arrays, "weight": w, "robust_factor": m}
+    return {**arrays, "weight": w, "robust_factor": m}  # m: for the haze step's noise weights
 
 
 def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> TileSums:
@@ -281,8 +284,11 @@ def iterate_block(arrays: dict, s, state: SolveState, phase: bool, out: TileSums
         arrays["weight"], *layers, params, texp,
         n_par, n_cols, shadow, ratio, np.float32(s.shadow_thresh), alpha, out.exp_num, out.exp_den, jtj, jtr, alb)
     if with_haze:  # the joint (T, H) step's sums (the values are haze-subtracted: :func:`hazed`)
-        r_h, w_h, t_h = block_model(s, arrays, state)
-        w_n = np.where(w_h > 0, arrays.get("robust_factor", np.float32(1.0)), 0).astype(np.float32)  # noise weights
+        if shadow == kernels.NO_SHADOW_TEST:  # R from the model's point kernel, the weights as cached
+            r_h, w_h, t_h = _reflectance(kind, layers, params, arrays["image"]), arrays["weight"], texp
+        else:
+            r_h, w_h, t_h = block_model(s, arrays, state)
+        w_n = np.where(w_h > 0, arrays.get("robust_factor", np.float32(1.0)), np.float32(0)).astype(np.float32)  # noise weights
         n_loc = len(arrays["index"])
         out.haze_g, out.haze_s = np.zeros(2 * n_loc), np.zeros((2 * n_loc, 2 * n_loc))
         haze_kernels.haze_runs(arrays["chunks"], arrays["run_start"], arrays["run_pixel"], arrays["run_image"],
@@ -298,6 +304,16 @@ def iterate_block(arrays: dict, s, state: SolveState, phase: bool, out: TileSums
         out.alpha_min, out.alpha_max = min(out.alpha_min, amin), max(out.alpha_max, amax)
     out.q += float(q)
     out.n_obs += int(n_obs)
+
+
+def _reflectance(kind, layers, params, like):
+    """R of every observation of a block: the model's inlined ``point`` (:data:`.kernels.POINT_KINDS`), or its layer."""
+    if kind == 0:
+        return layers[0]
+    n = len(like)
+    r, d0, d1 = np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.float32)
+    kernels._model_rows(kind, layers[0], layers[1], layers[2], params, r, d0, d1, n)
+    return r
 
 
 def _normal_equations(arrays, alb, texp, r, dr, ratio, thresh):
