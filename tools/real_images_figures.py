@@ -74,7 +74,7 @@ def outliers_figure(work: Path) -> None:
         ax.set_yticks([])
         fig.colorbar(im, ax=ax, shrink=0.8)
     fig.suptitle("6-image strip, 1 % of pixels in hot spots (x1.6-3) and dropout rows (x0.3)", fontsize=10)
-    fig.savefig(DOCS / "solver-outliers.png", dpi=110)
+    fig.savefig(DOCS / "solver-outliers.png", dpi=80)
     plt.close(fig)
 
 

@@ -161,27 +161,16 @@ def pixel_stack(folder: Path, cache_root: Path) -> dict:
     return STACKS.get(folder, lambda arrays, meta: _split(arrays)[0], group=cache_root)
 
 
-#: Each block's effective (robust) weights in this process: block folder -> (generation, weights).
-_EFFECTIVE: dict[str, tuple[int, np.ndarray, np.ndarray]] = {}
-
-
 def effective_weights(block: Path, arrays: dict, gen: int) -> np.ndarray:
     """The weights of a cached block's observations in generation ``gen`` of the robust weights
-    (:mod:`.robust`; 0: the cached ones), read once per process and generation."""
-    return _effective(block, arrays, gen)[0] if gen > 0 else arrays["weight"]
-
-
-def _effective(block: Path, arrays: dict, gen: int) -> tuple[np.ndarray, np.ndarray]:
-    """Generation ``gen``'s weights of a block and their robust factors m (float32), read and divided once a process."""
-    got = _EFFECTIVE.get(str(block))
-    if got is None or got[0] != gen:
-        w = np.load(block.parent / f"robust_{gen}" / f"{block.name}.npy")
-        if len(w) != len(arrays["weight"]):
-            raise FileNotFoundError(f"{block}: robust weights of another preparation; run without --resume")
-        with np.errstate(invalid="ignore", divide="ignore"):
-            m = np.where(arrays["weight"] > 0, w / arrays["weight"], 0).astype(np.float32)
-        got = _EFFECTIVE[str(block)] = (gen, w, m)
-    return got[1], got[2]
+    (:mod:`.robust`; 0: the cached ones), memory-mapped like a block over :data:`STACKS`' budget
+    (held by no cache of this process: memory stays bounded by the blocks)."""
+    if gen <= 0:
+        return arrays["weight"]
+    w = np.load(block.parent / f"robust_{gen}" / f"{block.name}.npy", mmap_mode="r")
+    if len(w) != len(arrays["weight"]):
+        raise FileNotFoundError(f"{block}: robust weights of another preparation; run without --resume")
+    return w
 
 
 def hazed(arrays: dict, state: "SolveState") -> dict:
@@ -196,10 +185,12 @@ def _weighted(block: Path, arrays: dict, state: "SolveState") -> dict:
     """A block's observations with the state's effective weights."""
     if not state.robust:
         return arrays
-    w, m = _effective(block, arrays, state.robust)
+    w = effective_weights(block, arrays, state.robust)
     if state.haze is None:
         return {**arrays, "weight": w}
-    return {**arrays, "weight": w, "robust_factor": m}  # m: for the haze step's noise weights
+    with np.errstate(invalid="ignore", divide="ignore"):  # the robust factor m, for the haze step's noise weights
+        m = np.where(arrays["weight"] > 0, w / arrays["weight"], 0).astype(np.float32)
+    return {**arrays, "weight": w, "robust_factor": m}
 
 
 def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> TileSums:
@@ -372,7 +363,6 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     idx = np.asarray(meta["index"], np.int32)
     for i in range(len(meta["blocks"])):
         STACKS.discard(folder / f"block_{i:04d}")  # the iterations are over: free the memory
-        _EFFECTIVE.pop(str(folder / f"block_{i:04d}"), None)
     h, w_ = tile.height, tile.width
     name = f"{tile.name}.tif"
     if (out_dir / "weightsSum" / name).exists() and (skip_done or not (folder / "block_0000").exists()):
