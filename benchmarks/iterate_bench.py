@@ -34,15 +34,23 @@ def cpu():
 
 d, cache = Path(sys.argv[1]), Path(sys.argv[2])
 scene = build_scene(load_settings(d / "settings.txt"), False, map_fn=lambda f, xs: list(map(f, xs)))
-if len(sys.argv) > 3:  # the stack budget: a Runtime field (older checkouts read LUNARALBEDO_STACK_MEMORY_MB)
+if len(sys.argv) > 4:  # the stack budget: a Runtime field (older checkouts read LUNARALBEDO_STACK_MEMORY_MB)
     from lunaralbedo.runtime import Runtime
-    scene.runtime = Runtime(stack_memory_mb=float(sys.argv[3]))
+    scene.runtime = Runtime(stack_memory_mb=float(sys.argv[4]))
 tiles = range(len(scene.tiles))
 for t in tiles:
     prepare.prepare_tile(t, scene=scene, cache_root=cache)
 state = tilework.SolveState(np.ones(len(scene.images)), scene.settings.initial_params.copy())
 n = sum(np.load(p, mmap_mode="r").shape[0] for p in cache.rglob("weight.npy"))
 out = {"observations": n}
+if len(sys.argv) > 3 and sys.argv[3] == "1":  # FLOAT_HAZE 1 and one generation of robust weights (a reweight pass)
+    from lunaralbedo.engine import robust
+    state = tilework.SolveState(state.exposure, state.params, haze=np.zeros(len(scene.images)))
+    c0 = cpu()
+    for t in tiles:
+        robust.reweight_tile(t, scene=scene, cache_root=cache, state=state, gen=1)
+    out["reweight_pass_ns"] = 1e9 * (cpu() - c0) / n
+    state = tilework.SolveState(state.exposure, state.params, robust=1, haze=state.haze)
 run = lambda: [tilework.iterate_tile(t, scene=scene, cache_root=cache, state=state, want_phase=True) for t in tiles]
 c0 = cpu(); run(); out["first_pass_ns"] = 1e9 * (cpu() - c0) / n
 c0 = cpu()
@@ -84,14 +92,15 @@ print(json.dumps(out))
 '''
 
 
-def measure(d: Path, cache: Path, src: Path, budget_mb: float | None) -> dict:
+def measure(d: Path, cache: Path, src: Path, budget_mb: float | None, real_images: bool = False) -> dict:
     env = {**os.environ, "PYTHONPATH": str(src)}
     args = []
     if budget_mb is not None:
         env["LUNARALBEDO_STACK_MEMORY_MB"] = str(budget_mb)  # read by checkouts before lunaralbedo.runtime
-        args = [str(budget_mb)] if (src / "lunaralbedo" / "runtime.py").exists() else []
-    res = subprocess.run([sys.executable, "-c", CHILD, str(d), str(cache), *args], capture_output=True, text=True, cwd=src,
-                         env=env)
+        if (src / "lunaralbedo" / "runtime.py").exists():
+            args = [str(budget_mb)]
+    res = subprocess.run([sys.executable, "-c", CHILD, str(d), str(cache), "1" if real_images else "0", *args],
+                         capture_output=True, text=True, cwd=src, env=env)
     if res.returncode:
         raise RuntimeError(res.stderr[-3000:])
     return json.loads(res.stdout.strip().splitlines()[-1])
@@ -101,6 +110,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="bench_out")
     ap.add_argument("--before", default=None, help="source tree of a previous implementation to measure too")
+    ap.add_argument("--real-images", action="store_true",
+                    help="also measure this checkout with FLOAT_HAZE 1 and robust weights (and one reweight pass)")
     ap.add_argument("--budget-mb", type=float, default=None, help="LUNARALBEDO_STACK_MEMORY_MB for this checkout")
     args = ap.parse_args()
     root = (REPO / args.out).resolve()
@@ -108,10 +119,13 @@ def main() -> int:
     d = scene(root, "strip_2000", SceneSpec(n_images=24, image_px=320, image_rows=2000, res_deg=0.002, tile_size=4.0,
                                             max_num_iter=10, seed=15))
     runs = [("before", Path(args.before).resolve(), None)] if args.before else []
-    for name, src, budget in runs + [("after", REPO, args.budget_mb)]:
-        r = measure(d, root / f"iterate_cache_{name}", src, budget)  # one cache per checkout: layouts may differ
+    runs += [("after", REPO, args.budget_mb)] + ([("after, robust + haze", REPO, args.budget_mb)] if args.real_images else [])
+    for name, src, budget in runs:
+        cache = root / f"iterate_cache_{name.split(',')[0]}"  # one cache per checkout: layouts may differ
+        r = measure(d, cache, src, budget, real_images=name.endswith("haze"))
         print(f"iterate ({name}): {r['steady_ns']:.1f} ns CPU per observation and iteration (first pass "
-              f"{r['first_pass_ns']:.0f} ns), kernels on one tile {r['kernels_ns']}, peak {r['peak_rss_mb']:.0f} MB", flush=True)
+              f"{r['first_pass_ns']:.0f} ns), kernels on one tile {r['kernels_ns']}, peak {r['peak_rss_mb']:.0f} MB"
+              + (f", reweight pass {r['reweight_pass_ns']:.1f} ns per observation" if "reweight_pass_ns" in r else ""), flush=True)
     return 0
 
 

@@ -21,6 +21,7 @@ the model; the chosen model validates them.  This module knows no model by name.
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,7 +53,20 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     "REFLECTANCE": (str, None, None),  # the model by name (TOML); wins over REFLECTANCE_TYPE; allowed: the registry's names
     "REGISTER_IMAGES": (int, 0, (0, 1)),  # 1: a ground shift per image found with the albedo (engine/registration.py)
     "REGISTER_MAX_SHIFT": (float, 5.0, None),  # the largest shift searched, pixels of each image
+    # real images (docs/solver.md "Real images"): outliers, haze, exposures in physical units; not read by --legacy
+    "REJECT_OUTLIERS": (int, 1, (0, 1)),  # each image's observations that stand out from their neighbourhood
+    "ROBUST_LOSS": (str, "cauchy", ("cauchy", "huber", "none")),  # IRLS loss where >= 3 images overlap
+    "ROBUST_THRESHOLD": (float, 5.0, None),  # k: the loss's scale in robust standard deviations (MAD)
+    "FLOAT_HAZE": (int, 0, (0, 1)),  # per-image additive haze I = T A R + H
+    "EXPOSURE_MODE": (str, "solve", ("solve", "fixed", "prior")),
+    "EXPOSURE_FILE": (Path, None, None),  # key,exposure CSV for EXPOSURE_MODE fixed/prior
+    "EXPOSURE_PRIOR_SIGMA": (float, 0.02, None),  # relative standard deviation of the exposure prior
 }
+
+
+#: Keys of the default solver only (real images): :func:`legacy_text` leaves them out at their defaults.
+_UNWRITTEN_DEFAULTS = ("REJECT_OUTLIERS", "ROBUST_LOSS", "ROBUST_THRESHOLD", "FLOAT_HAZE", "EXPOSURE_MODE", "EXPOSURE_FILE",
+                       "EXPOSURE_PRIOR_SIGMA")
 
 
 def _model_keys_spec() -> dict[str, tuple[type, Any, tuple | None]]:
@@ -95,6 +109,13 @@ class Settings:
     cast_shadows: int | None = None
     register_images: int = 0
     register_max_shift: float = 5.0
+    reject_outliers: int = 1
+    robust_loss: str = "cauchy"
+    robust_threshold: float = 5.0
+    float_haze: int = 0
+    exposure_mode: str = "solve"
+    exposure_file: Path | None = None
+    exposure_prior_sigma: float = 0.02
     #: Values of the model-declared keys, ``((LEGACY_KEY, value), ...)``; read as attributes (``s.phase_coeff_c1``).
     model_settings: tuple[tuple[str, Any], ...] = ()
     source: Path | None = field(default=None, compare=False)
@@ -173,6 +194,8 @@ def legacy_text(values: dict[str, Any], comment: str = "") -> str:
         if key == "REFLECTANCE" and values.get(key) is None:
             continue  # a model with a legacy code is written as REFLECTANCE_TYPE
         v = values.get(key, default)
+        if key in _UNWRITTEN_DEFAULTS and v == default:
+            continue  # not PhotometryTK's: written only when set, so the file stays readable by older readers
         if v is None:
             v = ""
         elif key == "SIMULATION_BOX":
@@ -245,6 +268,9 @@ def _validate(values: dict[str, Any], where: str) -> None:
         raise SettingsError(f"{where}: MAX_NUM_ITER must be >= 0, got {values['MAX_NUM_ITER']}")
     if not (0.0 <= values["REGISTER_MAX_SHIFT"] < float("inf")):
         raise SettingsError(f"{where}: REGISTER_MAX_SHIFT must be a number of pixels >= 0, got {values['REGISTER_MAX_SHIFT']}")
+    for key in ("ROBUST_THRESHOLD", "EXPOSURE_PRIOR_SIGMA"):
+        if not (math.isfinite(values[key]) and values[key] > 0):
+            raise SettingsError(f"{where}: {key} must be a number > 0, got {values[key]}")
     model = photometry.get(values["REFLECTANCE"] or values["REFLECTANCE_TYPE"])
     if values["REGISTER_IMAGES"] and not model.needs_geometry:
         raise SettingsError(f"{where}: REGISTER_IMAGES 1 needs a DEM: the {model.name} model uses none")

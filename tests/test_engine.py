@@ -31,7 +31,8 @@ def same_results(a: Path, b: Path) -> None:
     names = sorted(p.relative_to(a) for p in (a / "albedo").rglob("*.tif"))
     assert names, "no albedo tiles"
     assert names == sorted(p.relative_to(b) for p in (b / "albedo").rglob("*.tif"))
-    for sub in ("albedo", "error", "DEM", "weightsSum"):
+    for sub in ("albedo", "error", "DEM", "weightsSum", "outliers"):
+        assert sorted(p.name for p in (a / sub).glob("*.tif")) == sorted(p.name for p in (b / sub).glob("*.tif")), sub
         for p in sorted((a / sub).glob("*.tif")):
             assert filecmp.cmp(p, b / sub / p.name, shallow=False), f"{sub}/{p.name} differs"
     for f in RESULT_FILES:
@@ -698,8 +699,8 @@ def test_a_one_worker_solve_runs_its_tiles_on_every_cpu_and_writes_the_same_file
     at_once = min(cpus, n_tiles, solve_module.MAX_THREADS)
     assert len(ran["iterate"]) == len(ran["finalise"]) == at_once, ran
     each = max(1, cpus // at_once)
-    assert set(seen) == {("albedo", each), ("error", each), ("DEM", 1), ("weightsSum", 1)}, seen
-    assert len(seen) == 4 * n_tiles
+    assert set(seen) == {("albedo", each), ("error", each), ("outliers", each), ("DEM", 1), ("weightsSum", 1)}, seen
+    assert len(seen) == 5 * n_tiles
     same_results(reference, out)
     # finalise within its memory bound (here: one tile's rasters): one tile at a time, GDAL's threads on the CPUs
     monkeypatch.setattr(solve_module, "FINALISE_BYTES", 1)

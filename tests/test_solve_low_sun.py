@@ -43,7 +43,8 @@ def test_low_sun_scene_is_recovered_with_cast_shadows(low_sun, tmp_path):
 
 
 def test_without_cast_shadows_the_shadows_are_taken_as_dark_albedo(low_sun, tmp_path):
-    solve(_with(low_sun / "settings.txt", "CAST_SHADOWS 0"), out=tmp_path / "off", workers=1, plots=False)
+    # without the outlier test too: it rejects part of the shadows one image has and the other has not (7.6 %)
+    solve(_with(low_sun / "settings.txt", "CAST_SHADOWS 0\nREJECT_OUTLIERS 0"), out=tmp_path / "off", workers=1, plots=False)
     off = score(tmp_path / "off", low_sun)
     assert off["albedo_rel_rmse"] > 0.1, off  # several times the 3 % of the solve with them
 

@@ -10,7 +10,8 @@ from ._common import reports_errors
 #: Options of the DRG strip that the ISIS mission does not take.
 _STRIP_ONLY = {"image_px": "--size", "res_deg": "--res", "exposure_spread": "--spread", "reflectance_type": "--reflectance",
                "tile_size": "--tile-size", "noise_dn": "--noise",
-               "misregister_px": "--misregister", "fresh_craters": "--craters"}
+               "misregister_px": "--misregister", "fresh_craters": "--craters", "haze": "--haze",
+               "outlier_fraction": "--outliers", "calibrated": "--calibrated"}
 
 
 @click.command("simulate")
@@ -31,6 +32,11 @@ _STRIP_ONLY = {"image_px": "--size", "res_deg": "--res", "exposure_spread": "--s
                    "the truth in truth.json: images.KEY.offset_east_m/offset_north_m).")
 @click.option("--craters", "fresh_craters", type=float, default=0.0, show_default=True,
               help="Fresh bowl craters per square degree (rough terrain; drg).")
+@click.option("--haze", default=None, metavar="LO:HI",
+              help="Additive haze per image, drawn uniformly in LO..HI DN (drg; e.g. 5:15).")
+@click.option("--outliers", "outlier_fraction", type=float, default=0.0, show_default=True,
+              help="Fraction of each image's pixels in hot spots (x1.6-3) and dark dropout rows (x0.3) (drg).")
+@click.option("--calibrated", is_flag=True, help="Float32 I/F DRGs with every exposure 1, as from ISIS lronaccal (drg).")
 @click.option("--seed", type=int, default=None, help="Random seed [drg: 7, isis: 20240601, the sample_data mission].")
 @reports_errors
 def command(out_dir, fmt, n_images, seed, **kwargs):
@@ -49,6 +55,14 @@ def command(out_dir, fmt, n_images, seed, **kwargs):
                    f"DEM: {out_dir}/dem/, truth: {out_dir}/truth/); next: lunaralbedo ingest")
         return
     from ..simulate import SceneSpec, render_scene
+
+    haze = kwargs.pop("haze")
+    if haze is not None:
+        try:
+            lo, hi = (float(x) for x in haze.split(":"))
+        except ValueError:
+            raise InputError(f"--haze must be LO:HI in DN (e.g. 5:15), got {haze!r}") from None
+        kwargs["haze_dn"] = (lo, hi)
 
     truth = render_scene(out_dir, SceneSpec(n_images=6 if n_images is None else n_images, seed=7 if seed is None else seed,
                                             **kwargs))

@@ -60,6 +60,14 @@ def _print_summary(result) -> None:
             click.echo(f"    WARNING: {w}")
     if rep.get("registration"):
         click.echo(f"  images registered to the DEM: {result.out_dir}/image_offsets.csv")
+    if rep.get("haze"):
+        h = list(rep["haze"].values())
+        click.echo(f"  haze: min {min(h):.4g}, max {max(h):.4g} (haze.csv)")
+    for key in rep.get("haze_inseparable", []):
+        click.echo(f"  WARNING: image {key}: its haze and exposure cannot be separated (too little contrast); "
+                   "its haze.csv value is not reliable", err=True)
+    if rep.get("outliers"):
+        click.echo(f"  outliers: {100 * rep['outliers']['rejected_fraction']:.3f} % of the observations rejected (outliers/)")
     click.echo("  time " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()))
     click.echo(f"  results in {result.out_dir}/ (albedo/, error/, exposure.csv, phase.csv, report.json, *.png)")
 

@@ -29,23 +29,24 @@ from ..errors import ResumeError, SettingsError, SolverError, typed_error
 from ..io import outputs
 from ..io.atomic import remove_stale_temporaries, remove_tree
 from ..io.guard import check_output_dir
-from ..model import exposure_init, updates
+from ..model import exposure_init, exposure_prior, haze, updates
 from ..settings import Settings, load_settings
 from ..parallel import local_workers, make_executor
 from ..parallel.progress import ROWS
 from ..parallel.workers import trim_malloc
 from ..runtime import Runtime
-from ..response.solve_hook import check_resume, known_exposures, lut_digest, move_outputs, report_parts, resolve_response
+from ..response.solve_hook import check_resume, given_exposures, lut_digest, move_outputs, report_parts, resolve_response
 from .observations import ROW_PIXEL_BYTES, block_budget
 from .response_pass import response_observations
 from .options import DEFAULT_TOLERANCE, METHODS
 from .tiles import budget_warning
 from .scene import Scene, build_scene
 from .prepare import WRITER, prepare_tile
+from . import robust
 from .tilework import SolveState, finalize_tile, iterate_tile
 
 #: Modules local workers import as they start (the tile tasks' own, with NumPy, numba, rasterio).
-WORKER_PRELOAD = ("lunaralbedo.engine.prepare", "lunaralbedo.engine.tilework")
+WORKER_PRELOAD = ("lunaralbedo.engine.prepare", "lunaralbedo.engine.tilework", "lunaralbedo.engine.robust")
 #: A tile task's fixed cost in observations (~2 ms of a worker's time at ~9 ns per observation),
 #: for sharing the tiles' iterations evenly among workers (:meth:`~lunaralbedo.parallel.DaskExecutor.place`).
 TASK_OBSERVATIONS = 250_000
@@ -55,9 +56,9 @@ CACHE_DIR = f"{CHECKPOINT_DIR}/cache"
 TILES_DIR = f"{CHECKPOINT_DIR}/tiles"  # finalised tiles, moved into OUTDIR at the end
 RESPONSE_DIR = f"{CHECKPOINT_DIR}/response"  # camera response files (response/solve_hook.py), moved likewise
 MARKER = ".lunaralbedo"  # written first into every OUTDIR: marks it as ours
-_TILE_DIRS = ("albedo", "error", "DEM", "weightsSum")
+_TILE_DIRS = ("albedo", "error", "DEM", "weightsSum", "outliers")
 _OUTPUT_DIRS = (*_TILE_DIRS, "weight")
-_RESULT_FILES = ("report.json", "exposure.csv", "phase.csv", "exposure.png", "cost.png",
+_RESULT_FILES = ("report.json", "exposure.csv", "haze.csv", "phase.csv", "exposure.png", "cost.png",
                  "response.csv", "response.png", "loglik.png", "residuals.png", "image_offsets.csv")
 
 
@@ -133,19 +134,33 @@ def _reduce_iteration(n_images: int, n_params: int, parts) -> updates.PassSums:
     return total
 
 
-def _update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref: np.ndarray, fixed: bool = False) -> SolveState:
-    """One update of exposures (eq. 4) and parameters (eq. 5); ``fixed``: the exposures are known (kept)."""
-    t = state.exposure if fixed else updates.exposure_update(state.exposure, sums.exp_num, sums.exp_den)
+def _update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref: np.ndarray, fixed: bool = False,
+            prior: float | None = None) -> SolveState:
+    """One update of exposures (eq. 4) and parameters (eq. 5); ``fixed``: the exposures are known (kept);
+    ``prior``: the relative sigma of a Gaussian prior around ``t_ref`` (:mod:`lunaralbedo.model.exposure_prior`)."""
+    h = state.haze
+    if h is not None:  # FLOAT_HAZE: one joint (T, H) step with the albedo eliminated (model/haze.py)
+        g, mat = haze.assemble(len(state.exposure), sums.haze_parts)
+        mode = "fixed" if fixed else ("prior" if prior is not None else "solve")
+        t, h = haze.joint_step(state.exposure, h, g, mat, mode, t0=t_ref,
+                               prior_weight=exposure_prior.prior_weight(t_ref, prior) if prior is not None else None,
+                               noise_var=max(sums.q / sums.n_obs, 1e-12) if sums.n_obs else 1.0)
+    elif fixed:
+        t = state.exposure
+    elif prior is not None:
+        t = exposure_prior.exposure_update_prior(state.exposure, sums.exp_num, sums.exp_den, t_ref, prior, sums.q, sums.n_obs)
+    else:
+        t = updates.exposure_update(state.exposure, sums.exp_num, sums.exp_den)
     c = state.params
     if model.parameters and sums.n_obs:
         if method == "seed":
             c = updates.phase_update_seed(c, sums.jtj, sums.jtr)
         else:
             c = updates.phase_update_damped(c, sums.jtj, sums.jtr, (sums.alpha_min, sums.alpha_max), model.phase_curve)
-    if method != "seed" and not fixed:
+    if method != "seed" and not fixed and prior is None:
         # A*T leaves one global scale free: pin the geometric mean of T to the initial one.
         t = t * np.exp(np.mean(np.log(t_ref)) - np.mean(np.log(t)))
-    return SolveState(np.asarray(t, dtype=np.float64), np.asarray(c, dtype=np.float64))
+    return SolveState(np.asarray(t, dtype=np.float64), np.asarray(c, dtype=np.float64), robust=state.robust, haze=h)
 
 
 def solve(
@@ -242,7 +257,8 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     tiles = list(range(len(scene.tiles)))
     t1 = time.perf_counter()
     # camera response (Kim et al.): g for the prepare step, fixed exposures (response/solve_hook.py)
-    t_known = known_exposures(resp[1], scene.keys) if resp[1] is not None else None
+    mode, t_given = given_exposures(s, resp[1], scene.keys)
+    t_known = t_given if mode == "fixed" else None
     lut, resp_report = resolve_response(resp[0], lambda: response_observations(scene, executor), scene.keys,
                                         out / RESPONSE_DIR, t_known, ck, plots)
     check_resume(ck, lut, t_known)
@@ -261,7 +277,12 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
 
     metas = _prepare(on_tiles, executor, lut)
     executor.place("tiles", {t: TASK_OBSERVATIONS + sum(m["r_count"]) for t, m in zip(tiles, metas)})
-    t_init = _reduce_init(scene, metas, method) if t_known is None else t_known
+    if mode == "prior" and method == "overlap":  # the overlaps' relative exposures at the prior's overall scale
+        t_seed = _reduce_init(scene, metas, method)
+        t_init = t_seed * np.exp(np.mean(np.log(t_given)) - np.mean(np.log(t_seed)))
+    else:
+        t_init = _reduce_init(scene, metas, method) if t_given is None else t_given
+    t_ref = t_given if mode == "prior" else t_init
     timings["prepare"] = time.perf_counter() - t1
     if ck is None:
         ck = {
@@ -275,24 +296,44 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
             "done": False,
             "response": resp_report,
             "exposure_fixed": t_known is not None,
+            "robust": 0,  # generation of the robust weights (engine/robust.py)
+            "q_robust": [],  # the generation each Q of "q" was computed with
+            "outliers": None,
+            "haze": [0.0] * len(scene.images) if s.float_haze else None,  # FLOAT_HAZE: per image, DRG units
         }
         outputs.write_json(out / STATE_FILE, ck)
-    state = SolveState(np.array(ck["exposure"]), np.array(ck["params"], dtype=np.float64))
+    state = SolveState(np.array(ck["exposure"]), np.array(ck["params"], dtype=np.float64), robust=ck["robust"],
+                       haze=None if ck.get("haze") is None else np.array(ck["haze"], np.float64))
     resume_info = {"tiles_prepared_before": sum(bool(m.get("reused")) for m in metas), "iterations_done_before": ck["iteration"]}
     n_obs = sum(int(m["observations"]) for m in metas) if all("observations" in m for m in metas) else None
     t2 = time.perf_counter()
     want_phase = bool(scene.model.parameters)
     while not ck["done"] and ck["iteration"] < max_iter:
+        reweights = robust.passes(s, ck)
+        gen = ck["robust"]
+        if gen < len(reweights) and (ck["iteration"] >= reweights[gen] or ck.get("reweight_now")):
+            state = robust.reweight_pass(on_tiles, _threads(executor), scene, state, ck, method == "overlap" and t_given is None)
+            outputs.write_json(out / STATE_FILE, ck)
+            robust.drop_generation(cache, gen)
         parts = on_tiles(iterate_tile, f"iteration {ck['iteration'] + 1}", state=state, want_phase=want_phase,
                          threads=_threads(executor))  # one process: tiles on its CPUs, summed in tile order
         sums = _reduce_iteration(len(scene.images), len(scene.model.parameters), parts)
         q_prev = ck["q"][-1] if ck["q"] else None
         ck["q"].append(sums.q)
         converged = q_prev is not None and abs(q_prev - sums.q) <= tol * max(sums.q, 1e-300)
+        converged = converged and ck["q_robust"][-1:] == [ck["robust"]]  # a Q of other weights is not comparable
+        ck["q_robust"].append(ck["robust"])
+        reweights = robust.passes(s, ck)
+        if converged and ck["robust"] < len(reweights):  # settled before the last reweight: reweight now, go on
+            converged, ck["reweight_now"] = False, True
         if not converged:
-            state = _update(state, sums, method, scene.model, t_init, fixed=t_known is not None)
+            state = _update(state, sums, method, scene.model, t_ref, fixed=t_known is not None,
+                            prior=s.exposure_prior_sigma if mode == "prior" else None)
             ck["params_history"].append(state.params.tolist())
-        ck.update(iteration=ck["iteration"] + 1, exposure=state.exposure.tolist(), params=state.params.tolist(), done=converged)
+        ck.update(iteration=ck["iteration"] + 1, exposure=state.exposure.tolist(), params=state.params.tolist(), done=converged,
+                  haze=None if state.haze is None else state.haze.tolist())
+        if sums.haze_parts:
+            ck["haze_inseparable"] = [scene.keys[k] for k in haze.inseparable(haze.assemble(len(scene.images), sums.haze_parts)[1])]
         outputs.write_json(out / STATE_FILE, ck)
     timings["iterate"] = time.perf_counter() - t2
     t3 = time.perf_counter()
@@ -363,8 +404,10 @@ def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timi
         outputs.write_phase_csv(out / "phase.csv", names, ck["params_history"])
     for key, prof in zip(keys, scene.profiles):
         outputs.write_weight_profile(out / "weight" / f"{key}_weight.txt", prof)
+    if state.haze is not None:
+        outputs.write_haze_csv(out / "haze.csv", keys, state.haze)
     if plots:
-        outputs.plot_exposures(out / "exposure.png", keys, state.exposure, t_init)
+        outputs.plot_exposures(out / "exposure.png", keys, state.exposure, t_init, haze=state.haze)
         if ck["q"]:
             outputs.plot_cost(out / "cost.png", ck["q"])
     report = {
@@ -382,6 +425,10 @@ def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timi
         "resumed": resume_info if any(resume_info.values()) else None,
         **report_parts(ck.get("response")),
         "exposure_fixed": bool(ck.get("exposure_fixed")),
+        "exposure_mode": "fixed" if ck.get("exposure_fixed") else scene.settings.exposure_mode,
+        "outliers": robust.report(keys, ck.get("outliers"), ck.get("robust", 0)),
+        "haze": None if state.haze is None else dict(zip(keys, state.haze.tolist())),
+        "haze_inseparable": ck.get("haze_inseparable", []),
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "observations": costs,
     }

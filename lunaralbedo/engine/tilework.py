@@ -32,9 +32,9 @@ import numpy as np
 from ..io.cache import MemoryCache, discard, load_meta, load_stack
 from ..io.geotiff import GeoTiffRows
 from ..io.rasters import count_finite
-from ..model import shadows, updates
+from ..model import outliers, shadows, updates
 from ..parallel.progress import ROWS
-from . import kernels, runs
+from . import haze_kernels, kernels, runs
 from .finalise_kernels import finalise_runs
 from ..runtime import STACK_MEMORY_MB
 from .scene import Scene
@@ -46,6 +46,14 @@ class SolveState:
 
     exposure: np.ndarray  # (K,) per image
     params: np.ndarray  # (P,) fitted parameters of the photometric model (Lunar-Lambert: c1, c2)
+    robust: int = 0  # generation of the robust weights (:mod:`.robust`; 0: the cached weights as they are)
+    haze: np.ndarray | None = None  # (K,) additive haze per image, DRG units (FLOAT_HAZE 1; None: no haze)
+
+    def haze_of(self, index) -> np.ndarray:
+        """The haze of the images ``index`` (float32; zeros without haze)."""
+        if self.haze is None:
+            return np.zeros(len(index), np.float32)
+        return np.asarray(self.haze, np.float64)[np.asarray(index)].astype(np.float32)
 
 
 #: Version of the cache layout above (2: pixel-major observations; 3: the DEM and weight-sum
@@ -70,7 +78,8 @@ WEIGHTS_SUM_PREDICTOR = 2
 KNOWN_OUTPUTS = ("DEM", "weightsSum")
 #: GeoTIFF options (:func:`lunaralbedo.io.geotiff.geotiff_profile`) of each tile output.
 OUTPUT_OPTIONS = {"albedo": {"nodata": float("nan")}, "error": {"nodata": float("nan"), "predictor": ERROR_PREDICTOR},
-                  "DEM": {"nodata": float("nan")}, "weightsSum": {"predictor": WEIGHTS_SUM_PREDICTOR}}
+                  "DEM": {"nodata": float("nan")}, "weightsSum": {"predictor": WEIGHTS_SUM_PREDICTOR},
+                  "outliers": {"nodata": float("nan")}}
 
 
 def cache_dir(cache_root: Path, scene: Scene, t: int) -> Path:
@@ -100,7 +109,11 @@ def tile_model(scene: Scene, obs, state: SolveState):
     mask (eq. 1), and the exposures of the block's local images (float32; ``obs["run_image"]``
     numbers them), which :func:`.finalise_kernels.finalise_runs` takes.
     """
-    s, model = scene.settings, scene.model
+    return block_model(scene.settings, scene.model, obs, state)
+
+
+def block_model(s, model, obs, state: SolveState):
+    """:func:`tile_model` with the run's settings ``s`` and bound photometric ``model``."""
     texp = state.exposure[obs["index"]].astype(np.float32)
     r = np.asarray(model.reflectance_from(obs, state.params), dtype=np.float32)
     w = obs["weight"]
@@ -123,6 +136,38 @@ def pixel_stack(folder: Path, cache_root: Path) -> dict:
     return STACKS.get(folder, lambda arrays, meta: _split(arrays)[0], group=cache_root)
 
 
+def effective_weights(block: Path, arrays: dict, gen: int) -> np.ndarray:
+    """The weights of a cached block's observations in generation ``gen`` of the robust weights
+    (:mod:`.robust`; 0: the cached ones), memory-mapped like a block over :data:`STACKS`' budget
+    (held by no cache of this process: memory stays bounded by the blocks)."""
+    if gen <= 0:
+        return arrays["weight"]
+    w = np.load(block.parent / f"robust_{gen}" / f"{block.name}.npy", mmap_mode="r")
+    if len(w) != len(arrays["weight"]):
+        raise FileNotFoundError(f"{block}: robust weights of another preparation; run without --resume")
+    return w
+
+
+def hazed(arrays: dict, state: "SolveState") -> dict:
+    """A block's observations with each image's haze taken off their values (FLOAT_HAZE 1; as they are without)."""
+    if state.haze is None:
+        return arrays
+    value = np.asarray(arrays["image"], np.float32) - state.haze_of(arrays["index"])[runs.observation_images(arrays)]
+    return {**arrays, "image": value}
+
+
+def _weighted(block: Path, arrays: dict, state: "SolveState") -> dict:
+    """A block's observations with the state's effective weights."""
+    if not state.robust:
+        return arrays
+    w = effective_weights(block, arrays, state.robust)
+    if state.haze is None:
+        return {**arrays, "weight": w}
+    with np.errstate(invalid="ignore", divide="ignore"):  # the robust factor m, for the haze step's noise weights
+        m = np.where(arrays["weight"] > 0, w / arrays["weight"], 0).astype(np.float32)
+    return {**arrays, "weight": w, "robust_factor": m}
+
+
 def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> updates.PassSums:
     """Partial sums of one iteration over tile ``t`` (eqs. 1, 3, 4, 5): its blocks' sums added in block order.
 
@@ -143,6 +188,7 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
         ROWS.advance(b1 - b0)
         if not len(arrays["index"]):
             continue
+        arrays = hazed(_weighted(folder / f"block_{i:04d}", arrays, state), state)
         part = updates.PassSums(len(arrays["index"]), out.n_params, index=arrays["index"])
         iterate_block(arrays, scene.settings, model, state, phase, part)
         out.add(part)  # blocks in order; without the phase step the normal equations stay zero
@@ -179,12 +225,23 @@ def iterate_block(arrays: dict, s, model, state: SolveState, phase: bool, out: u
     # those of the cache (no dynamic shadow test), else the kernel's (0.2-0.3 ns per observation and pass)
     known_range = shadow == kernels.NO_SHADOW_TEST and "alpha_range" in arrays
     alpha = arrays["alpha"] if (n_par and "alpha" in arrays and not known_range) else arrays["image"][:0]
+    with_haze = state.haze is not None
     alb = np.full(runs.pixel_extent(arrays) if n_par > 2 else 0, np.nan, np.float32)
     jtj, jtr = np.zeros((n_cols, n_cols)), np.zeros(n_cols)
     q, n_obs, amin, amax = kernels.iterate_runs(
         kind, arrays["chunks"], arrays["run_start"], arrays["run_pixel"], arrays["run_image"], arrays["image"],
         arrays["weight"], *layers, params, texp,
         n_par, n_cols, shadow, ratio, np.float32(s.shadow_thresh), alpha, out.exp_num, out.exp_den, jtj, jtr, alb)
+    if with_haze:  # the joint (T, H) step's sums (the values are haze-subtracted: :func:`hazed`)
+        if shadow == kernels.NO_SHADOW_TEST:  # R from the model's point kernel, the weights as cached
+            r_h, w_h, t_h = _reflectance(kind, layers, params, arrays["image"]), arrays["weight"], texp
+        else:
+            r_h, w_h, t_h = block_model(s, model, arrays, state)
+        w_n = np.where(w_h > 0, arrays.get("robust_factor", np.float32(1.0)), np.float32(0)).astype(np.float32)  # noise weights
+        n_loc = len(arrays["index"])
+        out.haze_g, out.haze_s = np.zeros(2 * n_loc), np.zeros((2 * n_loc, 2 * n_loc))
+        haze_kernels.haze_runs(arrays["chunks"], arrays["run_start"], arrays["run_pixel"], arrays["run_image"],
+                               arrays["image"], r_h, w_n, t_h, out.haze_g, out.haze_s)
     if n_par > 2:  # no such model yet: the normal equations in NumPy
         jtj, jtr = _normal_equations(arrays, alb, texp, layers[0], dr, ratio if shadow == kernels.SHADOW_ON_LAYER else None,
                                      s.shadow_thresh if shadow != kernels.NO_SHADOW_TEST else None)
@@ -196,6 +253,16 @@ def iterate_block(arrays: dict, s, model, state: SolveState, phase: bool, out: u
         out.alpha_min, out.alpha_max = min(out.alpha_min, amin), max(out.alpha_max, amax)
     out.q += float(q)
     out.n_obs += int(n_obs)
+
+
+def _reflectance(kind, layers, params, like):
+    """R of every observation of a block: the model's inlined ``point`` (:data:`.kernels.POINT_KINDS`), or its layer."""
+    if kind == 0:
+        return layers[0]
+    n = len(like)
+    r, d0, d1 = np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.float32)
+    kernels._model_rows(kind, layers[0], layers[1], layers[2], params, r, d0, d1, n)
+    return r
 
 
 def _normal_equations(arrays, alb, texp, r, dr, ratio, thresh):
@@ -210,6 +277,14 @@ def _normal_equations(arrays, alb, texp, r, dr, ratio, thresh):
 
 
 # --------------------------------------------------------------------------- finalise
+def _lost(obs: dict, effective: np.ndarray, rows: int, width: int) -> np.ndarray:
+    """The ``outliers/`` rows of a block: per pixel the fraction of weight the robust weights took away."""
+    if not len(obs["index"]):
+        return np.full((rows, width), np.nan, np.float32)
+    pix = runs.observation_pixels(obs)
+    return outliers.lost_fraction(obs["weight"], effective, pix, rows * width).reshape(rows, width)
+
+
 def _tile_images(scene: Scene, t: int, used) -> dict:
     """Images used over tile ``t`` and those that overlap it without a usable pixel (shadow, no DEM, ...)."""
     used = set(int(k) for k in used)
@@ -257,6 +332,8 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
     files = {"albedo": rows_file(out_dir / "albedo" / name, **OUTPUT_OPTIONS["albedo"])}
     if want_err:
         files["error"] = rows_file(out_dir / "error" / name, **OUTPUT_OPTIONS["error"])
+    if state.robust:
+        files["outliers"] = rows_file(out_dir / "outliers" / name, **OUTPUT_OPTIONS["outliers"])
     valid = 0
     no_err = np.empty(0, np.float32)
     try:
@@ -264,10 +341,15 @@ def finalize_tile(t: int, *, scene: Scene, cache_root: Path, out_dir: Path, stat
             for f in files.values():
                 f.skip(h - (r1 - r0))
             ROWS.advance(h - (r1 - r0))
-        for b0, b1, obs, per_pixel, c0 in _blocks(folder, meta):  # one block's rows of the outputs held at a time
+        for i, (b0, b1, obs, per_pixel, c0) in enumerate(_blocks(folder, meta)):  # one block's rows held at a time
             alb = np.empty((b1 - b0, x1 - x0), np.float32)
             err = np.empty((b1 - b0, x1 - x0), np.float32) if want_err else no_err
+            if state.robust:
+                base = obs
+                obs = _weighted(folder / f"block_{i:04d}", obs, state) if len(obs["index"]) else obs
+                files["outliers"].write(_lost(base, obs["weight"], b1 - b0, x1 - x0), r0 + b0, x0)
             if len(obs["index"]):
+                obs = hazed(obs, state)
                 r, w, texp = tile_model(scene, obs, state)
                 finalise_runs(obs["chunks"], obs["run_start"], obs["run_pixel"], obs["run_image"], obs["image"],
                               texp, r, w, per_pixel.get("wblend_sum", per_pixel["weights_sum"]),

@@ -52,14 +52,17 @@ def write_weight_profile(path: Path, profile) -> None:
     atomic_write_text(path, "\n".join(lines) + "\n")
 
 
-def plot_exposures(path: Path, keys: Sequence[str], exposure: np.ndarray, initial: np.ndarray) -> None:
-    """Exposure per image (as seed 001 fig. 4): solved and initial, normalised to their mean."""
+def plot_exposures(path: Path, keys: Sequence[str], exposure: np.ndarray, initial: np.ndarray, haze=None) -> None:
+    """Exposure per image (as seed 001 fig. 4): solved and initial, normalised to their mean; with ``haze``
+    (FLOAT_HAZE 1, DRG units) a second panel beside it with each image's haze."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(max(6, 0.18 * len(keys)), 3.5))
+    width = max(6, 0.18 * len(keys))
+    fig, axes = plt.subplots(1, 1 if haze is None else 2, figsize=(width * (1 if haze is None else 2), 3.5), squeeze=False)
+    ax = axes[0, 0]
     x = np.arange(len(keys))
     ax.plot(x, exposure / np.mean(exposure), "o-", label="solved")
     ax.plot(x, initial / np.mean(initial), ".", color="grey", label="initial")
@@ -68,8 +71,22 @@ def plot_exposures(path: Path, keys: Sequence[str], exposure: np.ndarray, initia
     ax.set_ylabel("relative exposure T / mean(T)")
     ax.set_title("Estimated relative exposure times")
     ax.legend()
+    if haze is not None:
+        hx = axes[0, 1]
+        hx.bar(x, haze, color="tab:orange")
+        hx.axhline(0, color="grey", lw=0.5)
+        hx.set_xticks(x)
+        hx.set_xticklabels(keys, rotation=90, fontsize=6)
+        hx.set_ylabel("haze H (DRG units)")
+        hx.set_title("Estimated haze per image (I = T A R + H)")
     fig.tight_layout()
     save_figure(fig, path)
+
+
+def write_haze_csv(path: Path, keys: Sequence[str], haze: np.ndarray) -> None:
+    """``key,haze`` per image (FLOAT_HAZE 1; the DRGs' units: DN, or I/F for calibrated inputs)."""
+    lines = ["key,haze"] + [f"{k},{h:.9g}" for k, h in zip(keys, haze)]
+    atomic_write_text(path, "\n".join(lines) + "\n")
 
 
 def plot_cost(path: Path, q: Sequence[float]) -> None:

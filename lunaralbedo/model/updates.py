@@ -138,6 +138,12 @@ class PassSums:
     alpha_max: float = -np.inf
     n_obs: int = 0
     index: np.ndarray | None = None
+    #: FLOAT_HAZE: the joint (T, H) step's gradient and reduced normal matrix over the images of ``index``,
+    #: interleaved (T_k, H_k) (``engine/haze_kernels``; :mod:`.haze`); None without haze.
+    haze_g: np.ndarray | None = None
+    haze_s: np.ndarray | None = None
+    #: The global sums' haze terms: each tile's ``(index, haze_g, haze_s)`` in tile order (:func:`.haze.assemble`).
+    haze_parts: list = field(default_factory=list)
 
     def __post_init__(self):
         if self.index is not None:
@@ -160,6 +166,15 @@ class PassSums:
         part's images must be among them.
         """
         at = part.index if self.index is None else np.searchsorted(self.index, part.index)
+        if part.haze_g is not None:
+            if self.index is None:
+                self.haze_parts.append((part.index, part.haze_g, part.haze_s))
+            else:
+                at2 = np.stack([2 * at, 2 * at + 1], axis=1).reshape(-1)
+                if self.haze_g is None:
+                    self.haze_g, self.haze_s = np.zeros(2 * self.n_images), np.zeros((2 * self.n_images,) * 2)
+                self.haze_g[at2] += part.haze_g
+                self.haze_s[np.ix_(at2, at2)] += part.haze_s
         self.q += part.q
         np.add.at(self.exp_num, at, part.exp_num)
         np.add.at(self.exp_den, at, part.exp_den)

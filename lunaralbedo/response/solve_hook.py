@@ -41,6 +41,23 @@ def known_exposures(path: str | Path, keys: list[str]) -> np.ndarray:
     return np.array([table[k] for k in keys], np.float64)
 
 
+def given_exposures(settings, exposure_times, keys: list[str]) -> tuple[str, np.ndarray | None]:
+    """The exposure mode and the given exposures: ``--exposure-times FILE`` (fixed), else EXPOSURE_MODE with
+    EXPOSURE_FILE (``fixed``/``prior`` without a file: every exposure 1, the calibrated I/F case)."""
+    if exposure_times is not None:
+        return "fixed", known_exposures(exposure_times, keys)
+    mode = settings.exposure_mode
+    if mode == "solve":
+        return mode, None
+    f = settings.exposure_file
+    if f is None:
+        return mode, np.ones(len(keys))
+    try:
+        return mode, known_exposures(f, keys)
+    except InputError as exc:
+        raise InputError(f"EXPOSURE_FILE {exc}") from None
+
+
 def lut_digest(lut: np.ndarray | None) -> str | None:
     return None if lut is None else hashlib.sha256(np.nan_to_num(lut, nan=-1).astype(np.float32).tobytes()).hexdigest()[:16]
 

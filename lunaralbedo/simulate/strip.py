@@ -34,7 +34,7 @@ from ..model import geometry
 from ..model import photometry
 from ..model.cast_shadows import cast_shadow_mask, shadow_reach_km
 from ..settings import legacy_text, model_entry
-from . import forward
+from . import defects, forward
 from .fields import truth_albedo, truth_dem
 from .truth import render_into, write_truth
 
@@ -72,6 +72,9 @@ class SceneSpec:
     film_contrast: float = 0.0  # > 0: DN through the S-shaped film curve of response.synthetic (seed 002)
     film_mid: float = 0.5  # exposure A*T*R at the curve's mid point
     misregister_px: float = 0.0  # each DRG's stated georeference off by up to this many pixels east and north
+    haze_dn: tuple[float, float] = (0.0, 0.0)  # additive haze per image, uniform in this range, DN (simulate.defects)
+    outlier_fraction: float = 0.0  # fraction of each image's pixels in hot spots and dropout rows (simulate.defects)
+    calibrated: bool = False  # float32 I/F DRGs (A R + noise / gain, haze / gain), every exposure 1
 
     @classmethod
     def centred(cls, lon_center: float, lat_center: float = 0.0, **kwargs) -> "SceneSpec":
@@ -90,6 +93,11 @@ class SceneSpec:
             if bad:
                 rng = f"{'>' if lo_open else '>='} {lo:g}" + (f" and < {hi:g}" if hi is not None else "")
                 raise InputError(f"{option} ({name}) must be a number {rng}, got {v!r}")
+        lo, hi = self.haze_dn
+        if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo <= hi):
+            raise InputError(f"--haze (haze_dn) must be LO:HI DN with 0 <= LO <= HI, got {lo!r}:{hi!r}")
+        if not 0 <= self.outlier_fraction < 0.5:
+            raise InputError(f"--outliers (outlier_fraction) must be a number >= 0 and < 0.5, got {self.outlier_fraction!r}")
         if self.width_px * self.res_deg > 360.0 or self.lat0 < -90.0 or self.lat0 + self.image_px * self.res_deg > 90.0:
             raise InputError(f"--res/--size/--images: the strip ({self.width_px} x {self.image_px} pixels of "
                              f"{self.res_deg:g} deg from lon {self.lon0:g}, lat {self.lat0:g}) does not fit on the Moon")
@@ -233,6 +241,10 @@ def _render(out: Path, spec: SceneSpec) -> dict:
     _write_field(out / "truth" / "albedo.tif", albedo_fn, gt @ Affine.translation(m, m), (height, width))
     u = np.linspace(-1, 1, spec.n_images)
     exposures = 1.0 + spec.exposure_spread * rng.permutation(u)
+    if spec.calibrated:  # I/F: the calibration took the exposure out
+        exposures = np.ones(spec.n_images)
+    defect_rng = np.random.default_rng(spec.seed + 1000)  # its own stream: a clean scene draws as before
+    haze = defect_rng.uniform(*spec.haze_dn, spec.n_images) if spec.haze_dn[1] > 0 else np.zeros(spec.n_images)
     # Scale so the brightest pixels stay below 255: DN = gain * A * T * R.
     gain = spec.gain
     model, model_files = photometry.get(spec.reflectance_type), {}
@@ -268,8 +280,16 @@ def _render(out: Path, spec: SceneSpec) -> dict:
             from ..response.synthetic import FilmCurve
 
             film = FilmCurve(k=spec.film_contrast, x0=spec.film_mid)
-        dn = forward.to_dn(forward.exposure_signal(albedo_fn(lon, lat), exposures[k], r), gain, spec.noise_dn, rng, film)
-        alpha = np.full(dn.shape, 255, np.uint8)
+        signal = forward.exposure_signal(albedo_fn(lon, lat), exposures[k], r)
+        if spec.outlier_fraction > 0 or haze[k] > 0:  # in DN: outliers, then the image's haze
+            factors = defects.outlier_factors(signal.shape, spec.outlier_fraction, defect_rng)
+            signal = (defects.apply_outliers(gain * signal, factors) + haze[k]) / gain
+        if spec.calibrated:
+            dn = defects.calibrated(signal, spec.noise_dn / gain, rng)
+            alpha = np.ones(dn.shape, np.float32)
+        else:
+            dn = forward.to_dn(signal, gain, spec.noise_dn, rng, film)
+            alpha = np.full(dn.shape, 255, np.uint8)
         transform = Affine.translation(stated[k, 0] * res, stated[k, 1] * res) @ transform  # where the file says it is
         if spec.wrap_lon and transform.c >= 180.0:  # the file says -180..-170 for 180..190
             transform = Affine.translation(-360.0, 0.0) @ transform
@@ -292,7 +312,7 @@ def _render(out: Path, spec: SceneSpec) -> dict:
             "TILE_SIZE": spec.tile_size,
             "SIMULATION_BOX": box,
             **model_entry(model),  # REFLECTANCE_TYPE, or REFLECTANCE for a model without a legacy code
-            "SHADOW_THRESH": spec.shadow_thresh,
+            "SHADOW_THRESH": spec.shadow_thresh / gain if spec.calibrated else spec.shadow_thresh,
             "SHADOW_TYPE": 1,
             "TR_CONST": 1.5,
             "PHASE_COEFF_C1": spec.c1,
@@ -301,6 +321,7 @@ def _render(out: Path, spec: SceneSpec) -> dict:
             "USE_WEIGHTS": 1,
             "USE_NORMALIZED_COST_FUN": spec.use_normalized_cost_fun,
             "COMPUTE_ERRORS": 1,
+            **({"EXPOSURE_MODE": "fixed"} if spec.calibrated else {}),
             **model_files,
         },
         f"Synthetic scene rendered by lunaralbedo.simulate (seed {spec.seed})",
@@ -311,6 +332,7 @@ def _render(out: Path, spec: SceneSpec) -> dict:
              "gain": gain, "spec": asdict(spec),
              "images": {key: {"exposure": float(exposures[k]), "sun_km": sun_pos[key].tolist(),
                               "spacecraft_km": sc_pos[key].tolist(), "drg": f"DRG/{key}_drg.tif",
+                              "haze": float(haze[k]) / (gain if spec.calibrated else 1.0),
                               **offset_truth(stated[k], res, spec.lat0 + height * res / 2)}
                         for k, key in enumerate(keys)}}
     write_truth(out, truth)

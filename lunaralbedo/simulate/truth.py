@@ -107,7 +107,11 @@ def score(result_dir: str | Path, scene_dir: str | Path) -> dict:
         ``albedo_rel_rmse`` (RMS of :math:`(s\\,a - t)/t` over the pixels with both a
         solved and a true albedo), ``exposure_max_rel_err`` (largest relative exposure
         error), ``coverage`` (fraction of the truth grid with a solved and a true albedo)
-        and ``images_compared`` (images in both the truth and ``exposure.csv``).
+        and ``images_compared`` (images in both the truth and ``exposure.csv``);
+        ``albedo_rel_p99`` (99th percentile of the scaled relative error's magnitude),
+        ``albedo_ratio_median`` and ``albedo_rel_rms_unscaled`` (solved / true albedo with no
+        scale fitted: physical units); with a ``haze.csv`` in the results, ``haze_max_abs_err``
+        (largest haze error, DRG units).
 
     Raises
     ------
@@ -138,9 +142,26 @@ def score(result_dir: str | Path, scene_dir: str | Path) -> dict:
     te = np.array([true_exp[k] for k in keys])
     ratio = np.array([est[k] for k in keys]) / te
     ratio /= np.exp(np.mean(np.log(ratio)))
+    extra = {}
+    if (result_dir / "haze.csv").exists():
+        solved_haze = _read_key_csv(result_dir / "haze.csv", "haze")
+        extra["haze_max_abs_err"] = max(abs(solved_haze[k] - float(truth["images"][k].get("haze", 0.0))) for k in solved_haze)
+    raw = a[ok] / ta[ok]
     return {
+        **extra,
+        "albedo_rel_p99": float(np.percentile(np.abs(rel), 99)),
+        "albedo_ratio_median": float(np.median(raw)),
+        "albedo_rel_rms_unscaled": float(np.sqrt(np.mean((raw - 1) ** 2))),
         "albedo_rel_rmse": float(np.sqrt(np.mean(rel**2))),
         "exposure_max_rel_err": float(np.max(np.abs(ratio - 1))),
         "coverage": float(ok.mean()),
         "images_compared": len(keys),
     }
+
+
+def _read_key_csv(path: Path, column: str) -> dict[str, float]:
+    """``{key: value}`` of one column of a ``key,...`` CSV written by ``solve``."""
+    import csv
+
+    with open(path, newline="") as f:
+        return {row["key"]: float(row[column]) for row in csv.DictReader(f)}

@@ -94,6 +94,19 @@
         [plot(exposures.map((_, i) => i + 1), exposures.map(r => r.exposure), 'image (exposure.csv order)', 'exposure'),
          table(['key', 'exposure', 'initial', 'change %'], rows)], true));
     }
+    if (report.haze) {  // FLOAT_HAZE 1: each image's additive haze (haze.csv), beside the exposures
+      const keys = Object.keys(report.haze);
+      const bad = new Set(report.haze_inseparable || []);
+      parts.push(section('haze', `Haze (${keys.length} images, DRG units)`,
+        [plot(keys.map((_, i) => i + 1), keys.map(k => report.haze[k]), 'image (exposure.csv order)', 'haze'),
+         table(['key', 'haze', 'separable from the exposure'], keys.map(k => [k, report.haze[k], bad.has(k) ? 'NO' : 'yes']))], true));
+    }
+    if (report.outliers) {  // the robust weights: per image the observations rejected or down-weighted
+      const im = report.outliers.images;
+      parts.push(section('outliers', `Outliers (${(100 * report.outliers.rejected_fraction).toFixed(3)} % rejected)`,
+        table(['key', 'observations', 'rejected %', 'down-weighted %'], Object.keys(im).map(k =>
+          [k, im[k].observations, (100 * im[k].rejected_fraction).toFixed(3), (100 * im[k].downweighted_fraction).toFixed(3)])), false));
+    }
     if (q.length) {
       parts.push(section('cost', 'Q per iteration', [plot(q.map((_, i) => i + 1), q, 'iteration', 'Q'),
         table(['iteration', 'Q'], q.map((v, i) => [i + 1, v]))], true));

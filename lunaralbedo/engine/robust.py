@@ -1,0 +1,197 @@
+"""The outlier pass: each tile's observations get robust weights (:mod:`lunaralbedo.model.outliers`).
+
+A *reweight pass* maps :func:`reweight_tile` over the tiles before the first iteration and
+again after a few (:data:`SCHEDULE`), with the current exposures, haze and model parameters.
+Each block of a tile gets an effective weight per observation, :math:`m\\,w` (0: rejected by
+the spatial test; below 1: down-weighted by the robust loss), saved in the tile's cache
+entry as ``robust_<generation>/block_<i>.npy`` (atomic); the iterate and finalise tasks read
+the generation the state names (:func:`.tilework.effective_weights`), so the albedo,
+exposure, phase and error updates all use them.  Everything is computed per tile from the
+tile's own observations in a fixed order: the same bytes for any number of workers.  The
+generation is part of the checkpoint, so ``--resume`` reads the same weights.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..io.atomic import atomic_path
+from ..io.cache import load_meta
+from ..model import exposure_init, outliers
+from . import runs
+from .scene import Scene
+from .tilework import SolveState, cache_dir, effective_weights, pixel_stack, tile_model
+
+#: Reweight passes run before these iterations (0: before the first; counted from 0).  The second (IRLS with
+#: the settled albedo) runs only where the robust loss applies: pixels with three or more images remain.
+SCHEDULE = (0, 2)
+
+
+def passes(settings, ck: dict) -> tuple[int, ...]:
+    """The reweight schedule of a run (:data:`SCHEDULE`; none when it does not reweight, one when the first pass
+    found no observation the robust loss applies to)."""
+    if not enabled(settings):
+        return ()
+    if ck.get("robust", 0) >= 1 and not ck.get("loss_observations"):
+        return SCHEDULE[:1]
+    return SCHEDULE
+
+
+def enabled(settings) -> bool:
+    """True when the solve reweights (REJECT_OUTLIERS 1 or a robust loss)."""
+    return bool(settings.reject_outliers) or settings.robust_loss != "none"
+
+
+def weights_path(block: Path, gen: int) -> Path:
+    """The file of a block's effective weights of generation ``gen`` (``block``: its cache folder)."""
+    return block.parent / f"robust_{gen}" / f"{block.name}.npy"
+
+
+def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, gen: int, pairs: bool = False) -> dict:
+    """Write generation ``gen`` of the effective weights of tile ``t``'s blocks; return per local image the
+    counts of used, rejected and down-weighted (sum of 1 - m) observations, and with ``pairs`` the overlap
+    log-ratio sums of the observations kept (:func:`lunaralbedo.model.exposure_init.pair_sums`), for the
+    exposures to be initialised again without the outliers."""
+    folder = cache_dir(cache_root, scene, t)
+    meta = load_meta(folder)
+    idx = np.asarray(meta["index"], np.int32)
+    width = scene.tiles[t].width
+    counts = np.zeros((3, len(idx)))
+    pair_totals: dict = {}
+    loss_obs = 0
+    for i in range(len(meta["blocks"])):
+        block = folder / f"block_{i:04d}"
+        arrays = pixel_stack(block, cache_root)
+        if not len(arrays["index"]):
+            continue
+        w_prev = effective_weights(block, arrays, state.robust)
+        w_new, c, n_loss, kept = block_weights(arrays, scene, state, w_prev, width)
+        loss_obs += n_loss
+        if pairs:
+            exposure_init.merge_pair_sums(pair_totals, _kept_pairs(arrays, *kept, width))
+        pos = {k: j for j, k in enumerate(idx.tolist())}
+        counts[:, [pos[k] for k in np.asarray(arrays["index"]).tolist()]] += c
+        path = weights_path(block, gen)
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as f:
+                np.save(f, w_new, allow_pickle=False)
+    return {"index": idx, "counts": counts, "pairs": sorted(pair_totals.items()), "loss_observations": loss_obs}
+
+
+def _kept_pairs(arrays: dict, value, r, keep, width: int) -> dict:
+    """Overlap log-ratio sums ``{(j, k): (n, sum d)}`` of a block's kept observations (``value``: haze-subtracted)."""
+    img, pix = runs.observation_images(arrays), runs.observation_pixels(arrays)
+    sel = np.flatnonzero(keep & (value > 0))
+    sel = sel[np.argsort(img[sel], kind="stable")]  # image-major; each image's pixels ascend in the runs' order
+    start = np.searchsorted(img[sel], np.arange(len(arrays["index"]) + 1))
+    return exposure_init.pair_sums(pix[sel], start, value[sel].astype(np.float32), r[sel], np.asarray(arrays["index"]), width)
+
+
+def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndarray, width: int):
+    """The effective weights of one block (float32), its ``(3, local images)`` counts (used, rejected, down-weighted),
+    the observations the robust loss applies to, and ``(values less haze, R, kept)`` per observation."""
+    s = scene.settings
+    base = np.asarray(arrays["weight"], np.float32)
+    r, w_lit, texp = tile_model(scene, arrays, state)
+    img = runs.observation_images(arrays)
+    pix = runs.observation_pixels(arrays)
+    haze = state.haze_of(arrays["index"])[img] if state.haze is not None else 0.0
+    signal = np.asarray(arrays["image"], np.float64) - haze
+    tr = texp[img].astype(np.float64) * r
+    used = (np.asarray(w_lit) > 0) & (tr > 0)
+    n_img = len(arrays["index"])
+    flag = np.zeros(len(base), bool)
+    if s.reject_outliers and state.robust:  # the spatial test ran in the first pass: its rejections stay
+        flag = used & (np.asarray(w_prev) == 0) & (base > 0)
+    elif s.reject_outliers:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            loga = np.where(used, np.log(np.maximum(signal, 1e-6) / tr), np.nan)
+        e = np.full(len(base), np.nan)
+        tau = np.zeros(len(base))
+        order = np.argsort(img, kind="stable")  # image by image
+        bounds = np.searchsorted(img[order], np.arange(n_img + 1))
+        for k in range(n_img):
+            sel = order[bounds[k]:bounds[k + 1]]
+            sel = sel[used[sel]]
+            if not len(sel):
+                continue
+            row, col = pix[sel] // width, pix[sel] % width
+            r0, c0 = row.min(), col.min()
+            raster = np.full((row.max() - r0 + 1, col.max() - c0 + 1), np.nan)
+            raster[row - r0, col - c0] = loga[sel]
+            e[sel], tau[sel] = outliers.neighbourhood_deviation(raster, row - r0, col - c0)
+        flag = outliers.spatial_outliers(e, pix, tau)
+    keep = used & ~flag
+    m, n_loss = np.ones(len(base)), 0
+    if s.robust_loss != "none":
+        m, n_loss = _loss_factors(arrays, signal, tr, keep, base, w_prev, pix, img, n_img, s)
+    w_new = np.where(flag, 0.0, base * m).astype(np.float32)
+    counts = np.stack([np.bincount(img, used, n_img), np.bincount(img, used & flag, n_img),
+                       np.bincount(img, np.where(keep, 1.0 - m, 0.0), n_img)])
+    return w_new, counts, n_loss, (signal, r, keep)
+
+
+def _loss_factors(arrays, signal, tr, keep, base, w_prev, pix, img, n_img, s) -> np.ndarray:
+    """The robust loss's IRLS factors m (1 where fewer than three images remain on a pixel) and how many observations
+    it applies to."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        m_prev = np.where(base > 0, np.asarray(w_prev, np.float64) / base, 0.0)
+    w = np.where(keep, base * m_prev, 0.0)
+    m = np.ones(len(base))
+    inv = pix
+    many = keep & (np.bincount(inv, keep.astype(np.float64))[inv] >= outliers.MIN_IMAGES_FOR_LOSS)
+    if np.count_nonzero(many) < outliers.MIN_SCALE_OBS:
+        return m, 0
+    albedo = np.bincount(inv, signal * tr * w) / np.maximum(np.bincount(inv, tr * tr * w), 1e-300)
+    res = signal - albedo[inv] * tr
+    pooled = outliers.robust_sigma(res[many])
+    for k in range(n_img):
+        sel = many & (img == k)
+        if not sel.any():
+            continue
+        scale = outliers.robust_sigma(res[sel]) if np.count_nonzero(sel) >= outliers.MIN_SCALE_OBS else pooled
+        if scale > 0:
+            m[sel] = outliers.loss_weights(res[sel] / scale, s.robust_loss, s.robust_threshold)
+    return m, int(np.count_nonzero(many))
+
+
+def reweight_pass(on_tiles, threads: int, scene: Scene, state: SolveState, ck: dict, reinit: bool) -> SolveState:
+    """A reweight pass over the tiles (``on_tiles``: the solve's map over them): the next generation of robust
+    weights, their per-image counts into the checkpoint ``ck``; with ``reinit`` (after the first pass) the
+    exposures initialised again from the overlaps of the observations kept."""
+    gen = ck["robust"] + 1
+    init = gen == 1 and reinit  # the overlaps' exposures again, without the rejected observations
+    parts = on_tiles(reweight_tile, f"outliers {gen}", state=state, gen=gen, pairs=init, threads=threads)
+    counts = np.zeros((3, len(scene.images)))
+    pairs: dict = {}
+    for p in parts:  # fixed tile order
+        np.add.at(counts.T, p["index"], p["counts"].T)
+        exposure_init.merge_pair_sums(pairs, {tuple(k): tuple(v) for k, v in p["pairs"]})
+    t = exposure_init.overlap_exposure(pairs, np.log(state.exposure)) if init else state.exposure
+    ck.update(robust=gen, reweight_now=False, outliers=counts.tolist(), exposure=np.asarray(t).tolist(),
+              loss_observations=sum(int(p["loss_observations"]) for p in parts))
+    return SolveState(np.asarray(t, np.float64), state.params, robust=gen, haze=state.haze)
+
+
+def drop_generation(cache_root: Path, gen: int) -> None:
+    """Delete every tile's effective weights of generation ``gen`` (superseded and checkpointed)."""
+    import shutil
+
+    if gen <= 0:
+        return
+    for d in Path(cache_root).glob(f"*/robust_{gen}"):
+        shutil.rmtree(d, ignore_errors=True)
+
+
+def report(keys: list[str], counts, passes: int) -> dict | None:
+    """``report.json``'s ``outliers``: per image its used observations and the fractions rejected by the spatial
+    test and taken away by the robust loss (sum of 1 - m over the used ones), after the last reweight pass."""
+    if counts is None:
+        return None
+    used, rejected, down = (np.asarray(c, np.float64) for c in counts)
+    frac = lambda x, n: round(float(x / n), 6) if n else 0.0  # noqa: E731
+    return {"reweight_passes": passes,
+            "rejected_fraction": frac(rejected.sum(), used.sum()),
+            "images": {k: {"observations": int(n), "rejected_fraction": frac(r, n), "downweighted_fraction": frac(d, n)}
+                       for k, n, r, d in zip(keys, used, rejected, down)}}

@@ -1,0 +1,116 @@
+"""Outliers are rejected by default: hot spots and dropout rows of a forward-model strip, and the robust loss."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+
+from lunaralbedo.cli import main
+from lunaralbedo.engine.solve import solve
+from lunaralbedo.model import outliers
+from lunaralbedo.simulate import SceneSpec, render_scene, score
+
+
+def _with(settings_file, path, **keys):
+    lines = [ln for ln in settings_file.read_text().splitlines() if ln.split()[:1] not in ([k] for k in keys)]
+    path.write_text("\n".join(lines + [f"{k} {v}" for k, v in keys.items()]) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def dirty(tmp_path_factory):
+    d = tmp_path_factory.mktemp("outlier_strip")
+    render_scene(d, SceneSpec(outlier_fraction=0.01, seed=17))
+    return d
+
+
+def test_one_percent_outliers_with_default_settings_recover_the_truth(dirty, tmp_path):
+    res = solve(dirty / "settings.txt", out=tmp_path / "out", workers=1, plots=False)
+    sc = score(tmp_path / "out", dirty)
+    assert sc["albedo_rel_rmse"] <= 0.022 and sc["albedo_rel_p99"] <= 0.08, sc
+    assert sc["exposure_max_rel_err"] <= 0.01 and sc["coverage"] > 0.95, sc
+    rep = res.report["outliers"]
+    # about the 1 % planted in each image (hot spots and dropout rows), a little more at their resampled edges
+    for key, im in rep["images"].items():
+        assert 0.007 <= im["rejected_fraction"] <= 0.03, (key, im)
+    tiles = sorted((tmp_path / "out" / "outliers").glob("*.tif"))
+    assert tiles and len(tiles) == len(res.tiles)
+    with rasterio.open(tiles[0]) as ds:
+        frac = ds.read(1)
+    assert ds.dtypes[0] == "float32" and np.nanmax(frac) == 1.0 and 0.002 < np.nanmean(frac) < 0.03
+
+
+def test_without_rejection_the_outliers_spoil_the_albedo(dirty, tmp_path):
+    off = _with(dirty / "settings.txt", dirty / "off.txt", REJECT_OUTLIERS=0, ROBUST_LOSS="none")
+    res = solve(off, out=tmp_path / "out", workers=1, plots=False)
+    sc = score(tmp_path / "out", dirty)
+    assert sc["albedo_rel_rmse"] > 0.05 and sc["albedo_rel_p99"] > 0.2, sc  # what the default removes
+    assert res.report["outliers"] is None and not (tmp_path / "out" / "outliers").exists()
+
+
+def test_the_clean_strip_does_not_get_worse(tmp_path):
+    d = tmp_path / "clean"
+    render_scene(d, SceneSpec(seed=17))
+    solve(d / "settings.txt", out=tmp_path / "on", workers=1, plots=False)
+    off = _with(d / "settings.txt", d / "off.txt", REJECT_OUTLIERS=0, ROBUST_LOSS="none")
+    solve(off, out=tmp_path / "off", workers=1, plots=False)
+    on, plain = score(tmp_path / "on", d), score(tmp_path / "off", d)
+    assert on["albedo_rel_rmse"] <= 0.0185 and on["albedo_rel_rmse"] <= plain["albedo_rel_rmse"] + 2e-4, (on, plain)
+    rep = json.loads((tmp_path / "on" / "report.json").read_text())["outliers"]
+    assert rep["rejected_fraction"] < 0.001, rep
+
+
+def test_robust_loss_down_weights_where_three_images_overlap(tmp_path):
+    d = tmp_path / "three"
+    render_scene(d, SceneSpec(overlap=0.7, outlier_fraction=0.01, n_images=5, seed=19))
+    res = solve(_with(d / "settings.txt", d / "huber.txt", ROBUST_LOSS="huber", ROBUST_THRESHOLD=2.0),
+                out=tmp_path / "out", workers=1, plots=False)
+    sc = score(tmp_path / "out", d)
+    assert sc["albedo_rel_rmse"] <= 0.022 and sc["albedo_rel_p99"] <= 0.08, sc
+    down = [im["downweighted_fraction"] for im in res.report["outliers"]["images"].values()]
+    assert min(down) > 0.0, res.report["outliers"]
+
+
+def test_nan_median_filter_is_the_median_of_the_valid_neighbours():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(20, 30))
+    x[rng.random(x.shape) < 0.2] = np.nan
+    got = outliers.nan_median_filter(x, 5)
+    for i, j in [(10, 10), (5, 17), (0, 0), (19, 29), (2, 28)]:
+        win = x[max(0, i - 2):i + 3, max(0, j - 2):j + 3]
+        v = np.sort(win[np.isfinite(win)])
+        if len(v) * 2 < 25:
+            assert np.isnan(got[i, j])
+        else:
+            lo, hi = v[12 - (25 - len(v))], v[12]  # the ranks from below and from above
+            assert got[i, j] == pytest.approx(0.5 * (lo + hi))
+            assert v[0] <= got[i, j] <= v[-1]
+
+
+def test_spatial_test_rejects_the_deviant_image_and_keeps_a_feature_both_see():
+    # pixel 0: image 0 is a hot spot (e = 0.7), image 1 sees the usual (0.01); pixel 1: both see a bright crater
+    e = np.array([0.7, 0.01, 0.6, 0.62, 0.9])
+    pixel = np.array([0, 0, 1, 1, 2])  # pixel 2: one image alone, far out
+    tau = np.full(5, 0.15)
+    assert outliers.spatial_outliers(e, pixel, tau).tolist() == [True, False, False, False, True]
+
+
+def test_loss_weights():
+    u = np.array([0.0, 1.0, 3.0, -6.0])
+    assert outliers.loss_weights(u, "cauchy", 3.0) == pytest.approx([1.0, 0.9, 0.5, 0.2])
+    assert outliers.loss_weights(u, "huber", 3.0) == pytest.approx([1.0, 1.0, 1.0, 0.5])
+    assert outliers.loss_weights(u, "none", 3.0) == pytest.approx([1.0] * 4)
+
+
+@pytest.mark.parametrize("key,value,needle", [("ROBUST_LOSS", "tukey", "ROBUST_LOSS must be one of cauchy, huber, none"),
+                                              ("ROBUST_THRESHOLD", "-1", "ROBUST_THRESHOLD must be a number > 0"),
+                                              ("REJECT_OUTLIERS", "2", "REJECT_OUTLIERS must be one of 0, 1")])
+def test_bad_robust_settings_exit_2_naming_the_key(tmp_path, key, value, needle):
+    d = tmp_path / "scene"
+    render_scene(d, SceneSpec(n_images=2, image_px=40, seed=3))
+    s = _with(d / "settings.txt", d / "bad.txt", **{key: value})
+    res = CliRunner().invoke(main, ["solve", str(s), "-o", str(tmp_path / "o"), "--workers", "1", "--quiet"])
+    assert res.exit_code == 2 and needle in res.output and "Traceback" not in res.output, res.output
