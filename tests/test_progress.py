@@ -36,7 +36,9 @@ def test_row_bar_moves_block_by_block(tmp_path, monkeypatch):
                             plots=False, tolerance=0, runtime=lunaralbedo.Runtime(block_rows=7))
     names = [p[0] for p in rec.passes]
     assert names[0] == "prepare" and names[-1] == "write tiles" and names.count("iteration 1") == 1
-    assert len(names) == 2 + res.iterations
+    reweights = [n for n in names if n.startswith("outliers")]  # the robust weights' passes (engine/robust.py)
+    assert len(reweights) == res.report["outliers"]["reweight_passes"] >= 1
+    assert len(names) == 2 + res.iterations + len(reweights)
     for desc, total, steps in rec.passes:
         assert sum(steps) == total, desc  # every row of every tile, once per pass
         assert len(steps) >= total // 7 and max(steps) <= 7, desc  # a step per block, not per tile
