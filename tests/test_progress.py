@@ -29,7 +29,9 @@ def test_row_bar_moves_block_by_block(tmp_path, monkeypatch):
     import lunaralbedo.engine.solve as solve
     import lunaralbedo.engine.tilework as tilework
 
-    for mod in (prepare, solve, tilework):
+    import lunaralbedo.engine.robust as robust
+
+    for mod in (prepare, solve, tilework, robust):
         monkeypatch.setattr(mod, "ROWS", rec)
     # blocks of 7 rows, as a tile over the memory budget is done
     res = lunaralbedo.solve(tmp_path / "scene" / "settings.txt", out=tmp_path / "out", workers=1, progress=True,

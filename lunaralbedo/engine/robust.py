@@ -19,6 +19,7 @@ import numpy as np
 from ..io.atomic import atomic_path
 from ..io.cache import load_meta
 from ..model import exposure_init, outliers
+from ..parallel.progress import ROWS
 from . import runs
 from .scene import Scene
 from .tilework import SolveState, cache_dir, effective_weights, pixel_stack, tile_model
@@ -60,9 +61,10 @@ def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, 
     counts = np.zeros((3, len(idx)))
     pair_totals: dict = {}
     loss_obs = 0
-    for i in range(len(meta["blocks"])):
+    for i, (b0, b1) in enumerate(meta["blocks"]):
         block = folder / f"block_{i:04d}"
         arrays = pixel_stack(block, cache_root)
+        ROWS.advance(b1 - b0)
         if not len(arrays["index"]):
             continue
         w_prev = effective_weights(block, arrays, state.robust)
