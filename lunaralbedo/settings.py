@@ -50,6 +50,15 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     "COMPUTE_ERRORS": (int, 1, (0, 1)),
     "CAST_SHADOWS": (int, None, (0, 1)),  # None: on whenever the model uses a DEM
     "REFLECTANCE": (str, None, None),  # the model by name (TOML); wins over REFLECTANCE_TYPE; allowed: the registry's names
+    # shape from shading (docs/sfs.md): the DEM's heights refined with the albedo
+    "REFINE_DEM": (int, 0, (0, 1)),
+    "REFINE_DEM_ROUNDS": (int, 2, None),  # outer rounds: albedo solve, then heights, then albedo again
+    "REFINE_DEM_SMOOTHNESS": (float, 0.01, None),  # mu, on the change of slope between pixels
+    "REFINE_DEM_FIDELITY": (float, 0.1, None),  # lambda, on the smoothed heights minus the input's
+    "REFINE_DEM_INPUT_BLUR": (float, None, None),  # sigma (pixels) of the input DEM's resolution; None: from its pixel
+    "REFINE_DEM_MARGIN": (int, 16, None),  # pixels of overlap around each tile's heights
+    "REFINE_DEM_LEVELS": (int, 2, None),  # coarse to fine: levels of a factor 2
+    "REFINE_DEM_MAX_ITER": (int, 100, None),  # L-BFGS iterations per level and tile
 }
 
 
@@ -91,6 +100,14 @@ class Settings:
     use_normalized_cost_fun: int = 0
     compute_errors: int = 1
     cast_shadows: int | None = None
+    refine_dem: int = 0
+    refine_dem_rounds: int = 2
+    refine_dem_smoothness: float = 0.01
+    refine_dem_fidelity: float = 0.1
+    refine_dem_input_blur: float | None = None
+    refine_dem_margin: int = 16
+    refine_dem_levels: int = 2
+    refine_dem_max_iter: int = 100
     #: Values of the model-declared keys, ``((LEGACY_KEY, value), ...)``; read as attributes (``s.phase_coeff_c1``).
     model_settings: tuple[tuple[str, Any], ...] = ()
     source: Path | None = field(default=None, compare=False)
@@ -249,6 +266,19 @@ def _validate(values: dict[str, Any], where: str) -> None:
                 )
     if model.validate is not None:
         model.validate(values, where)
+    _validate_refine(values, where, model)
+
+
+def _validate_refine(values: dict[str, Any], where: str, model) -> None:
+    """The REFINE_DEM_* keys (docs/sfs.md)."""
+    if values["REFINE_DEM"] and not model.needs_geometry:
+        raise SettingsError(f"{where}: REFINE_DEM 1 needs a reflectance model with a DEM (not mosaic mode)")
+    for key, lo in (("REFINE_DEM_ROUNDS", 1), ("REFINE_DEM_MARGIN", 4), ("REFINE_DEM_LEVELS", 1), ("REFINE_DEM_MAX_ITER", 1)):
+        if values[key] < lo:
+            raise SettingsError(f"{where}: {key} must be >= {lo}, got {values[key]}")
+    for key in ("REFINE_DEM_SMOOTHNESS", "REFINE_DEM_FIDELITY", "REFINE_DEM_INPUT_BLUR"):
+        if values[key] is not None and not 0 <= values[key] < float("inf"):
+            raise SettingsError(f"{where}: {key} must be a number >= 0, got {values[key]}")
 
 
 def _build(pairs: list[tuple[str, Any, str]], base: Path, source: Path) -> Settings:

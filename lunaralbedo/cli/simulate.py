@@ -9,7 +9,8 @@ from ._common import reports_errors
 
 #: Options of the DRG strip that the ISIS mission does not take.
 _STRIP_ONLY = {"image_px": "--size", "res_deg": "--res", "exposure_spread": "--spread", "reflectance_type": "--reflectance",
-               "tile_size": "--tile-size", "noise_dn": "--noise"}
+               "tile_size": "--tile-size", "noise_dn": "--noise", "fresh_craters": "--craters", "dem_blur_px": "--dem-blur",
+               "sun_azimuths": "--azimuths", "overlap": "--overlap"}
 
 
 @click.command("simulate")
@@ -25,6 +26,15 @@ _STRIP_ONLY = {"image_px": "--size", "res_deg": "--res", "exposure_spread": "--s
               help="REFLECTANCE_TYPE of the photometric model (drg; isis is Lunar-Lambertian).")
 @click.option("--tile-size", type=float, default=1.0, show_default=True, help="TILE_SIZE of the written settings (degrees; drg).")
 @click.option("--noise", "noise_dn", type=float, default=1.0, show_default=True, help="Gaussian noise, DN (drg).")
+@click.option("--craters", "fresh_craters", type=float, default=0.0, show_default=True,
+              help="Rough terrain: small fresh bowl craters (0.6-2.4 km radius) per square degree (drg).")
+@click.option("--dem-blur", "dem_blur_px", type=float, default=0.0, show_default=True,
+              help="Give a blurred DEM: DEM/ holds the true heights blurred by a Gaussian of this sigma in pixels, "
+                   "truth/dem.tif the true heights (drg; for REFINE_DEM).")
+@click.option("--azimuths", "sun_azimuths", type=str, default="90", show_default=True,
+              help="Sun azimuths in degrees clockwise from north, comma-separated, cycled over the images (drg).")
+@click.option("--overlap", type=float, default=0.5, show_default=True,
+              help="Fraction of an image shared with the next (drg; 2/3: each column seen by about 3 images).")
 @click.option("--seed", type=int, default=None, help="Random seed [drg: 7, isis: 20240601, the sample_data mission].")
 @reports_errors
 def command(out_dir, fmt, n_images, seed, **kwargs):
@@ -44,6 +54,10 @@ def command(out_dir, fmt, n_images, seed, **kwargs):
         return
     from ..simulate import SceneSpec, render_scene
 
+    try:
+        kwargs["sun_azimuths"] = tuple(float(a) for a in kwargs["sun_azimuths"].split(","))
+    except ValueError:
+        raise InputError(f"--azimuths: comma-separated numbers (degrees), got {kwargs['sun_azimuths']!r}") from None
     truth = render_scene(out_dir, SceneSpec(n_images=6 if n_images is None else n_images, seed=7 if seed is None else seed,
                                             **kwargs))
     click.echo(f"rendered {len(truth['images'])} images into {out_dir}/ (settings: {out_dir}/settings.txt, truth: {out_dir}/truth/)")

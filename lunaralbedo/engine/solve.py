@@ -55,6 +55,7 @@ RESPONSE_DIR = f"{CHECKPOINT_DIR}/response"  # camera response files (engine/res
 MARKER = ".lunaralbedo"  # written first into every OUTDIR: marks it as ours
 _TILE_DIRS = ("albedo", "error", "DEM", "weightsSum")
 _OUTPUT_DIRS = (*_TILE_DIRS, "weight")
+_REFINE_DIRS = ("sfs", "dem_change", "dem_lit")  # REFINE_DEM 1 (engine/refine.py)
 _RESULT_FILES = ("report.json", "exposure.csv", "phase.csv", "exposure.png", "cost.png",
                  "response.csv", "response.png", "loglik.png", "residuals.png")
 
@@ -94,7 +95,7 @@ def _check_out_dir(out: Path, settings: Settings, resume: bool) -> bool:
 
 def _clear_previous_run(out: Path) -> None:
     """Remove an earlier run's outputs and checkpoint (called once the inputs are known to be good)."""
-    for name in (*_OUTPUT_DIRS, CHECKPOINT_DIR, ".cache"):
+    for name in (*_OUTPUT_DIRS, CHECKPOINT_DIR, ".cache", *_REFINE_DIRS):
         shutil.rmtree(out / name, ignore_errors=True)
     for name in (*_RESULT_FILES, ".state.json"):
         (out / name).unlink(missing_ok=True)
@@ -195,6 +196,14 @@ def solve(
         out.mkdir(parents=True, exist_ok=True)
         (out / MARKER).write_text("lunaralbedo solve output folder\n")
         remove_stale_temporaries(out)
+        if scene.settings.refine_dem:  # shape from shading: rounds of solves and height refinements (engine/refine.py)
+            from .refine import refine_solve
+
+            if response is not None or exposure_times is not None:
+                raise SettingsError("REFINE_DEM 1: not available with --response or --exposure-times")
+            run = lambda sc, folder, extra: _run(sc, folder, method, max_iter, tolerance, executor, resume,  # noqa: E731
+                                                 timings if extra is not None else {}, plots and extra is not None, extra=extra)
+            return refine_solve(scene, out, run, executor, resume)
         return _run(scene, out, method, max_iter, tolerance, executor, resume, timings, plots, (response, exposure_times))
     except (Exception, KeyboardInterrupt) as exc:
         typed = typed_error(exc)
@@ -218,7 +227,7 @@ def _load_checkpoint(out: Path, scene: Scene, method: str, resume: bool) -> dict
     return state
 
 
-def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, resp=(None, None)) -> SolveResult:
+def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, resp=(None, None), extra=None) -> SolveResult:
     s = scene.settings
     cache = out / CACHE_DIR
     ck = _load_checkpoint(out, scene, method, resume)
@@ -285,7 +294,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     timings["finalise"] = time.perf_counter() - t3
     costs = stage_costs(timings, n_obs, ck["iteration"] - resume_info["iterations_done_before"])
     return _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info,
-                              costs)
+                              costs, extra)
 
 
 def stage_costs(timings: dict, n_obs: int | None, passes: int) -> dict:
@@ -331,7 +340,8 @@ def _prepare(on_tiles, executor, lut) -> list:
     return metas
 
 
-def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info, costs):
+def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info, costs,
+                       extra=None):
     keys = scene.keys
     outputs.write_exposure_csv(out / "exposure.csv", keys, state.exposure, t_init)
     names = scene.settings.model.parameters
@@ -360,6 +370,7 @@ def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timi
         "exposure_fixed": bool(ck.get("exposure_fixed")),
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "observations": costs,
+        **(extra or {}),
     }
     _move_tiles_into_place(out)
     move_outputs(out / RESPONSE_DIR, out)

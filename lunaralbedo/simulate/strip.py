@@ -71,6 +71,7 @@ class SceneSpec:
     wrap_lon: bool = False  # DRGs east of 180 deg written at -180..180, SIMULATION_BOX as lon0:east-360
     film_contrast: float = 0.0  # > 0: DN through the S-shaped film curve of response.synthetic (seed 002)
     film_mid: float = 0.5  # exposure A*T*R at the curve's mid point
+    dem_blur_px: float = 0.0  # > 0: DEM/dem.tif is the truth blurred (Gaussian, sigma in pixels); truth/dem.tif the truth
 
     @classmethod
     def centred(cls, lon_center: float, lat_center: float = 0.0, **kwargs) -> "SceneSpec":
@@ -118,6 +119,8 @@ _LIMITS = {
     "tile_size": ("--tile-size", 0.0, None, True),
     "max_num_iter": ("max_num_iter", 1, None, False),
     "altitude_km": ("altitude_km", 0.0, None, True),
+    "dem_blur_px": ("--dem-blur", 0.0, None, False),
+    "fresh_craters": ("--craters", 0.0, None, False),
 }
 
 
@@ -137,6 +140,17 @@ def _write_field(path: Path, fn, transform: Affine, shape: tuple[int, int], noda
                 cw = min(chunk, w - c0)
                 lon, lat = geometry.lonlat_grid(transform @ Affine.translation(c0, 0), (h, cw))
                 dst.write(fn(lon, lat).astype(np.float32), 1, window=Window(c0, 0, cw, h))
+
+
+def _write_blurred(path: Path, fn, transform: Affine, shape: tuple[int, int], sigma_px: float) -> None:
+    """Write ``fn(lon, lat)`` blurred by a Gaussian of ``sigma_px`` pixels (evaluated 4 sigma beyond the grid, so
+    the edges are blurred like the inside)."""
+    from scipy.ndimage import gaussian_filter
+
+    pad = int(np.ceil(4 * sigma_px))
+    lon, lat = geometry.lonlat_grid(transform @ Affine.translation(-pad, -pad), (shape[0] + 2 * pad, shape[1] + 2 * pad))
+    h = gaussian_filter(fn(lon, lat), sigma_px, mode="nearest")[pad:pad + shape[0], pad:pad + shape[1]]
+    write_geotiff(path, h.astype(np.float32), transform, MOON_CRS, nodata=-32767.0)
 
 
 def _sun_and_spacecraft(spec: SceneSpec, k: int, lon_c: float, lat_c: float, rng) -> tuple[np.ndarray, np.ndarray]:
@@ -176,7 +190,11 @@ def _render(out: Path, spec: SceneSpec) -> dict:
     def albedo_fn(lo, la):
         return truth_albedo(lo, la, extent)
 
-    _write_field(out / "DEM" / "dem.tif", dem_fn, gt, (height + 2 * m, width + 2 * m), nodata=-32767.0)
+    if spec.dem_blur_px > 0:  # the given DEM lost the relief finer than the blur; the truth is kept
+        _write_field(out / "truth" / "dem.tif", dem_fn, gt, (height + 2 * m, width + 2 * m), nodata=-32767.0)
+        _write_blurred(out / "DEM" / "dem.tif", dem_fn, gt, (height + 2 * m, width + 2 * m), spec.dem_blur_px)
+    else:
+        _write_field(out / "DEM" / "dem.tif", dem_fn, gt, (height + 2 * m, width + 2 * m), nodata=-32767.0)
     _write_field(out / "truth" / "albedo.tif", albedo_fn, gt @ Affine.translation(m, m), (height, width))
     u = np.linspace(-1, 1, spec.n_images)
     exposures = 1.0 + spec.exposure_spread * rng.permutation(u)
@@ -252,7 +270,8 @@ def _render(out: Path, spec: SceneSpec) -> dict:
     )
     atomic_write_text(out / "settings.txt", settings)
     truth = {"reflectance_type": model.code, **dict(zip(model.parameters, params)), "seed": spec.seed,
-             "albedo": "truth/albedo.tif", "dem": "DEM/dem.tif", "frame": "Moon body-fixed (1737.4 km sphere), km",
+             "albedo": "truth/albedo.tif", "dem": "truth/dem.tif" if spec.dem_blur_px > 0 else "DEM/dem.tif",
+             "frame": "Moon body-fixed (1737.4 km sphere), km",
              "gain": gain, "spec": asdict(spec),
              "images": {key: {"exposure": float(exposures[k]), "sun_km": sun_pos[key].tolist(),
                               "spacecraft_km": sc_pos[key].tolist(), "drg": f"DRG/{key}_drg.tif"}
