@@ -59,6 +59,7 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     "REFINE_DEM_MARGIN": (int, 16, None),  # pixels of overlap around each tile's heights
     "REFINE_DEM_LEVELS": (int, 2, None),  # coarse to fine: levels of a factor 2
     "REFINE_DEM_MAX_ITER": (int, 100, None),  # L-BFGS iterations per level and tile
+    "REFINE_DEM_FLOAT_ALBEDO": (int, 1, (0, 1)),  # the albedo floats with the heights (per pixel least squares)
 }
 
 
@@ -108,6 +109,7 @@ class Settings:
     refine_dem_margin: int = 16
     refine_dem_levels: int = 2
     refine_dem_max_iter: int = 100
+    refine_dem_float_albedo: int = 1
     #: Values of the model-declared keys, ``((LEGACY_KEY, value), ...)``; read as attributes (``s.phase_coeff_c1``).
     model_settings: tuple[tuple[str, Any], ...] = ()
     source: Path | None = field(default=None, compare=False)

@@ -92,7 +92,7 @@ def _refine(level_data, s, pixel_m: float, sigma_px: float) -> tuple[np.ndarray,
         pts = geometry.body_fixed(lo, la, hc)
         obs = [observation(_coarsen(j, f)[1:-1, 1:-1], _coarsen(ok, f, "all")[1:-1, 1:-1].astype(float), pts, sun, sc)
                for j, ok, sun, sc in images]
-        cost = Cost([Shading(1.0, up, MOON_RADIUS_KM, obs, model.reflectance, params),
+        cost = Cost([Shading(1.0, up, MOON_RADIUS_KM, obs, model.reflectance, params, bool(s.refine_dem_float_albedo)),
                      Smoothness(s.refine_dem_smoothness, pixel_m * f),
                      Fidelity(s.refine_dem_fidelity, pixel_m * f, h0c, sigma_px / f)])
         hr, rep = minimise(cost, hc, pixel_m * f, s.refine_dem_max_iter)

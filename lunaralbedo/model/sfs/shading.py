@@ -23,9 +23,17 @@ them by less than 1e-3 degrees for a spacecraft 100 km up); the normals carry th
 
 for :math:`\mathbf N = \mathbf a\times\mathbf b`, scattered with :math:`\pm\tfrac12` to the four
 neighbours and projected on :math:`\partial\mathbf p/\partial h = \mathbf u/1000`.
-:math:`R_{,i} = \partial R/\partial\cos i` and :math:`R_{,e}` are central differences of the
+:math:`R_{,i} = \partial R/\partial\cos i` and :math:`R_{,e}` are forward differences of the
 photometric model's own ``reflectance`` (:mod:`lunaralbedo.model.photometry`), so any registered
 model works.  Only the pixels with four neighbours carry a residual.
+
+The albedo floats with the heights (``float_albedo``, variable projection: Golub and Pereyra 1973):
+each pixel's :math:`A` is scaled by the least-squares :math:`a^* = \sum_k w J R / \sum_k w R^2` of the
+current heights, :math:`D = \sum w (J - a^* R)^2`; as :math:`a^*` minimises :math:`D` for the heights, its
+own derivative adds nothing to the gradient.  The shading of relief that the albedo solve had taken
+into the albedo can then move into the heights at once, where the images' different Sun
+directions agree on it (a pixel seen by one image only gives no height information: its
+residual is zero).  ``float_albedo=False`` holds the albedo (ASP ``sfs`` without ``--float-albedo``).
 
 Shadows: an observation in a cast shadow of the current heights, or darker than SHADOW_THRESH,
 has :math:`w = 0` (the engine sets it): a shadowed pixel constrains the heights only through the
@@ -40,8 +48,13 @@ import numpy as np
 
 from ..geometry import illumination
 
-#: Step of the central differences of R in cos i and cos e.
-_EPS = 1e-5
+#: Step of the (forward) differences of R in cos i and cos e.
+_EPS = 1e-6
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Dot products along the last axis of two ``(..., 3)`` arrays."""
+    return np.einsum("...k,...k->...", a, b)
 
 
 def unit_up(lon_deg: np.ndarray, lat_deg: np.ndarray) -> np.ndarray:
@@ -96,35 +109,38 @@ class Shading:
     observations: list
     reflectance: object
     params: tuple
+    float_albedo: bool = True
     name: str = "shading"
 
     def points(self, h: np.ndarray) -> np.ndarray:
         return (self.radius_km + h / 1000.0)[..., None] * self.up
 
-    def residuals(self, h: np.ndarray) -> list[np.ndarray]:
-        """Per observation, :math:`J - R` at the interior pixels (0 where ``w`` is 0)."""
-        n = interior_normals(self.points(h))[0]
-        out = []
-        for o in self.observations:
-            r = self.reflectance(np.sum(n * o.l, -1), np.sum(n * o.v, -1), o.alpha, self.params)
-            out.append(np.where(o.w > 0, o.j - r, 0.0))
-        return out
+    def albedo_scale(self, refl: list[np.ndarray]) -> np.ndarray | float:
+        """1 (the albedo held), or with ``float_albedo`` the least-squares :math:`a^*` of each pixel (1 where no
+        image sees it)."""
+        if not self.float_albedo:
+            return 1.0
+        num = sum(o.w * o.j * r for o, r in zip(self.observations, refl))
+        den = sum(o.w * r * r for o, r in zip(self.observations, refl))
+        return np.where(den > 0, num / np.where(den > 0, den, 1.0), 1.0)
 
     def value_grad(self, h: np.ndarray) -> tuple[float, np.ndarray]:
         pts = self.points(h)
         n, _, norm, s, a, b = interior_normals(pts)
+        f = self.reflectance
+        cosines = [(_dot(n, o.l), _dot(n, o.v)) for o in self.observations]
+        refl = [f(ci, ce, o.alpha, self.params) for (ci, ce), o in zip(cosines, self.observations)]
+        scale = self.albedo_scale(refl)
         gn = np.zeros_like(n)
         total = 0.0
-        f = self.reflectance
-        for o in self.observations:
-            ci, ce = np.sum(n * o.l, -1), np.sum(n * o.v, -1)
-            res = np.where(o.w > 0, o.j - f(ci, ce, o.alpha, self.params), 0.0)
+        for o, (ci, ce), r in zip(self.observations, cosines, refl):
+            res = np.where(o.w > 0, o.j - scale * r, 0.0)
             total += float(np.sum(o.w * res * res))
-            r_i = (f(ci + _EPS, ce, o.alpha, self.params) - f(ci - _EPS, ce, o.alpha, self.params)) / (2 * _EPS)
-            r_e = (f(ci, ce + _EPS, o.alpha, self.params) - f(ci, ce - _EPS, o.alpha, self.params)) / (2 * _EPS)
-            c = -2.0 * o.w * res
+            c = (-2.0 / _EPS) * o.w * res * scale  # the albedo's scale held: its derivative adds nothing at the optimum
+            r_i = f(ci + _EPS, ce, o.alpha, self.params) - r  # times 1/eps in c
+            r_e = f(ci, ce + _EPS, o.alpha, self.params) - r
             gn += (c * r_i)[..., None] * o.l + (c * r_e)[..., None] * o.v
-        g_big = (gn - np.sum(gn * n, -1)[..., None] * n) * (s / norm)[..., None]
+        g_big = (gn - _dot(gn, n)[..., None] * n) * (s / norm)[..., None]
         ga, gb = 0.5 * np.cross(b, g_big), 0.5 * np.cross(g_big, a)
         gp = np.zeros_like(pts)
         gp[2:, 1:-1] += ga
