@@ -52,13 +52,13 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     "REFLECTANCE": (str, None, None),  # the model by name (TOML); wins over REFLECTANCE_TYPE; allowed: the registry's names
     # shape from shading (docs/sfs.md): the DEM's heights refined with the albedo
     "REFINE_DEM": (int, 0, (0, 1)),
-    "REFINE_DEM_ROUNDS": (int, 2, None),  # outer rounds: albedo solve, then heights, then albedo again
+    "REFINE_DEM_ROUNDS": (int, 1, None),  # outer rounds: albedo solve, then heights, then albedo again
     "REFINE_DEM_SMOOTHNESS": (float, 0.01, None),  # mu, on the change of slope between pixels
-    "REFINE_DEM_FIDELITY": (float, 0.1, None),  # lambda, on the smoothed heights minus the input's
+    "REFINE_DEM_FIDELITY": (float, 1.0, None),  # lambda, on the smoothed heights minus the input's
     "REFINE_DEM_INPUT_BLUR": (float, None, None),  # sigma (pixels) of the input DEM's resolution; None: from its pixel
     "REFINE_DEM_MARGIN": (int, 16, None),  # pixels of overlap around each tile's heights
     "REFINE_DEM_LEVELS": (int, 2, None),  # coarse to fine: levels of a factor 2
-    "REFINE_DEM_MAX_ITER": (int, 100, None),  # L-BFGS iterations per level and tile
+    "REFINE_DEM_MAX_ITER": (int, 30, None),  # L-BFGS iterations per level and tile
     "REFINE_DEM_FLOAT_ALBEDO": (int, 1, (0, 1)),  # the albedo floats with the heights (per pixel least squares)
 }
 
@@ -102,13 +102,13 @@ class Settings:
     compute_errors: int = 1
     cast_shadows: int | None = None
     refine_dem: int = 0
-    refine_dem_rounds: int = 2
+    refine_dem_rounds: int = 1
     refine_dem_smoothness: float = 0.01
-    refine_dem_fidelity: float = 0.1
+    refine_dem_fidelity: float = 1.0
     refine_dem_input_blur: float | None = None
     refine_dem_margin: int = 16
     refine_dem_levels: int = 2
-    refine_dem_max_iter: int = 100
+    refine_dem_max_iter: int = 30
     refine_dem_float_albedo: int = 1
     #: Values of the model-declared keys, ``((LEGACY_KEY, value), ...)``; read as attributes (``s.phase_coeff_c1``).
     model_settings: tuple[tuple[str, Any], ...] = ()

@@ -66,7 +66,7 @@ def write_given_dem(scene, grid: HeightGrid, path: Path) -> None:
     h = np.empty(grid.shape, np.float32)
     for r in range(0, grid.shape[0], _ROWS):
         n = min(_ROWS, grid.shape[0] - r)
-        h[r:r + n] = read_dem_onto_grid(scene.dems, grid.transform * Affine.translation(0, r), (n, grid.shape[1]),
+        h[r:r + n] = read_dem_onto_grid(scene.dems, grid.transform @ Affine.translation(0, r), (n, grid.shape[1]),
                                         scene.crs, scene.settings.no_dem_data_val)
     ok = np.isfinite(h)
     if not ok.any():
@@ -167,8 +167,14 @@ def refine_solve(scene, out: Path, run_solve, executor, resume: bool):
             info = {"tiles": [{k: p[k] for k in ("tile", "reports", "lit_mean")} for p in parts]}
             info.update(blend(grid, current, parts, sfs / f"tiles_{r + 1}", nxt))
             atomic_write_text(nxt.parent / "round.json", json.dumps(info))
+        reps = [rep for t in info["tiles"] for rep in t["reports"]]
+        work = sum(rep["observations"] * rep["evaluations"] for rep in reps)
         rounds.append({"round": r + 1, "change_rms_m": info["change_rms_m"],
-                       "lbfgs_iterations": [sum(rep["iterations"] for rep in t["reports"]) for t in info["tiles"]]})
+                       "lbfgs_iterations": [sum(rep["iterations"] for rep in t["reports"]) for t in info["tiles"]],
+                       "cpu_s": round(sum(rep["cpu_s"] for rep in reps), 3),
+                       # CPU time per observation per evaluation of the cost and its gradient (one core)
+                       "ns_per_observation_evaluation": round(1e9 * sum(rep["cpu_s"] for rep in reps) / work, 1)
+                       if work else None})
         current = nxt
     report = {"settings": s.to_dict(), "refine_dem": {"rounds": rounds, "input_blur_px": sigma, "pixel_m": grid.pixel_m(),
                              **write_products(scene, grid, given, current, current.parent / "lit.tif", out)}}

@@ -10,6 +10,7 @@ finer level).  The refined window and its blending weights are written to one ``
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -95,8 +96,10 @@ def _refine(level_data, s, pixel_m: float, sigma_px: float) -> tuple[np.ndarray,
         cost = Cost([Shading(1.0, up, MOON_RADIUS_KM, obs, model.reflectance, params, bool(s.refine_dem_float_albedo)),
                      Smoothness(s.refine_dem_smoothness, pixel_m * f),
                      Fidelity(s.refine_dem_fidelity, pixel_m * f, h0c, sigma_px / f)])
+        t0 = time.process_time()
         hr, rep = minimise(cost, hc, pixel_m * f, s.refine_dem_max_iter)
-        reports.append({"level": level, **rep})
+        reports.append({"level": level, **rep, "cpu_s": time.process_time() - t0,
+                        "observations": int(sum(np.count_nonzero(o.w) for o in obs))})
         if f == 1:
             h = hr
         else:  # the coarse change of the heights, interpolated onto the finer grid
@@ -125,7 +128,7 @@ def refine_tile(t: int, *, scene, grid: HeightGrid, current: Path, given: Path, 
         with np.load(path) as z:
             return {"tile": tile.name, "window": [r0, r1, c0, c1], "reports": [], "reused": True,
                     "lit_mean": float(z["lit"].mean())}
-    transform = grid.transform * Affine.translation(c0, r0)
+    transform = grid.transform @ Affine.translation(c0, r0)
     shape = (r1 - r0, c1 - c0)
     h_cur = _window(current, r0, r1, c0, c1)
     h0 = _window(given, r0, r1, c0, c1)

@@ -207,7 +207,7 @@ def solve(
         return _run(scene, out, method, max_iter, tolerance, executor, resume, timings, plots, (response, exposure_times))
     except (Exception, KeyboardInterrupt) as exc:
         typed = typed_error(exc)
-        resumable = (out / CHECKPOINT_DIR).exists() and not (typed is not None and typed.exit_code == 2)
+        resumable = any((out / d).exists() for d in (CHECKPOINT_DIR, "sfs")) and not (typed is not None and typed.exit_code == 2)
         if created and not resume and not resumable:
             remove_tree(out)  # bad input (or nothing to resume): leave nothing behind
         raise

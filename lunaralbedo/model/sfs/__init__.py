@@ -119,15 +119,18 @@ def minimise(cost: Cost, h_start: np.ndarray, scale_m: float, max_iter: int = 20
 
     The unknowns are the changes in units of ``scale_m`` (the pixel size, metres), so that a unit
     step is a slope change of order one whatever the resolution.  Returns the heights (metres,
-    float64) and ``{"iterations", "cost_start", "cost_end"}``.
+    float64) and ``{"iterations", "evaluations", "cost_start", "cost_end"}``.
     """
     shape = h_start.shape
     h0 = np.asarray(h_start, dtype=np.float64)
+    calls = [0]
 
     def f(x):
+        calls[0] += 1
         v, g = cost(h0 + scale_m * x.reshape(shape))
         return v, (scale_m * g).ravel()
 
     c0 = f(np.zeros(h0.size))[0]
     x, c1, it = lbfgs(f, np.zeros(h0.size), max_iter)
-    return h0 + scale_m * x.reshape(shape), {"iterations": it, "cost_start": float(c0), "cost_end": float(c1)}
+    return h0 + scale_m * x.reshape(shape), {"iterations": it, "evaluations": calls[0], "cost_start": float(c0),
+                                             "cost_end": float(c1)}
