@@ -56,7 +56,8 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     "REFINE_DEM_SMOOTHNESS": (float, 0.01, None),  # mu, on the change of slope between pixels
     "REFINE_DEM_FIDELITY": (float, 1.0, None),  # lambda, on the smoothed heights minus the input's
     "REFINE_DEM_INPUT_BLUR": (float, None, None),  # sigma (pixels) of the input DEM's resolution; None: from its pixel
-    "REFINE_DEM_MARGIN": (int, 16, None),  # pixels of overlap around each tile's heights
+    "REFINE_DEM_MARGIN": (int, 16, None),  # pixels of overlap around each window's heights
+    "REFINE_DEM_WINDOW": (int, 256, None),  # most pixels a side of a height window (tiles are cut into such)
     "REFINE_DEM_LEVELS": (int, 2, None),  # coarse to fine: levels of a factor 2
     "REFINE_DEM_MAX_ITER": (int, 30, None),  # L-BFGS iterations per level and tile
     "REFINE_DEM_FLOAT_ALBEDO": (int, 1, (0, 1)),  # the albedo floats with the heights (per pixel least squares)
@@ -107,6 +108,7 @@ class Settings:
     refine_dem_fidelity: float = 1.0
     refine_dem_input_blur: float | None = None
     refine_dem_margin: int = 16
+    refine_dem_window: int = 256
     refine_dem_levels: int = 2
     refine_dem_max_iter: int = 30
     refine_dem_float_albedo: int = 1
@@ -275,7 +277,8 @@ def _validate_refine(values: dict[str, Any], where: str, model) -> None:
     """The REFINE_DEM_* keys (docs/sfs.md)."""
     if values["REFINE_DEM"] and not model.needs_geometry:
         raise SettingsError(f"{where}: REFINE_DEM 1 needs a reflectance model with a DEM (not mosaic mode)")
-    for key, lo in (("REFINE_DEM_ROUNDS", 1), ("REFINE_DEM_MARGIN", 4), ("REFINE_DEM_LEVELS", 1), ("REFINE_DEM_MAX_ITER", 1)):
+    for key, lo in (("REFINE_DEM_ROUNDS", 1), ("REFINE_DEM_MARGIN", 4), ("REFINE_DEM_WINDOW", 16), ("REFINE_DEM_LEVELS", 1),
+                    ("REFINE_DEM_MAX_ITER", 1)):
         if values[key] < lo:
             raise SettingsError(f"{where}: {key} must be >= {lo}, got {values[key]}")
     for key in ("REFINE_DEM_SMOOTHNESS", "REFINE_DEM_FIDELITY", "REFINE_DEM_INPUT_BLUR"):

@@ -120,7 +120,8 @@ def test_refine_dem_same_bytes_for_two_workers_after_a_kill_and_with_a_dem_with_
     with rasterio.open(holed / "DEM/dem.tif", "w", **prof) as ds:
         ds.write(h, 1)
     (holed / "settings.txt").write_text((small / "settings.txt").read_text())
-    path = _settings(holed, REFINE[:1] + ["REFINE_DEM_MAX_ITER 15", "REFINE_DEM_MARGIN 8"])
+    # tiles of 40 px cut into height windows of 20 px
+    path = _settings(holed, REFINE[:1] + ["REFINE_DEM_MAX_ITER 15", "REFINE_DEM_MARGIN 8", "REFINE_DEM_WINDOW 24"])
     solve(path, out=tmp_path / "w1", workers=1, plots=False)
     solve(path, out=tmp_path / "w2", workers=2, plots=False)
     real = refine.write_products

@@ -5,8 +5,9 @@ Round ``r`` (``REFINE_DEM_ROUNDS`` of them):
 1. the albedo solve (prepare, iterate, finalise: :func:`lunaralbedo.engine.solve._run`) with the
    heights ``sfs/dem_<r>/dem.tif``, into ``OUTDIR/sfs/round_<r>/``; its exposures and photometric
    parameters (global) are kept in ``sfs/round_<r>.json``;
-2. per tile, on the run's executor, the heights minimised with that albedo and those exposures held
-   (:func:`.sfs_tile.refine_tile`) over the tile and a margin; the tiles' windows blended with
+2. per window (a tile, or a part of one of at most ``REFINE_DEM_WINDOW`` pixels a side), on the run's
+   executor, the heights minimised with that albedo and those exposures held
+   (:func:`.sfs_tile.refine_tile`) over the window and a margin; the windows blended with
    weights that fall to zero in the outer half of each margin, in tile order, into
    ``sfs/dem_<r+1>/dem.tif``.
 
@@ -34,7 +35,7 @@ from ..io.atomic import atomic_write_text
 from ..io.geotiff import write_geotiff
 from ..io.rasters import raster_info, read_dem_onto_grid
 from ..model.cast_shadows import shadow_reach_km
-from .sfs_tile import HeightGrid, refine_tile
+from .sfs_tile import HeightGrid, pieces, refine_tile
 
 SFS_DIR = "sfs"
 PRODUCT_DIRS = ("dem_change", "dem_lit")
@@ -160,8 +161,9 @@ def refine_solve(scene, out: Path, run_solve, executor, resume: bool):
         info = json.loads((nxt.parent / "round.json").read_text()) if nxt.exists() else None
         if info is None:
             albedo = sorted((sfs / f"round_{r}" / "albedo").glob("*.tif"))
-            parts = executor.map(refine_tile, range(len(scene.tiles)), f"refine heights {r + 1}", shared=("scene",),
-                                 scene=scene_r, grid=grid, current=current, given=given, albedo=albedo,
+            windows = pieces(scene_r, s.refine_dem_window)
+            parts = executor.map(refine_tile, range(len(windows)), f"refine heights {r + 1}", shared=("scene",),
+                                 scene=scene_r, windows=windows, grid=grid, current=current, given=given, albedo=albedo,
                                  exposure=np.asarray(got["exposure"]), params=got["params"] or scene_r.settings.initial_params.tolist(),
                                  sigma_px=sigma, out_dir=sfs / f"tiles_{r + 1}")
             info = {"tiles": [{k: p[k] for k in ("tile", "reports", "lit_mean")} for p in parts]}

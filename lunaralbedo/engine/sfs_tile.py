@@ -1,6 +1,7 @@
-"""The shape-from-shading tile task: one tile's heights refined with the albedo and exposures held.
+"""The shape-from-shading tile task: one window's heights refined with the albedo and exposures held.
 
-:func:`refine_tile` reads, over the tile and a margin of ``REFINE_DEM_MARGIN`` pixels on
+The windows are the tiles, each cut into parts of at most ``REFINE_DEM_WINDOW`` pixels a side
+(:func:`pieces`). :func:`refine_tile` reads, over a window and a margin of ``REFINE_DEM_MARGIN`` pixels on
 every side (the window), the heights the albedo was solved with, the input DEM, the solved
 albedo and every image that meets the window; it builds the cost of :mod:`lunaralbedo.model.sfs`
 (shading + smoothness + fidelity) and minimises it coarse to fine (``REFINE_DEM_LEVELS``
@@ -55,6 +56,32 @@ class HeightGrid:
         lat = np.radians(self.transform.f + self.transform.e * self.shape[0] / 2)
         k = np.radians(1.0) * MOON_RADIUS_KM * 1000.0
         return float(0.5 * (abs(self.transform.a) * np.cos(lat) + abs(self.transform.e)) * k)
+
+
+@dataclass(frozen=True)
+class Piece:
+    """A window of the height step: a tile, or a part of one (``REFINE_DEM_WINDOW``), and the images over its tile."""
+
+    name: str
+    transform: Affine
+    height: int
+    width: int
+    images: tuple
+
+
+def pieces(scene, size: int) -> list[Piece]:
+    """Each tile cut into the fewest near-equal parts of at most ``size`` pixels a side (row-major, tile order):
+    the height step's memory does not grow with TILE_SIZE."""
+    out = []
+    for t, tile in enumerate(scene.tiles):
+        rows = np.linspace(0, tile.height, -(-tile.height // size) + 1).round().astype(int)
+        cols = np.linspace(0, tile.width, -(-tile.width // size) + 1).round().astype(int)
+        for i in range(len(rows) - 1):
+            for j in range(len(cols) - 1):
+                name = tile.name if len(rows) == len(cols) == 2 else f"{tile.name}_{i}_{j}"
+                out.append(Piece(name, tile.transform @ Affine.translation(cols[j], rows[i]), int(rows[i + 1] - rows[i]),
+                                 int(cols[j + 1] - cols[j]), tuple(int(k) for k in scene.tile_images[t])))
+    return out
 
 
 def ramp(n: int, lo_gap: int, hi_gap: int, margin: int) -> np.ndarray:
@@ -112,16 +139,16 @@ def _refine(level_data, s, pixel_m: float, sigma_px: float) -> tuple[np.ndarray,
     return h, reports
 
 
-def refine_tile(t: int, *, scene, grid: HeightGrid, current: Path, given: Path, albedo: list[Path], exposure,
+def refine_tile(t: int, *, scene, windows: list[Piece], grid: HeightGrid, current: Path, given: Path, albedo: list[Path], exposure,
                 params, sigma_px: float, out_dir: Path) -> dict:
-    """Refine tile ``t``'s heights (module docstring); returns its window, optimiser reports and lit counts' sum.
+    """Refine the heights of ``windows[t]`` (module docstring); returns its window, optimiser reports, lit counts' mean.
 
     ``current``: the heights the albedo was solved with (metres, on ``grid``); ``given``: the input DEM on
     ``grid`` (holes filled); ``albedo``: the solved albedo tiles; ``exposure``: every image's T (global);
     ``params``: the photometric parameters; ``sigma_px``: the input DEM's resolution (pixels of ``grid``).
     """
     s = scene.settings
-    tile = scene.tiles[t]
+    tile = windows[t]
     path = out_dir / f"tile_{t:04d}.npz"
     r0, r1, c0, c1 = grid.window(tile, s.refine_dem_margin)
     if path.exists():
@@ -142,7 +169,7 @@ def refine_tile(t: int, *, scene, grid: HeightGrid, current: Path, given: Path, 
     model = solver_model(s)
     thresh = s.shadow_thresh if s.shadow_type == shadows.THRESHOLD else None
     images, lit = [], np.zeros(shape, np.int32)
-    for k in scene.tile_images[t]:
+    for k in tile.images:
         info = scene.images[k]
         got = read_drg_onto_grid(info, scene.profiles[k], transform, shape, scene.crs, thresh,
                                  saturation=saturation_of(info.dtype))
