@@ -143,3 +143,22 @@ def test_refine_dem_same_bytes_for_two_workers_after_a_kill_and_with_a_dem_with_
                     assert np.array_equal(x, y, equal_nan=True), (other, sub, f.name)
                     if sub == "DEM":
                         assert np.isfinite(x).all()
+
+
+def test_simulate_cli_rough_terrain_and_blurred_dem(tmp_path):
+    from click.testing import CliRunner
+
+    from lunaralbedo.cli import main
+
+    args = ["simulate", str(tmp_path / "s"), "--images", "3", "--size", "32", "--overlap", "0.667", "--azimuths", "50,130",
+            "--craters", "30", "--dem-blur", "2"]
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 0, res.output
+    truth = json.loads((tmp_path / "s/truth/truth.json").read_text())
+    assert truth["spec"]["sun_azimuths"] == [50.0, 130.0] and truth["spec"]["dem_blur_px"] == 2.0
+    with rasterio.open(tmp_path / "s/truth/dem.tif") as t, rasterio.open(tmp_path / "s/DEM/dem.tif") as g:
+        # blurring lowers the relief's roughness: the given DEM's Laplacian is several times smaller
+        lap = lambda h: np.abs(h[2:, 1:-1] + h[:-2, 1:-1] + h[1:-1, 2:] + h[1:-1, :-2] - 4 * h[1:-1, 1:-1]).mean()  # noqa
+        assert lap(g.read(1).astype(float)) < 0.5 * lap(t.read(1).astype(float))
+    res = CliRunner().invoke(main, ["simulate", str(tmp_path / "bad"), "--azimuths", "east"])
+    assert res.exit_code == 2 and "--azimuths" in res.output and not (tmp_path / "bad").exists()

@@ -54,7 +54,7 @@ _EPS = 1e-6
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Dot products along the last axis of two ``(..., 3)`` arrays."""
-    return np.einsum("...k,...k->...", a, b)
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
 
 
 def unit_up(lon_deg: np.ndarray, lat_deg: np.ndarray) -> np.ndarray:
