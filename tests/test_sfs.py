@@ -105,6 +105,15 @@ def test_refine_dem_recovers_the_heights_and_the_albedo(small, tmp_path):
     lit = _mosaic(glob.glob(str(tmp_path / "sfs" / "dem_lit" / "*.tif")), small / "truth/albedo.tif", nodata=-1)
     assert 2 <= np.median(lit) <= 4  # each column is seen by about 3 images
     assert not (tmp_path / "sfs" / "sfs").exists() and not (tmp_path / "sfs" / "checkpoint").exists()
+    # the web report shows the hillshade before and after
+    from lunaralbedo.web.api import export_web
+
+    web = export_web(tmp_path / "sfs", workers=1)
+    assert {"hillshade", "hillshade_input"} <= set(web["layers"])
+    before = sorted((tmp_path / "sfs" / "web" / "tiles" / "hillshade_input").rglob("*.png"))
+    after = sorted((tmp_path / "sfs" / "web" / "tiles" / "hillshade").rglob("*.png"))
+    assert before and [p.name for p in before] == [p.name for p in after]
+    assert any(a.read_bytes() != b.read_bytes() for a, b in zip(before, after))  # the refined relief differs
     assert len(plain.tiles) == 6
 
 

@@ -38,7 +38,7 @@ from ..model.cast_shadows import shadow_reach_km
 from .sfs_tile import HeightGrid, pieces, refine_tile
 
 SFS_DIR = "sfs"
-PRODUCT_DIRS = ("dem_change", "dem_lit")
+PRODUCT_DIRS = ("dem_change", "dem_lit", "dem_input")
 #: Rows of the input DEM resampled at a time onto the heights grid.
 _ROWS = 512
 
@@ -123,7 +123,8 @@ def blend(grid: HeightGrid, current: Path, parts: list[dict], tiles_dir: Path, o
 
 
 def write_products(scene, grid: HeightGrid, given: Path, final: Path, lit: Path, out: Path) -> dict:
-    """``dem_change/`` (final minus input heights, metres) and ``dem_lit/`` (lit images) tiles; the change's RMS."""
+    """``dem_change/`` (final minus input heights, metres), ``dem_lit/`` (lit images) and ``dem_input/`` (the input
+    heights on the tile grid, holes filled: the web report's hillshade before) tiles; the change's RMS."""
     g, f, n = _read(given).astype(np.float64), _read(final).astype(np.float64), _read(lit)
     sq, count = 0.0, 0
     for tile in scene.tiles:
@@ -135,6 +136,8 @@ def write_products(scene, grid: HeightGrid, given: Path, final: Path, lit: Path,
         write_geotiff(out / "dem_change" / f"{tile.name}.tif", d.astype(np.float32), tile.transform, scene.crs,
                       nodata=float("nan"))
         write_geotiff(out / "dem_lit" / f"{tile.name}.tif", n[core].astype(np.int16), tile.transform, scene.crs)
+        write_geotiff(out / "dem_input" / f"{tile.name}.tif", g[core].astype(np.float32), tile.transform, scene.crs,
+                      nodata=float("nan"))
     return {"dem_change_rms_m": float(np.sqrt(sq / max(count, 1)))}
 
 

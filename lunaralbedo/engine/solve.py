@@ -55,7 +55,7 @@ RESPONSE_DIR = f"{CHECKPOINT_DIR}/response"  # camera response files (engine/res
 MARKER = ".lunaralbedo"  # written first into every OUTDIR: marks it as ours
 _TILE_DIRS = ("albedo", "error", "DEM", "weightsSum")
 _OUTPUT_DIRS = (*_TILE_DIRS, "weight")
-_REFINE_DIRS = ("sfs", "dem_change", "dem_lit")  # REFINE_DEM 1 (engine/refine.py)
+_REFINE_DIRS = ("sfs", "dem_change", "dem_lit", "dem_input")  # REFINE_DEM 1 (engine/refine.py)
 _RESULT_FILES = ("report.json", "exposure.csv", "phase.csv", "exposure.png", "cost.png",
                  "response.csv", "response.png", "loglik.png", "residuals.png")
 
