@@ -163,12 +163,12 @@ def refine_solve(scene, out: Path, run_solve, executor, resume: bool):
         nxt = sfs / f"dem_{r + 1}" / "dem.tif"
         info = json.loads((nxt.parent / "round.json").read_text()) if nxt.exists() else None
         if info is None:
-            albedo = sorted((sfs / f"round_{r}" / "albedo").glob("*.tif"))
+            albedo = [(p, raster_info(p).lonlat_bounds) for p in sorted((sfs / f"round_{r}" / "albedo").glob("*.tif"))]
             windows = pieces(scene_r, s.refine_dem_window)
             parts = executor.map(refine_tile, range(len(windows)), f"refine heights {r + 1}", shared=("scene",),
                                  scene=scene_r, windows=windows, grid=grid, current=current, given=given, albedo=albedo,
-                                 exposure=np.asarray(got["exposure"]), params=got["params"] or scene_r.settings.initial_params.tolist(),
-                                 sigma_px=sigma, out_dir=sfs / f"tiles_{r + 1}")
+                                 exposure=np.asarray(got["exposure"]), params=got["params"], sigma_px=sigma,
+                                 out_dir=sfs / f"tiles_{r + 1}")
             info = {"tiles": [{k: p[k] for k in ("tile", "reports", "lit_mean")} for p in parts]}
             info.update(blend(grid, current, parts, sfs / f"tiles_{r + 1}", nxt))
             atomic_write_text(nxt.parent / "round.json", json.dumps(info))

@@ -21,9 +21,10 @@ from rasterio.transform import Affine
 from ..constants import MOON_RADIUS_KM
 from ..io.atomic import atomic_path
 from ..io.drgs import read_drg_onto_grid
-from ..io.rasters import raster_info, read_onto_grid
+from ..io.rasters import intersects_lon, raster_info, read_onto_grid
 from ..model import geometry, shadows
 from ..model.cast_shadows import cast_shadow_mask
+from ..model.grid import Grid
 from ..model.sfs import Cost, minimise
 from ..model.sfs.fidelity import Fidelity
 from ..model.sfs.shading import Shading, observation, unit_up
@@ -139,12 +140,12 @@ def _refine(level_data, s, pixel_m: float, sigma_px: float) -> tuple[np.ndarray,
     return h, reports
 
 
-def refine_tile(t: int, *, scene, windows: list[Piece], grid: HeightGrid, current: Path, given: Path, albedo: list[Path], exposure,
-                params, sigma_px: float, out_dir: Path) -> dict:
+def refine_tile(t: int, *, scene, windows: list[Piece], grid: HeightGrid, current: Path, given: Path, albedo: list,
+                exposure, params, sigma_px: float, out_dir: Path) -> dict:
     """Refine the heights of ``windows[t]`` (module docstring); returns its window, optimiser reports, lit counts' mean.
 
     ``current``: the heights the albedo was solved with (metres, on ``grid``); ``given``: the input DEM on
-    ``grid`` (holes filled); ``albedo``: the solved albedo tiles; ``exposure``: every image's T (global);
+    ``grid`` (holes filled); ``albedo``: the solved albedo tiles, ``(path, lon/lat bounds)``; ``exposure``: every image's T (global);
     ``params``: the photometric parameters; ``sigma_px``: the input DEM's resolution (pixels of ``grid``).
     """
     s = scene.settings
@@ -160,7 +161,10 @@ def refine_tile(t: int, *, scene, windows: list[Piece], grid: HeightGrid, curren
     h_cur = _window(current, r0, r1, c0, c1)
     h0 = _window(given, r0, r1, c0, c1)
     a = np.full(shape, np.nan, np.float32)
-    for p in albedo:
+    box = Grid(transform, shape).bounds
+    for p, bounds in albedo:
+        if not intersects_lon(bounds, box):
+            continue
         got = read_onto_grid(raster_info(p), 1, transform, shape, scene.crs)
         a = np.where(np.isfinite(a), a, got)
     lon, lat = geometry.lonlat_grid(transform, shape)
