@@ -36,6 +36,10 @@ def _print_summary(result) -> None:
             click.echo("    " + identifiability_line(r["identifiability"]))
         for w in r.get("warnings", []):
             click.echo(f"    WARNING: {w}")
+    if rep.get("refine_dem"):
+        d = rep["refine_dem"]
+        click.echo(f"  heights refined (REFINE_DEM, docs/sfs.md): {len(d['rounds'])} round(s) in {d['seconds']:.1f}s, "
+                   f"change {d['dem_change_rms_m']:.3g} m RMS (dem_change/, dem_lit/, dem_input/)")
     click.echo("  time " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()))
     click.echo(f"  results in {result.out_dir}/ (albedo/, error/, exposure.csv, phase.csv, report.json, *.png)")
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -145,6 +146,7 @@ def refine_solve(scene, out: Path, run_solve, executor, resume: bool):
     """The rounds of the module docstring; ``run_solve(scene, folder, extra_report)`` is one albedo solve.
     Returns the last solve's result (OUTDIR written)."""
     s = scene.settings
+    t0 = time.perf_counter()
     sfs = out / SFS_DIR
     grid = height_grid(scene)
     given = sfs / "dem_0" / "dem.tif"
@@ -182,6 +184,8 @@ def refine_solve(scene, out: Path, run_solve, executor, resume: bool):
                        if work else None})
         current = nxt
     report = {"settings": s.to_dict(), "refine_dem": {"rounds": rounds, "input_blur_px": sigma, "pixel_m": grid.pixel_m(),
+                                                      # the rounds before the last solve (this process's share, if resumed)
+                                                      "seconds": round(time.perf_counter() - t0, 3),
                              **write_products(scene, grid, given, current, current.parent / "lit.tif", out)}}
     result = run_solve(_with_dem(scene, current), out, report)
     shutil.rmtree(sfs, ignore_errors=True)
