@@ -10,6 +10,7 @@ import rasterio
 from rasterio.merge import merge
 
 from lunaralbedo.engine import refine
+from lunaralbedo.errors import ResumeError
 from lunaralbedo.engine.solve import solve
 from lunaralbedo.model import geometry, photometry
 from lunaralbedo.model.sfs import Cost, lbfgs
@@ -143,6 +144,11 @@ def test_refine_dem_same_bytes_for_two_workers_after_a_kill_and_with_a_dem_with_
         solve(path, out=tmp_path / "killed", workers=1, plots=False)
     assert (tmp_path / "killed" / "sfs" / "dem_1" / "dem.tif").exists()
     monkeypatch.setattr(refine, "write_products", real)
+    text = path.read_text()
+    path.write_text(text.replace("REFINE_DEM_MAX_ITER 15", "REFINE_DEM_MAX_ITER 16"))  # the rounds' files are not theirs
+    with pytest.raises(ResumeError, match="sfs"):
+        solve(path, out=tmp_path / "killed", workers=1, plots=False, resume=True)
+    path.write_text(text)
     solve(path, out=tmp_path / "killed", workers=1, plots=False, resume=True)
     for other in ("w2", "killed"):
         for sub in ("DEM", "albedo", "dem_change", "dem_lit"):

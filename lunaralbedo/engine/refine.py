@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 from rasterio.transform import Affine
 
-from ..errors import InputError
+from ..errors import InputError, ResumeError
 from ..io.atomic import atomic_write_text
 from ..io.geotiff import write_geotiff
 from ..io.rasters import raster_info, read_dem_onto_grid
@@ -148,6 +148,12 @@ def refine_solve(scene, out: Path, run_solve, executor, resume: bool):
     s = scene.settings
     t0 = time.perf_counter()
     sfs = out / SFS_DIR
+    stamp = sfs / "fingerprint.txt"  # the rounds' files belong to these settings and inputs only
+    if stamp.exists() and stamp.read_text() != scene.fingerprint():
+        raise ResumeError(f"{sfs}: the refined heights belong to other settings or inputs; run without --resume")
+    if not resume:
+        shutil.rmtree(sfs, ignore_errors=True)
+    atomic_write_text(stamp, scene.fingerprint())
     grid = height_grid(scene)
     given = sfs / "dem_0" / "dem.tif"
     if not given.exists():
