@@ -44,7 +44,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
+from numba import njit
 
 from ..geometry import illumination
 
@@ -52,9 +55,15 @@ from ..geometry import illumination
 _EPS = 1e-6
 
 
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Dot products along the last axis of two ``(..., 3)`` arrays."""
-    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+@njit(cache=True, nogil=True)
+def _cosines(n, l, v):
+    r""":math:`(\mathbf n\cdot\mathbf l, \mathbf n\cdot\mathbf v)` per pixel of ``(H, W, 3)`` arrays."""
+    ci, ce = np.empty(n.shape[:2]), np.empty(n.shape[:2])
+    for i in range(n.shape[0]):
+        for j in range(n.shape[1]):
+            ci[i, j] = n[i, j, 0] * l[i, j, 0] + n[i, j, 1] * l[i, j, 1] + n[i, j, 2] * l[i, j, 2]
+            ce[i, j] = n[i, j, 0] * v[i, j, 0] + n[i, j, 1] * v[i, j, 1] + n[i, j, 2] * v[i, j, 2]
+    return ci, ce
 
 
 def unit_up(lon_deg: np.ndarray, lat_deg: np.ndarray) -> np.ndarray:
@@ -65,15 +74,62 @@ def unit_up(lon_deg: np.ndarray, lat_deg: np.ndarray) -> np.ndarray:
 
 
 def interior_normals(points: np.ndarray):
-    """``(n, N, |N|, s, a, b)`` at the pixels with four neighbours: the unit outward normals of
-    :func:`lunaralbedo.model.geometry.dem_normals` and the pieces of their derivative."""
-    a = 0.5 * (points[2:, 1:-1] - points[:-2, 1:-1])  # towards south
-    b = 0.5 * (points[1:-1, 2:] - points[1:-1, :-2])  # towards east
-    big = np.cross(a, b)
-    norm = np.sqrt(np.sum(big * big, axis=-1))
-    s = np.where(np.sum(big * points[1:-1, 1:-1], axis=-1) < 0, -1.0, 1.0)
-    n = big * (s / norm)[..., None]
-    return n, big, norm, s, a, b
+    r"""``(n, |N|/s, a, b)`` at the pixels with four neighbours: the unit outward normals of
+    :func:`lunaralbedo.model.geometry.dem_normals` (the same operations) and the pieces of their derivative
+    (:math:`|\mathbf N|` signed by :math:`s`, and :math:`\mathbf a, \mathbf b`)."""
+    p = np.ascontiguousarray(points, dtype=np.float64)
+    h, w = p.shape[0] - 2, p.shape[1] - 2
+    n, a, b = np.empty((h, w, 3)), np.empty((h, w, 3)), np.empty((h, w, 3))
+    snorm = np.empty((h, w))
+    _normals(p, n, snorm, a, b)
+    return n, snorm, a, b
+
+
+@njit(cache=True, nogil=True)
+def _normals(p, n, snorm, a, b):
+    """:func:`interior_normals`' loop: central differences, their cross product, its sign and length."""
+    for i in range(n.shape[0]):
+        for j in range(n.shape[1]):
+            for k in range(3):
+                a[i, j, k] = 0.5 * (p[i + 2, j + 1, k] - p[i, j + 1, k])  # towards south
+                b[i, j, k] = 0.5 * (p[i + 1, j + 2, k] - p[i + 1, j, k])  # towards east
+            nx = a[i, j, 1] * b[i, j, 2] - a[i, j, 2] * b[i, j, 1]
+            ny = a[i, j, 2] * b[i, j, 0] - a[i, j, 0] * b[i, j, 2]
+            nz = a[i, j, 0] * b[i, j, 1] - a[i, j, 1] * b[i, j, 0]
+            norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+            if nx * p[i + 1, j + 1, 0] + ny * p[i + 1, j + 1, 1] + nz * p[i + 1, j + 1, 2] < 0:
+                norm = -norm
+            snorm[i, j] = norm
+            n[i, j, 0], n[i, j, 1], n[i, j, 2] = nx / norm, ny / norm, nz / norm
+
+
+@njit(cache=True, nogil=True)
+def _accumulate(gn, ci_coef, ce_coef, l, v):
+    """``gn += ci_coef l + ce_coef v`` per pixel (the gradient over the normals of one image's residuals)."""
+    for i in range(gn.shape[0]):
+        for j in range(gn.shape[1]):
+            for k in range(3):
+                gn[i, j, k] += ci_coef[i, j] * l[i, j, k] + ce_coef[i, j] * v[i, j, k]
+
+
+@njit(cache=True, nogil=True)
+def _adjoint(gn, n, snorm, a, b, up, gh):
+    """The gradient over the heights (``gh``, metres) from the one over the unit normals ``gn`` (module docstring)."""
+    gh[:] = 0.0
+    for i in range(n.shape[0]):
+        for j in range(n.shape[1]):
+            d = gn[i, j, 0] * n[i, j, 0] + gn[i, j, 1] * n[i, j, 1] + gn[i, j, 2] * n[i, j, 2]
+            gx = (gn[i, j, 0] - d * n[i, j, 0]) / snorm[i, j]
+            gy = (gn[i, j, 1] - d * n[i, j, 1]) / snorm[i, j]
+            gz = (gn[i, j, 2] - d * n[i, j, 2]) / snorm[i, j]
+            ax, ay, az, bx, by, bz = a[i, j, 0], a[i, j, 1], a[i, j, 2], b[i, j, 0], b[i, j, 1], b[i, j, 2]
+            # dD/da = b x g, dD/db = g x a; halves to the neighbours, projected on dp/dh = up / 1000
+            dax, day, daz = 5e-4 * (by * gz - bz * gy), 5e-4 * (bz * gx - bx * gz), 5e-4 * (bx * gy - by * gx)
+            dbx, dby, dbz = 5e-4 * (gy * az - gz * ay), 5e-4 * (gz * ax - gx * az), 5e-4 * (gx * ay - gy * ax)
+            gh[i + 2, j + 1] += dax * up[i + 2, j + 1, 0] + day * up[i + 2, j + 1, 1] + daz * up[i + 2, j + 1, 2]
+            gh[i, j + 1] -= dax * up[i, j + 1, 0] + day * up[i, j + 1, 1] + daz * up[i, j + 1, 2]
+            gh[i + 1, j + 2] += dbx * up[i + 1, j + 2, 0] + dby * up[i + 1, j + 2, 1] + dbz * up[i + 1, j + 2, 2]
+            gh[i + 1, j] -= dbx * up[i + 1, j, 0] + dby * up[i + 1, j, 1] + dbz * up[i + 1, j, 2]
 
 
 @dataclass
@@ -126,9 +182,9 @@ class Shading:
 
     def value_grad(self, h: np.ndarray) -> tuple[float, np.ndarray]:
         pts = self.points(h)
-        n, _, norm, s, a, b = interior_normals(pts)
+        n, snorm, a, b = interior_normals(pts)
         f = self.reflectance
-        cosines = [(_dot(n, o.l), _dot(n, o.v)) for o in self.observations]
+        cosines = [_cosines(n, o.l, o.v) for o in self.observations]
         refl = [f(ci, ce, o.alpha, self.params) for (ci, ce), o in zip(cosines, self.observations)]
         scale = self.albedo_scale(refl)
         gn = np.zeros_like(n)
@@ -139,12 +195,7 @@ class Shading:
             c = (-2.0 / _EPS) * o.w * res * scale  # the albedo's scale held: its derivative adds nothing at the optimum
             r_i = f(ci + _EPS, ce, o.alpha, self.params) - r  # times 1/eps in c
             r_e = f(ci, ce + _EPS, o.alpha, self.params) - r
-            gn += (c * r_i)[..., None] * o.l + (c * r_e)[..., None] * o.v
-        g_big = (gn - _dot(gn, n)[..., None] * n) * (s / norm)[..., None]
-        ga, gb = 0.5 * np.cross(b, g_big), 0.5 * np.cross(g_big, a)
-        gp = np.zeros_like(pts)
-        gp[2:, 1:-1] += ga
-        gp[:-2, 1:-1] -= ga
-        gp[1:-1, 2:] += gb
-        gp[1:-1, :-2] -= gb
-        return total, np.sum(gp * self.up, -1) / 1000.0
+            _accumulate(gn, c * r_i, c * r_e, o.l, o.v)
+        gh = np.empty(h.shape)
+        _adjoint(gn, n, snorm, a, b, self.up, gh)
+        return total, gh
