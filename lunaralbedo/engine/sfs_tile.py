@@ -191,7 +191,13 @@ def refine_tile(t: int, *, scene, windows: list[Piece], grid: HeightGrid, curren
             j = np.where(ok, val / (exposure[k] * a), np.nan)
         images.append((j, ok, sun, sc))
         lit += ok
-    h, reports = _refine((lon, lat, h_cur, h0, images, model, tuple(params)), s, grid.pixel_m(), sigma_px)
+    h, reports = h_cur.copy(), []
+    box = _data_box(lit > 0, s.refine_dem_margin // 2)
+    if box is not None:  # the heights are solved where images see the ground, and half a margin around
+        crop = lambda a: a[box]  # noqa: E731
+        h[box], reports = _refine((crop(lon), crop(lat), crop(h_cur), crop(h0),
+                                   [(crop(j), crop(ok), sun, sc) for j, ok, sun, sc in images], model, tuple(params)),
+                                  s, grid.pixel_m(), sigma_px)
     wy = ramp(shape[0], s.refine_dem_margin if r0 > 0 else 0, s.refine_dem_margin if r1 < grid.shape[0] else 0,
               s.refine_dem_margin)
     wx = ramp(shape[1], s.refine_dem_margin if c0 > 0 else 0, s.refine_dem_margin if c1 < grid.shape[1] else 0,
@@ -201,6 +207,15 @@ def refine_tile(t: int, *, scene, windows: list[Piece], grid: HeightGrid, curren
             np.savez(fh, h=h.astype(np.float32), w=np.outer(wy, wx).astype(np.float32), lit=lit.astype(np.int16))
     return {"tile": tile.name, "window": [r0, r1, c0, c1], "reports": reports, "reused": False,
             "lit_mean": float(lit.mean())}
+
+
+def _data_box(seen: np.ndarray, pad: int) -> tuple[slice, slice] | None:
+    """Rows and columns of the pixels ``seen``, ``pad`` more all round (within the array); None if none is."""
+    rows, cols = np.flatnonzero(seen.any(axis=1)), np.flatnonzero(seen.any(axis=0))
+    if not len(rows):
+        return None
+    return (slice(max(rows[0] - pad, 0), min(rows[-1] + 1 + pad, seen.shape[0])),
+            slice(max(cols[0] - pad, 0), min(cols[-1] + 1 + pad, seen.shape[1])))
 
 
 def _window(path: Path, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
