@@ -192,8 +192,8 @@ def refine_tile(t: int, *, scene, windows: list[Piece], grid: HeightGrid, curren
         images.append((j, ok, sun, sc))
         lit += ok
     h, reports = h_cur.copy(), []
-    box = _data_box(lit > 0, s.refine_dem_margin // 2)
-    if box is not None:  # the heights are solved where images see the ground, and half a margin around
+    box = _data_box(lit > 0, s.refine_dem_margin)
+    if box is not None:  # the heights are solved where images see the ground, and a margin around
         crop = lambda a: a[box]  # noqa: E731
         h[box], reports = _refine((crop(lon), crop(lat), crop(h_cur), crop(h0),
                                    [(crop(j), crop(ok), sun, sc) for j, ok, sun, sc in images], model, tuple(params)),
