@@ -28,7 +28,7 @@ from lunaralbedo.simulate import SceneSpec  # noqa: E402
 
 STRIP = dict(n_images=8, overlap=2 / 3, image_px=120, sun_azimuths=(50.0, 90.0, 130.0, 70.0, 110.0), fresh_craters=5.0,
              tile_size=1.0, seed=7, max_num_iter=10)
-REFINE = {"REFINE_DEM": 1, "REFINE_DEM_INPUT_BLUR": 3}
+REFINE = {"REFINE_DEM": 1}  # every other key at its default (the input's blur not told)
 
 
 def with_keys(d: Path, name: str, keys: dict) -> Path:

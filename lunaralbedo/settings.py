@@ -54,7 +54,7 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     "REFINE_DEM": (int, 0, (0, 1)),
     "REFINE_DEM_ROUNDS": (int, 1, None),  # outer rounds: albedo solve, then heights, then albedo again
     "REFINE_DEM_SMOOTHNESS": (float, 0.01, None),  # mu, on the change of slope between pixels
-    "REFINE_DEM_FIDELITY": (float, 1.0, None),  # lambda, on the smoothed heights minus the input's
+    "REFINE_DEM_FIDELITY": (float, None, None),  # lambda; None: 1 when REFINE_DEM_INPUT_BLUR is given, else 0.01
     "REFINE_DEM_INPUT_BLUR": (float, None, None),  # sigma (pixels) of the input DEM's resolution; None: from its pixel
     "REFINE_DEM_MARGIN": (int, 16, None),  # pixels of overlap around each window's heights
     "REFINE_DEM_WINDOW": (int, 256, None),  # most pixels a side of a height window (tiles are cut into such)
@@ -105,7 +105,7 @@ class Settings:
     refine_dem: int = 0
     refine_dem_rounds: int = 1
     refine_dem_smoothness: float = 0.01
-    refine_dem_fidelity: float = 1.0
+    refine_dem_fidelity: float | None = None
     refine_dem_input_blur: float | None = None
     refine_dem_margin: int = 16
     refine_dem_window: int = 256

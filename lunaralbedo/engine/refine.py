@@ -36,7 +36,7 @@ from ..io.atomic import atomic_write_text
 from ..io.geotiff import write_geotiff
 from ..io.rasters import raster_info, read_dem_onto_grid
 from ..model.cast_shadows import shadow_reach_km
-from .sfs_tile import HeightGrid, pieces, refine_tile
+from .sfs_tile import HeightGrid, fidelity_weight, pieces, refine_tile
 
 SFS_DIR = "sfs"
 PRODUCT_DIRS = ("dem_change", "dem_lit", "dem_input")
@@ -80,11 +80,11 @@ def write_given_dem(scene, grid: HeightGrid, path: Path) -> None:
 
 
 def input_blur_px(scene, grid: HeightGrid) -> float:
-    """``REFINE_DEM_INPUT_BLUR``, or the input DEM's pixel in pixels of ``grid`` (at least 1)."""
+    """``REFINE_DEM_INPUT_BLUR``, or the input DEM's pixel in pixels of ``grid``, at least 2 (docs/sfs.md)."""
     s = scene.settings
     if s.refine_dem_input_blur is not None:
         return float(s.refine_dem_input_blur)
-    return float(max(1.0, max(d.lonlat_res[0] for d in scene.dems) / abs(grid.transform.a)))
+    return float(max(2.0, max(d.lonlat_res[0] for d in scene.dems) / abs(grid.transform.a)))
 
 
 def _with_dem(scene, dem: Path):
@@ -189,7 +189,8 @@ def refine_solve(scene, out: Path, run_solve, executor, resume: bool):
                        "ns_per_observation_evaluation": round(1e9 * sum(rep["cpu_s"] for rep in reps) / work, 1)
                        if work else None})
         current = nxt
-    report = {"settings": s.to_dict(), "refine_dem": {"rounds": rounds, "input_blur_px": sigma, "pixel_m": grid.pixel_m(),
+    report = {"settings": s.to_dict(), "refine_dem": {"rounds": rounds, "input_blur_px": sigma, "fidelity": fidelity_weight(s),
+                                                      "pixel_m": grid.pixel_m(),
                                                       # the rounds before the last solve (this process's share, if resumed)
                                                       "seconds": round(time.perf_counter() - t0, 3),
                              **write_products(scene, grid, given, current, current.parent / "lit.tif", out)}}

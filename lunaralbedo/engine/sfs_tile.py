@@ -96,6 +96,14 @@ def ramp(n: int, lo_gap: int, hi_gap: int, margin: int) -> np.ndarray:
     return w
 
 
+def fidelity_weight(s) -> float:
+    """``REFINE_DEM_FIDELITY``, or 1 when the input's resolution is given (``REFINE_DEM_INPUT_BLUR``) and 0.01 when
+    it is guessed: held hard at a wrong resolution, the input undoes the refinement (docs/sfs.md)."""
+    if s.refine_dem_fidelity is not None:
+        return float(s.refine_dem_fidelity)
+    return 1.0 if s.refine_dem_input_blur is not None else 0.01
+
+
 def _coarsen(a: np.ndarray, f: int, how: str = "mean") -> np.ndarray:
     """``f x f`` blocks of ``a`` (rows and columns beyond a multiple of ``f`` dropped): their mean (NaN if any is
     NaN) or, ``how="all"``, whether all are true."""
@@ -123,7 +131,7 @@ def _refine(level_data, s, pixel_m: float, sigma_px: float) -> tuple[np.ndarray,
                for j, ok, sun, sc in images]
         cost = Cost([Shading(1.0, up, MOON_RADIUS_KM, obs, model.reflectance, params, bool(s.refine_dem_float_albedo)),
                      Smoothness(s.refine_dem_smoothness, pixel_m * f),
-                     Fidelity(s.refine_dem_fidelity, pixel_m * f, h0c, sigma_px / f)])
+                     Fidelity(fidelity_weight(s), pixel_m * f, h0c, sigma_px / f)])
         t0 = time.process_time()
         hr, rep = minimise(cost, hc, pixel_m * f, s.refine_dem_max_iter)
         reports.append({"level": level, **rep, "cpu_s": time.process_time() - t0,
