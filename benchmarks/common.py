@@ -53,18 +53,19 @@ print(json.dumps({"seconds": dt, "cpu_s": cpu.user + cpu.system, "user_s": cpu.u
 
 
 def solve_child(d: Path, out: Path, workers: int = 1, method: str = "overlap", max_iter: int = 10, src: Path | None = None,
-                tolerance: float = 0.0, one_cpu: bool = False) -> dict:
+                tolerance: float = 0.0, one_cpu: bool = False, settings_name: str = "settings.txt") -> dict:
     """Solve in a fresh process (clean memory figures); returns seconds, CPU seconds, peak MB, timings.
 
     ``src``: run another checkout's ``lunaralbedo`` (e.g. the previous implementation) instead of this one.
     ``tolerance``: the early stop (0: every one of ``max_iter`` passes, the default of the benchmarks).
+    ``settings_name``: the settings file of the scene folder ``d`` to solve.
     ``one_cpu``: the process may run on one CPU only (its affinity), so its threads (the cache writer,
     GDAL's compression) share that CPU: the one-core run a 1 -> 2 speed-up compares with.
     """
     shutil.rmtree(out, ignore_errors=True)
     first = min(os.sched_getaffinity(0)) if one_cpu else None
     res = subprocess.run(
-        [sys.executable, "-c", SOLVE_CHILD, str(d / "settings.txt"), str(out), str(workers), method, str(max_iter), repr(tolerance)],
+        [sys.executable, "-c", SOLVE_CHILD, str(d / settings_name), str(out), str(workers), method, str(max_iter), repr(tolerance)],
         capture_output=True, text=True, cwd=src or REPO,
         preexec_fn=(lambda: os.sched_setaffinity(0, {first})) if one_cpu else None,
     )

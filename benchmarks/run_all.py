@@ -28,6 +28,9 @@ Prints, in one run on this machine:
    exposure initialisation's logarithms, cast shadows by a sweep) (needs item 6's scene and outputs);
 14. the image-to-DEM registration (``benchmarks/registration_bench.py``): time per image per Gauss-Newton
    iteration and per level, peak memory, offsets against the truth of a misregistered strip.
+15. shape from shading (``benchmarks/sfs_bench.py``, docs/sfs.md): the heights' and the albedo's errors on
+   the forward strip with a blurred DEM, ns per observation per evaluation of the height cost, the whole
+   refinement against a plain solve of the same scene, peak memory.
 
 Scenes are rendered once into ``bench_out/`` and reused.  ``--quick`` uses smaller scenes
 (a smoke run, not the figures of docs/performance.md).
@@ -92,7 +95,7 @@ def main() -> int:
     ap.add_argument("--out", default="bench_out")
     ap.add_argument("--quick", action="store_true", help="small scenes (smoke run)")
     ap.add_argument("--json", default=None, help="also write the figures as JSON here")
-    ap.add_argument("--only", default="1,2,3,4,5,6,7,8,9,10,11,12,13,14", help="comma-separated items to run (3 comes with 1)")
+    ap.add_argument("--only", default="1,2,3,4,5,6,7,8,9,10,11,12,13,14,15", help="comma-separated items to run (3 comes with 1)")
     ap.add_argument("--before", default=None, help="source tree of a previous implementation to measure too (items 6, 8, 10, 12)")
     args = ap.parse_args()
     root = (REPO / args.out).resolve()
@@ -127,6 +130,16 @@ def main() -> int:
         from registration_bench import registration_cost  # noqa: E402
 
         registration_cost(root, q, figures)
+    if 15 in only:
+        from sfs_bench import run as sfs_run  # noqa: E402
+
+        f = figures["sfs"] = sfs_run(root, {}, False)
+        rd = f["refine"]["rounds"]
+        print(f"15. shape from shading (REFINE_DEM 1, docs/sfs.md): heights {f['rms_m']:.1f} m RMS against the truth "
+              f"(given {f['given_rms_m']:.1f} m, x{f['height_ratio']:.2f}); albedo {100 * f['albedo_refine']:.2f} % "
+              f"(plain {100 * f['albedo_plain']:.2f} %); {rd[-1]['ns_per_observation_evaluation']} ns per observation per "
+              f"evaluation of the height cost (one core); whole run {f['time_ratio']:.0f}x the plain solve; peak "
+              f"{f['peak_mb_refine']:.0f} MB", flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(figures, indent=2))
     return 0

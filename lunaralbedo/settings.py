@@ -61,6 +61,17 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     "EXPOSURE_MODE": (str, "solve", ("solve", "fixed", "prior")),
     "EXPOSURE_FILE": (Path, None, None),  # key,exposure CSV for EXPOSURE_MODE fixed/prior
     "EXPOSURE_PRIOR_SIGMA": (float, 0.02, None),  # relative standard deviation of the exposure prior
+    # shape from shading (docs/sfs.md): the DEM's heights refined with the albedo
+    "REFINE_DEM": (int, 0, (0, 1)),
+    "REFINE_DEM_ROUNDS": (int, 1, None),  # outer rounds: albedo solve, then heights, then albedo again
+    "REFINE_DEM_SMOOTHNESS": (float, 0.01, None),  # mu, on the change of slope between pixels
+    "REFINE_DEM_FIDELITY": (float, None, None),  # lambda; None: 1 when REFINE_DEM_INPUT_BLUR is given, else 0.01
+    "REFINE_DEM_INPUT_BLUR": (float, None, None),  # sigma (pixels) of the input DEM's resolution; None: from its pixel
+    "REFINE_DEM_MARGIN": (int, 16, None),  # pixels of overlap around each window's heights
+    "REFINE_DEM_WINDOW": (int, 256, None),  # most pixels a side of a height window (tiles are cut into such)
+    "REFINE_DEM_LEVELS": (int, 2, None),  # coarse to fine: levels of a factor 2
+    "REFINE_DEM_MAX_ITER": (int, 30, None),  # L-BFGS iterations per level and tile
+    "REFINE_DEM_FLOAT_ALBEDO": (int, 1, (0, 1)),  # the albedo floats with the heights (per pixel least squares)
 }
 
 
@@ -116,6 +127,16 @@ class Settings:
     exposure_mode: str = "solve"
     exposure_file: Path | None = None
     exposure_prior_sigma: float = 0.02
+    refine_dem: int = 0
+    refine_dem_rounds: int = 1
+    refine_dem_smoothness: float = 0.01
+    refine_dem_fidelity: float | None = None
+    refine_dem_input_blur: float | None = None
+    refine_dem_margin: int = 16
+    refine_dem_window: int = 256
+    refine_dem_levels: int = 2
+    refine_dem_max_iter: int = 30
+    refine_dem_float_albedo: int = 1
     #: Values of the model-declared keys, ``((LEGACY_KEY, value), ...)``; read as attributes (``s.phase_coeff_c1``).
     model_settings: tuple[tuple[str, Any], ...] = ()
     source: Path | None = field(default=None, compare=False)
@@ -283,6 +304,20 @@ def _validate(values: dict[str, Any], where: str) -> None:
                 )
     if model.validate is not None:
         model.validate(values, where)
+    _validate_refine(values, where, model)
+
+
+def _validate_refine(values: dict[str, Any], where: str, model) -> None:
+    """The REFINE_DEM_* keys (docs/sfs.md)."""
+    if values["REFINE_DEM"] and not model.needs_geometry:
+        raise SettingsError(f"{where}: REFINE_DEM 1 needs a reflectance model with a DEM (not mosaic mode)")
+    for key, lo in (("REFINE_DEM_ROUNDS", 1), ("REFINE_DEM_MARGIN", 4), ("REFINE_DEM_WINDOW", 16), ("REFINE_DEM_LEVELS", 1),
+                    ("REFINE_DEM_MAX_ITER", 1)):
+        if values[key] < lo:
+            raise SettingsError(f"{where}: {key} must be >= {lo}, got {values[key]}")
+    for key in ("REFINE_DEM_SMOOTHNESS", "REFINE_DEM_FIDELITY", "REFINE_DEM_INPUT_BLUR"):
+        if values[key] is not None and not 0 <= values[key] < float("inf"):
+            raise SettingsError(f"{where}: {key} must be a number >= 0, got {values[key]}")
 
 
 def _build(pairs: list[tuple[str, Any, str]], base: Path, source: Path) -> Settings:

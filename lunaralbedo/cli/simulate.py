@@ -11,7 +11,8 @@ from ._common import reports_errors
 _STRIP_ONLY = {"image_px": "--size", "res_deg": "--res", "exposure_spread": "--spread", "reflectance_type": "--reflectance",
                "tile_size": "--tile-size", "noise_dn": "--noise",
                "misregister_px": "--misregister", "fresh_craters": "--craters", "haze": "--haze",
-               "outlier_fraction": "--outliers", "calibrated": "--calibrated"}
+               "outlier_fraction": "--outliers", "calibrated": "--calibrated", "dem_blur_px": "--dem-blur",
+               "sun_azimuths": "--azimuths", "overlap": "--overlap"}
 
 
 @click.command("simulate")
@@ -30,13 +31,20 @@ _STRIP_ONLY = {"image_px": "--size", "res_deg": "--res", "exposure_spread": "--s
 @click.option("--misregister", "misregister_px", type=float, default=0.0, show_default=True,
               help="Each DRG's georeference off by a random shift of up to this many pixels east and north (drg; "
                    "the truth in truth.json: images.KEY.offset_east_m/offset_north_m).")
-@click.option("--craters", "fresh_craters", type=float, default=0.0, show_default=True,
-              help="Fresh bowl craters per square degree (rough terrain; drg).")
 @click.option("--haze", default=None, metavar="LO:HI",
               help="Additive haze per image, drawn uniformly in LO..HI DN (drg; e.g. 5:15).")
 @click.option("--outliers", "outlier_fraction", type=float, default=0.0, show_default=True,
               help="Fraction of each image's pixels in hot spots (x1.6-3) and dark dropout rows (x0.3) (drg).")
 @click.option("--calibrated", is_flag=True, help="Float32 I/F DRGs with every exposure 1, as from ISIS lronaccal (drg).")
+@click.option("--craters", "fresh_craters", type=float, default=0.0, show_default=True,
+              help="Rough terrain: small fresh bowl craters (0.6-2.4 km radius) per square degree (drg).")
+@click.option("--dem-blur", "dem_blur_px", type=float, default=0.0, show_default=True,
+              help="Give a blurred DEM: DEM/ holds the true heights blurred by a Gaussian of this sigma in pixels, "
+                   "truth/dem.tif the true heights (drg; for REFINE_DEM).")
+@click.option("--azimuths", "sun_azimuths", type=str, default="90", show_default=True,
+              help="Sun azimuths in degrees clockwise from north, comma-separated, cycled over the images (drg).")
+@click.option("--overlap", type=float, default=0.5, show_default=True,
+              help="Fraction of an image shared with the next (drg; 2/3: each column seen by about 3 images).")
 @click.option("--seed", type=int, default=None, help="Random seed [drg: 7, isis: 20240601, the sample_data mission].")
 @reports_errors
 def command(out_dir, fmt, n_images, seed, **kwargs):
@@ -64,6 +72,10 @@ def command(out_dir, fmt, n_images, seed, **kwargs):
             raise InputError(f"--haze must be LO:HI in DN (e.g. 5:15), got {haze!r}") from None
         kwargs["haze_dn"] = (lo, hi)
 
+    try:
+        kwargs["sun_azimuths"] = tuple(float(a) for a in kwargs["sun_azimuths"].split(","))
+    except ValueError:
+        raise InputError(f"--azimuths: comma-separated numbers (degrees), got {kwargs['sun_azimuths']!r}") from None
     truth = render_scene(out_dir, SceneSpec(n_images=6 if n_images is None else n_images, seed=7 if seed is None else seed,
                                             **kwargs))
     click.echo(f"rendered {len(truth['images'])} images into {out_dir}/ (settings: {out_dir}/settings.txt, truth: {out_dir}/truth/)")

@@ -68,6 +68,10 @@ def _print_summary(result) -> None:
                    "its haze.csv value is not reliable", err=True)
     if rep.get("outliers"):
         click.echo(f"  outliers: {100 * rep['outliers']['rejected_fraction']:.3f} % of the observations rejected (outliers/)")
+    if rep.get("refine_dem"):
+        d = rep["refine_dem"]
+        click.echo(f"  heights refined (REFINE_DEM, docs/sfs.md): {len(d['rounds'])} round(s) in {d['seconds']:.1f}s, "
+                   f"change {d['dem_change_rms_m']:.3g} m RMS (dem_change/, dem_lit/, dem_input/)")
     click.echo("  time " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()))
     click.echo(f"  results in {result.out_dir}/ (albedo/, error/, exposure.csv, phase.csv, report.json, *.png)")
 

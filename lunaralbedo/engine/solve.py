@@ -58,6 +58,7 @@ RESPONSE_DIR = f"{CHECKPOINT_DIR}/response"  # camera response files (response/s
 MARKER = ".lunaralbedo"  # written first into every OUTDIR: marks it as ours
 _TILE_DIRS = ("albedo", "error", "DEM", "weightsSum", "outliers")
 _OUTPUT_DIRS = (*_TILE_DIRS, "weight")
+_REFINE_DIRS = ("sfs", "dem_change", "dem_lit", "dem_input")  # REFINE_DEM 1 (engine/refine.py)
 _RESULT_FILES = ("report.json", "exposure.csv", "haze.csv", "phase.csv", "exposure.png", "cost.png",
                  "response.csv", "response.png", "loglik.png", "residuals.png", "image_offsets.csv")
 
@@ -97,7 +98,7 @@ def _check_out_dir(out: Path, settings: Settings) -> bool:
 
 def _clear_previous_run(out: Path) -> None:
     """Remove an earlier run's outputs and checkpoint (called once the inputs are known to be good)."""
-    for name in (*_OUTPUT_DIRS, CHECKPOINT_DIR):
+    for name in (*_OUTPUT_DIRS, CHECKPOINT_DIR, *_REFINE_DIRS):
         shutil.rmtree(out / name, ignore_errors=True)
     for name in _RESULT_FILES:
         (out / name).unlink(missing_ok=True)
@@ -227,10 +228,18 @@ def solve(
             from .registration import register_scene
 
             scene = register_scene(scene, out / CHECKPOINT_DIR, resume, timings)
+        if scene.settings.refine_dem:  # shape from shading: rounds of solves and height refinements (engine/refine.py)
+            from .refine import refine_solve
+
+            if response is not None or exposure_times is not None:
+                raise SettingsError("REFINE_DEM 1: not available with --response or --exposure-times")
+            run = lambda sc, folder, extra: _run(sc, folder, method, max_iter, tolerance, executor, resume,  # noqa: E731
+                                                 timings if extra is not None else {}, plots and extra is not None, extra=extra)
+            return refine_solve(scene, out, run, executor, resume)
         return _run(scene, out, method, max_iter, tolerance, executor, resume, timings, plots, (response, exposure_times))
     except (Exception, KeyboardInterrupt) as exc:
         typed = typed_error(exc)
-        resumable = (out / CHECKPOINT_DIR).exists() and not (typed is not None and typed.exit_code == 2)
+        resumable = any((out / d).exists() for d in (CHECKPOINT_DIR, "sfs")) and not (typed is not None and typed.exit_code == 2)
         if created and not resume and not resumable:
             remove_tree(out)  # bad input (or nothing to resume): leave nothing behind
         raise
@@ -250,7 +259,7 @@ def _load_checkpoint(out: Path, scene: Scene, method: str, resume: bool) -> dict
     return state
 
 
-def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, resp=(None, None)) -> SolveResult:
+def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, resp=(None, None), extra=None) -> SolveResult:
     s = scene.settings
     cache = out / CACHE_DIR
     ck = _load_checkpoint(out, scene, method, resume)
@@ -350,7 +359,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     timings["finalise"] = time.perf_counter() - t3
     costs = stage_costs(timings, n_obs, ck["iteration"] - resume_info["iterations_done_before"])
     return _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info,
-                              costs)
+                              costs, extra)
 
 
 def stage_costs(timings: dict, n_obs: int | None, passes: int) -> dict:
@@ -396,7 +405,8 @@ def _prepare(on_tiles, executor, lut) -> list:
     return metas
 
 
-def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info, costs):
+def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info, costs,
+                       extra=None):
     keys = scene.keys
     outputs.write_exposure_csv(out / "exposure.csv", keys, state.exposure, t_init)
     names = scene.model.parameters
@@ -431,6 +441,7 @@ def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timi
         "haze_inseparable": ck.get("haze_inseparable", []),
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "observations": costs,
+        **(extra or {}),
     }
     from .registration import finish
 

@@ -75,6 +75,7 @@ class SceneSpec:
     haze_dn: tuple[float, float] = (0.0, 0.0)  # additive haze per image, uniform in this range, DN (simulate.defects)
     outlier_fraction: float = 0.0  # fraction of each image's pixels in hot spots and dropout rows (simulate.defects)
     calibrated: bool = False  # float32 I/F DRGs (A R + noise / gain, haze / gain), every exposure 1
+    dem_blur_px: float = 0.0  # > 0: DEM/dem.tif is the truth blurred (Gaussian, sigma in pixels); truth/dem.tif the truth
 
     @classmethod
     def centred(cls, lon_center: float, lat_center: float = 0.0, **kwargs) -> "SceneSpec":
@@ -128,6 +129,7 @@ _LIMITS = {
     "max_num_iter": ("max_num_iter", 1, None, False),
     "altitude_km": ("altitude_km", 0.0, None, True),
     "misregister_px": ("--misregister", 0.0, None, False),
+    "dem_blur_px": ("--dem-blur", 0.0, None, False),
     "fresh_craters": ("--craters", 0.0, None, False),
 }
 
@@ -166,6 +168,17 @@ def offset_truth(stated_px, res_deg: float, lat_deg: float) -> dict:
     e, n = -float(stated_px[0]), -float(stated_px[1])
     return {"offset_px": [e, n], "offset_east_m": e * res_deg * m_per_deg * float(np.cos(np.radians(lat_deg))),
             "offset_north_m": n * res_deg * m_per_deg}
+
+
+def _write_blurred(path: Path, fn, transform: Affine, shape: tuple[int, int], sigma_px: float) -> None:
+    """Write ``fn(lon, lat)`` blurred by a Gaussian of ``sigma_px`` pixels (evaluated 4 sigma beyond the grid, so
+    the edges are blurred like the inside)."""
+    from scipy.ndimage import gaussian_filter
+
+    pad = int(np.ceil(4 * sigma_px))
+    lon, lat = geometry.lonlat_grid(transform @ Affine.translation(-pad, -pad), (shape[0] + 2 * pad, shape[1] + 2 * pad))
+    h = gaussian_filter(fn(lon, lat), sigma_px, mode="nearest")[pad:pad + shape[0], pad:pad + shape[1]]
+    write_geotiff(path, h.astype(np.float32), transform, MOON_CRS, nodata=-32767.0)
 
 
 def _sun_and_spacecraft(spec: SceneSpec, k: int, lon_c: float, lat_c: float, rng) -> tuple[np.ndarray, np.ndarray]:
@@ -237,7 +250,11 @@ def _render(out: Path, spec: SceneSpec) -> dict:
     def albedo_fn(lo, la):
         return truth_albedo(lo, la, extent)
 
-    _write_field(out / "DEM" / "dem.tif", dem_fn, gt, (height + 2 * m, width + 2 * m), nodata=-32767.0)
+    if spec.dem_blur_px > 0:  # the given DEM lost the relief finer than the blur; the truth is kept
+        _write_field(out / "truth" / "dem.tif", dem_fn, gt, (height + 2 * m, width + 2 * m), nodata=-32767.0)
+        _write_blurred(out / "DEM" / "dem.tif", dem_fn, gt, (height + 2 * m, width + 2 * m), spec.dem_blur_px)
+    else:
+        _write_field(out / "DEM" / "dem.tif", dem_fn, gt, (height + 2 * m, width + 2 * m), nodata=-32767.0)
     _write_field(out / "truth" / "albedo.tif", albedo_fn, gt @ Affine.translation(m, m), (height, width))
     u = np.linspace(-1, 1, spec.n_images)
     exposures = 1.0 + spec.exposure_spread * rng.permutation(u)
@@ -328,7 +345,8 @@ def _render(out: Path, spec: SceneSpec) -> dict:
     )
     atomic_write_text(out / "settings.txt", settings)
     truth = {"reflectance_type": model.code, **dict(zip(model.parameters, params)), "seed": spec.seed,
-             "albedo": "truth/albedo.tif", "dem": "DEM/dem.tif", "frame": "Moon body-fixed (1737.4 km sphere), km",
+             "albedo": "truth/albedo.tif", "dem": "truth/dem.tif" if spec.dem_blur_px > 0 else "DEM/dem.tif",
+             "frame": "Moon body-fixed (1737.4 km sphere), km",
              "gain": gain, "spec": asdict(spec),
              "images": {key: {"exposure": float(exposures[k]), "sun_km": sun_pos[key].tolist(),
                               "spacecraft_km": sc_pos[key].tolist(), "drg": f"DRG/{key}_drg.tif",

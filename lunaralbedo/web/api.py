@@ -135,6 +135,7 @@ def export_web(
     albedo = albedo_sources(results_dir)
     errors = _optional_sources(results_dir / "error", "error")
     dem = _optional_sources(results_dir / "DEM", "DEM")
+    dem_input = _optional_sources(results_dir / "dem_input", "DEM")  # REFINE_DEM 1: the heights before (docs/sfs.md)
     exposures = read_exposures(results_dir / "exposure.csv")
     remove_stale_staging(out.parent)
 
@@ -149,7 +150,11 @@ def export_web(
             st_err, _ = scan_sources(errors, results_dir / "error", executor, (2.0, 98.0), None, "error")
             layers.append(("error", "Error (eq. 7)", errors, ColorTiles(st_err, colormap_lut(ERROR_COLORMAP), pyr.tile_size), st_err))
         if dem:
-            layers.append(("hillshade", "DEM hillshade", dem, HillshadeTiles(pyr.tile_size), None))
+            layers.append(("hillshade", "DEM hillshade" + (" (refined)" if dem_input else ""), dem,
+                           HillshadeTiles(pyr.tile_size), None))
+        if dem_input:
+            layers.append(("hillshade_input", "DEM hillshade before REFINE_DEM", dem_input, HillshadeTiles(pyr.tile_size),
+                           None))
         drg_dir = Path(report.get("settings", {}).get("drg_dir", ""))
         centre_lon = (grid.bounds[0] + grid.bounds[2]) / 2
 

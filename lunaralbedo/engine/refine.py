@@ -1,0 +1,199 @@
+"""``REFINE_DEM 1``: shape from shading as outer rounds around the albedo solve (docs/sfs.md).
+
+Round ``r`` (``REFINE_DEM_ROUNDS`` of them):
+
+1. the albedo solve (prepare, iterate, finalise: :func:`lunaralbedo.engine.solve._run`) with the
+   heights ``sfs/dem_<r>/dem.tif``, into ``OUTDIR/sfs/round_<r>/``; its exposures and photometric
+   parameters (global) are kept in ``sfs/round_<r>.json``;
+2. per window (a tile, or a part of one of at most ``REFINE_DEM_WINDOW`` pixels a side), on the run's
+   executor, the heights minimised with that albedo and those exposures held
+   (:func:`.sfs_tile.refine_tile`) over the window and a margin; the windows blended with
+   weights that fall to zero in the outer half of each margin, in tile order, into
+   ``sfs/dem_<r+1>/dem.tif``.
+
+The last solve, with the last heights, writes OUTDIR as a plain solve does (its ``DEM/`` holds the
+heights the albedo was solved with), plus ``dem_change/`` (refined minus input) and ``dem_lit/``
+(the number of images that see each pixel lit, outside any shadow: the observations that constrain
+its heights in the last round).  All the heights live on one grid: the tiles' pixels over
+SIMULATION_BOX with a border (:class:`.sfs_tile.HeightGrid`); ``sfs/dem_0`` is the input DEM
+resampled onto it, holes filled from the surrounding heights (GDAL's fill, rasterio
+``fillnodata``).  Each file is written atomically and reused by ``--resume``; ``sfs/`` is removed
+once the run has succeeded.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+from rasterio.transform import Affine
+
+from ..errors import InputError, ResumeError
+from ..io.atomic import atomic_write_text
+from ..io.geotiff import write_geotiff
+from ..io.rasters import raster_info, read_dem_onto_grid
+from ..model.cast_shadows import shadow_reach_km
+from .sfs_tile import HeightGrid, fidelity_weight, pieces, refine_tile
+
+SFS_DIR = "sfs"
+PRODUCT_DIRS = ("dem_change", "dem_lit", "dem_input")
+#: Rows of the input DEM resampled at a time onto the heights grid.
+_ROWS = 512
+
+
+def height_grid(scene) -> HeightGrid:
+    """The heights grid of ``scene``: its tiles' pixels, with a border of the margin plus the cast shadows' reach."""
+    t0 = scene.tiles[0]
+    a, e = t0.transform.a, t0.transform.e
+    west = min(t.transform.c for t in scene.tiles)
+    north = max(t.transform.f for t in scene.tiles)
+    cols = int(round((max(t.transform.c + a * t.width for t in scene.tiles) - west) / a))
+    rows = int(round((north - min(t.transform.f + e * t.height for t in scene.tiles)) / -e))
+    s = scene.settings
+    border = s.refine_dem_margin + 8
+    if s.uses_cast_shadows:  # heights beyond the box may shade it: as far as a 2 km relief's shadow at the lowest Sun
+        px_km = abs(a) * np.pi / 180 * 1737.4
+        border += int(min(256, np.ceil(shadow_reach_km(2000.0, np.radians(10.0), 60.0) / px_km)))
+    transform = Affine(a, 0.0, west - border * a, 0.0, e, north - border * e)
+    return HeightGrid(transform, (rows + 2 * border, cols + 2 * border), border)
+
+
+def write_given_dem(scene, grid: HeightGrid, path: Path) -> None:
+    """The input DEM resampled (bilinear) onto ``grid``, holes filled from the surrounding heights; metres, float32."""
+    from rasterio.fill import fillnodata
+
+    h = np.empty(grid.shape, np.float32)
+    for r in range(0, grid.shape[0], _ROWS):
+        n = min(_ROWS, grid.shape[0] - r)
+        h[r:r + n] = read_dem_onto_grid(scene.dems, grid.transform @ Affine.translation(0, r), (n, grid.shape[1]),
+                                        scene.crs, scene.settings.no_dem_data_val)
+    ok = np.isfinite(h)
+    if not ok.any():
+        raise InputError(f"{scene.settings.dem_dir}: the DEM has no heights over SIMULATION_BOX")
+    if not ok.all():
+        h = fillnodata(np.where(ok, h, 0).astype(np.float32), mask=ok.astype(np.uint8),
+                       max_search_distance=float(max(grid.shape)), smoothing_iterations=0)
+    write_geotiff(path, h.astype(np.float32), grid.transform, scene.crs)
+
+
+def input_blur_px(scene, grid: HeightGrid) -> float:
+    """``REFINE_DEM_INPUT_BLUR``, or the input DEM's pixel in pixels of ``grid``, at least 2 (docs/sfs.md)."""
+    s = scene.settings
+    if s.refine_dem_input_blur is not None:
+        return float(s.refine_dem_input_blur)
+    return float(max(2.0, max(d.lonlat_res[0] for d in scene.dems) / abs(grid.transform.a)))
+
+
+def _with_dem(scene, dem: Path):
+    """``scene`` with its DEM replaced by the one file ``dem`` (the next round's heights)."""
+    return dataclasses.replace(scene, settings=dataclasses.replace(scene.settings, dem_dir=dem.parent),
+                               dems=[raster_info(dem)])
+
+
+def _read(path: Path) -> np.ndarray:
+    import rasterio
+
+    with rasterio.open(path) as ds:
+        return ds.read(1)
+
+
+def blend(grid: HeightGrid, current: Path, parts: list[dict], tiles_dir: Path, out: Path) -> dict:
+    """Mosaic the tiles' refined windows (weighted mean, tile order) over ``current``; write ``out`` and its
+    lit counts ``lit.tif``; returns the change's RMS (metres) over the pixels the tiles reached."""
+    import rasterio
+
+    h = _read(current).astype(np.float64)
+    num, den = np.zeros(grid.shape), np.zeros(grid.shape)
+    lit = np.zeros(grid.shape, np.int16)
+    for t, part in enumerate(parts):  # fixed tile order: the same bytes for any number of workers
+        r0, r1, c0, c1 = part["window"]
+        with np.load(tiles_dir / f"tile_{t:04d}.npz") as z:
+            num[r0:r1, c0:c1] += z["w"] * z["h"]
+            den[r0:r1, c0:c1] += z["w"]
+            lit[r0:r1, c0:c1] = np.maximum(lit[r0:r1, c0:c1], z["lit"])
+    new = np.where(den > 0, num / np.where(den > 0, den, 1.0), h)
+    change = (new - h)[den > 0]
+    with rasterio.open(current) as ds:
+        crs = ds.crs
+    write_geotiff(out.parent / "lit.tif", lit, grid.transform, crs)
+    write_geotiff(out, new.astype(np.float32), grid.transform, crs)  # last: its presence means the round is done
+    return {"change_rms_m": float(np.sqrt(np.mean(change**2))) if change.size else 0.0}
+
+
+def write_products(scene, grid: HeightGrid, given: Path, final: Path, lit: Path, out: Path) -> dict:
+    """``dem_change/`` (final minus input heights, metres), ``dem_lit/`` (lit images) and ``dem_input/`` (the input
+    heights on the tile grid, holes filled: the web report's hillshade before) tiles; the change's RMS."""
+    g, f, n = _read(given).astype(np.float64), _read(final).astype(np.float64), _read(lit)
+    sq, count = 0.0, 0
+    for tile in scene.tiles:
+        r, c = grid.offset(tile)
+        core = (slice(r, r + tile.height), slice(c, c + tile.width))
+        d = f[core] - g[core]
+        sq += float(np.sum(d * d))
+        count += d.size
+        write_geotiff(out / "dem_change" / f"{tile.name}.tif", d.astype(np.float32), tile.transform, scene.crs,
+                      nodata=float("nan"))
+        write_geotiff(out / "dem_lit" / f"{tile.name}.tif", n[core].astype(np.int16), tile.transform, scene.crs)
+        write_geotiff(out / "dem_input" / f"{tile.name}.tif", g[core].astype(np.float32), tile.transform, scene.crs,
+                      nodata=float("nan"))
+    return {"dem_change_rms_m": float(np.sqrt(sq / max(count, 1)))}
+
+
+def refine_solve(scene, out: Path, run_solve, executor, resume: bool):
+    """The rounds of the module docstring; ``run_solve(scene, folder, extra_report)`` is one albedo solve.
+    Returns the last solve's result (OUTDIR written)."""
+    s = scene.settings
+    t0 = time.perf_counter()
+    sfs = out / SFS_DIR
+    stamp = sfs / "fingerprint.txt"  # the rounds' files belong to these settings and inputs only
+    if stamp.exists() and stamp.read_text() != scene.fingerprint():
+        raise ResumeError(f"{sfs}: the refined heights belong to other settings or inputs; run without --resume")
+    if not resume:
+        shutil.rmtree(sfs, ignore_errors=True)
+    atomic_write_text(stamp, scene.fingerprint())
+    grid = height_grid(scene)
+    given = sfs / "dem_0" / "dem.tif"
+    if not given.exists():
+        write_given_dem(scene, grid, given)
+    sigma = input_blur_px(scene, grid)
+    current, rounds = given, []
+    for r in range(s.refine_dem_rounds):
+        scene_r = _with_dem(scene, current)
+        state = sfs / f"round_{r}.json"
+        if not state.exists():
+            res = run_solve(scene_r, sfs / f"round_{r}", None)
+            atomic_write_text(state, json.dumps({"exposure": res.exposure.tolist(),
+                                                 "params": list(res.parameters.values())}))
+        got = json.loads(state.read_text())
+        nxt = sfs / f"dem_{r + 1}" / "dem.tif"
+        info = json.loads((nxt.parent / "round.json").read_text()) if nxt.exists() else None
+        if info is None:
+            albedo = [(p, raster_info(p).lonlat_bounds) for p in sorted((sfs / f"round_{r}" / "albedo").glob("*.tif"))]
+            windows = pieces(scene_r, s.refine_dem_window)
+            parts = executor.map(refine_tile, range(len(windows)), f"refine heights {r + 1}", shared=("scene",),
+                                 scene=scene_r, windows=windows, grid=grid, current=current, given=given, albedo=albedo,
+                                 exposure=np.asarray(got["exposure"]), params=got["params"], sigma_px=sigma,
+                                 out_dir=sfs / f"tiles_{r + 1}")
+            info = {"tiles": [{k: p[k] for k in ("tile", "reports", "lit_mean")} for p in parts]}
+            info.update(blend(grid, current, parts, sfs / f"tiles_{r + 1}", nxt))
+            atomic_write_text(nxt.parent / "round.json", json.dumps(info))
+        reps = [rep for t in info["tiles"] for rep in t["reports"]]
+        work = sum(rep["observations"] * rep["evaluations"] for rep in reps)
+        rounds.append({"round": r + 1, "change_rms_m": info["change_rms_m"],
+                       "lbfgs_iterations": [sum(rep["iterations"] for rep in t["reports"]) for t in info["tiles"]],
+                       "cpu_s": round(sum(rep["cpu_s"] for rep in reps), 3),
+                       # CPU time per observation per evaluation of the cost and its gradient (one core)
+                       "ns_per_observation_evaluation": round(1e9 * sum(rep["cpu_s"] for rep in reps) / work, 1)
+                       if work else None})
+        current = nxt
+    report = {"settings": s.to_dict(), "refine_dem": {"rounds": rounds, "input_blur_px": sigma, "fidelity": fidelity_weight(s),
+                                                      "pixel_m": grid.pixel_m(),
+                                                      # the rounds before the last solve (this process's share, if resumed)
+                                                      "seconds": round(time.perf_counter() - t0, 3),
+                             **write_products(scene, grid, given, current, current.parent / "lit.tif", out)}}
+    result = run_solve(_with_dem(scene, current), out, report)
+    shutil.rmtree(sfs, ignore_errors=True)
+    return result

@@ -1,0 +1,179 @@
+"""Shape from shading (REFINE_DEM 1): the cost's gradient, and the true heights recovered from a blurred DEM."""
+from __future__ import annotations
+
+import glob
+import json
+
+import numpy as np
+import pytest
+import rasterio
+from rasterio.merge import merge
+
+from lunaralbedo.engine import refine
+from lunaralbedo.errors import ResumeError
+from lunaralbedo.engine.solve import solve
+from lunaralbedo.model import geometry, photometry
+from lunaralbedo.model.sfs import Cost, lbfgs
+from lunaralbedo.model.sfs.fidelity import Fidelity
+from lunaralbedo.model.sfs.shading import Shading, interior_normals, observation, unit_up
+from lunaralbedo.model.sfs.smoothness import Smoothness
+from lunaralbedo.simulate import SceneSpec, forward, render_scene, score
+
+#: A small strip: each column seen by about 3 images, Sun azimuths spread +-40 degrees, fresh craters,
+#: the DEM given blurred by 2 pixels (sigma), 6 tiles.
+SMALL = dict(n_images=5, overlap=2 / 3, image_px=48, res_deg=0.0125, sun_azimuths=(50.0, 90.0, 130.0, 70.0, 110.0),
+             fresh_craters=60.0, dem_relief_m=300.0, tile_size=0.5, seed=3, dem_blur_px=2.0, max_num_iter=10)
+REFINE = ["REFINE_DEM 1", "REFINE_DEM_INPUT_BLUR 2", "REFINE_DEM_MARGIN 8"]
+
+
+def _settings(scene, lines, name="settings_sfs.txt"):
+    keys = {ln.split()[0] for ln in lines}
+    text = [ln for ln in (scene / "settings.txt").read_text().splitlines() if ln.split()[:1] and ln.split()[0] not in keys]
+    path = scene / name
+    path.write_text("\n".join(text + lines) + "\n")
+    return path
+
+
+def _mosaic(files, like, nodata=np.nan):
+    with rasterio.open(like) as t:
+        return merge(sorted(files), bounds=t.bounds, res=t.res, nodata=nodata)[0][0]
+
+
+def _height_errors(out, scene):
+    """RMS of the solved DEM and of the given DEM against the truth, over the solved pixels (metres)."""
+    like = scene / "truth" / "albedo.tif"
+    truth, given = _mosaic([scene / "truth/dem.tif"], like), _mosaic([scene / "DEM/dem.tif"], like)
+    dem = _mosaic(glob.glob(str(out / "DEM" / "*.tif")), like)
+    ok = np.isfinite(dem)
+    return float(np.sqrt(np.mean((dem - truth)[ok] ** 2))), float(np.sqrt(np.mean((given - truth)[ok] ** 2)))
+
+
+def test_cost_gradient_matches_finite_differences():
+    rng = np.random.default_rng(0)
+    h_, w_ = 10, 12
+    lon, lat = np.meshgrid(10 + 0.01 * np.arange(w_), -5 - 0.01 * np.arange(h_))
+    h = rng.normal(0, 50, (h_, w_))
+    pts = geometry.body_fixed(lon, lat, h)
+    obs = [observation(rng.uniform(0.3, 0.8, (h_ - 2, w_ - 2)), np.ones((h_ - 2, w_ - 2)), pts,
+                       forward.sun_position(geometry.body_fixed(10.05, -5.05, 0), az, 55),
+                       geometry.body_fixed(10.05, -5.05, 1e5)) for az in (50, 130)]
+    cost = Cost([Shading(1.0, unit_up(lon, lat), 1737.4, obs, photometry.get(2).reflectance, (1.4, 0.5)),
+                 Smoothness(0.3, 300.0), Fidelity(0.2, 300.0, rng.normal(0, 50, (h_, w_)), 1.5)])
+    g = cost(h)[1]
+    for i, j in [(0, 0), (1, 1), (5, 6), (9, 11), (0, 5)]:
+        e = np.zeros_like(h)
+        e[i, j] = 1e-3
+        assert g[i, j] == pytest.approx((cost(h + e)[0] - cost(h - e)[0]) / 2e-3, rel=1e-5, abs=1e-12)
+    # the normals are those of the solver's geometry
+    np.testing.assert_allclose(interior_normals(pts)[0], geometry.dem_normals(pts)[1:-1, 1:-1], atol=1e-14)
+
+
+def test_lbfgs_minimises_a_badly_scaled_quadratic():
+    d = np.geomspace(1, 1e3, 500)
+    x, f, _ = lbfgs(lambda x: (0.5 * float(np.sum(d * x * x)), d * x), np.ones(500), 300)
+    assert f < 1e-8 * 0.5 * d.sum()
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    d = tmp_path_factory.mktemp("sfs")
+    render_scene(d, SceneSpec(**SMALL))
+    return d
+
+
+def test_blurred_dem_scene_keeps_the_truth(small):
+    with rasterio.open(small / "truth/dem.tif") as t, rasterio.open(small / "DEM/dem.tif") as g:
+        truth, given = t.read(1), g.read(1)
+        assert t.transform == g.transform
+    assert np.sqrt(np.mean((truth - given) ** 2)) > 10.0  # the blur took away relief
+    assert abs(truth.mean() - given.mean()) < 2.0  # but no height offset
+    assert json.loads((small / "truth/truth.json").read_text())["dem"] == "truth/dem.tif"
+
+
+def test_refine_dem_recovers_the_heights_and_the_albedo(small, tmp_path):
+    plain = solve(small / "settings.txt", out=tmp_path / "plain", workers=1, plots=False)
+    res = solve(_settings(small, REFINE), out=tmp_path / "sfs", workers=1, plots=False)
+    err, given = _height_errors(tmp_path / "sfs", small)
+    assert err <= 0.6 * given, (err, given)
+    a_plain, a_sfs = score(tmp_path / "plain", small)["albedo_rel_rmse"], score(tmp_path / "sfs", small)["albedo_rel_rmse"]
+    assert a_sfs < 0.8 * a_plain, (a_sfs, a_plain)
+    rep = res.report["refine_dem"]
+    assert len(rep["rounds"]) == 1 and rep["dem_change_rms_m"] > 0.3 * given
+    assert res.report["settings"]["dem_dir"] == str(small / "DEM")  # the input DEM, not a round's
+    tiles = sorted(p.name for p in (tmp_path / "sfs" / "DEM").glob("*.tif"))
+    assert tiles == sorted(p.name for p in (tmp_path / "sfs" / "dem_change").glob("*.tif"))
+    assert tiles == sorted(p.name for p in (tmp_path / "sfs" / "dem_lit").glob("*.tif"))
+    lit = _mosaic(glob.glob(str(tmp_path / "sfs" / "dem_lit" / "*.tif")), small / "truth/albedo.tif", nodata=-1)
+    assert 2 <= np.median(lit) <= 4  # each column is seen by about 3 images
+    assert not (tmp_path / "sfs" / "sfs").exists() and not (tmp_path / "sfs" / "checkpoint").exists()
+    # the web report shows the hillshade before and after
+    from lunaralbedo.web.api import export_web
+
+    web = export_web(tmp_path / "sfs", workers=1)
+    assert {"hillshade", "hillshade_input"} <= set(web["layers"])
+    before = sorted((tmp_path / "sfs" / "web" / "tiles" / "hillshade_input").rglob("*.png"))
+    after = sorted((tmp_path / "sfs" / "web" / "tiles" / "hillshade").rglob("*.png"))
+    assert before and [p.name for p in before] == [p.name for p in after]
+    assert any(a.read_bytes() != b.read_bytes() for a, b in zip(before, after))  # the refined relief differs
+    assert len(plain.tiles) == 6
+
+
+def test_refine_dem_same_bytes_for_two_workers_after_a_kill_and_with_a_dem_with_holes(small, tmp_path, monkeypatch):
+    with rasterio.open(small / "DEM/dem.tif") as ds:
+        prof, h = ds.profile, ds.read(1)
+    h[30:36, 40:52] = prof["nodata"]  # a hole in the given DEM: filled from the heights around it
+    holed = tmp_path / "scene"
+    holed.mkdir()
+    for sub in ("DRG", "meta", "truth"):
+        (holed / sub).symlink_to(small / sub)
+    (holed / "DEM").mkdir()
+    with rasterio.open(holed / "DEM/dem.tif", "w", **prof) as ds:
+        ds.write(h, 1)
+    (holed / "settings.txt").write_text((small / "settings.txt").read_text())
+    # tiles of 40 px cut into height windows of 20 px
+    path = _settings(holed, REFINE[:1] + ["REFINE_DEM_MAX_ITER 15", "REFINE_DEM_MARGIN 8", "REFINE_DEM_WINDOW 24"])
+    solve(path, out=tmp_path / "w1", workers=1, plots=False)
+    solve(path, out=tmp_path / "w2", workers=2, plots=False)
+    real = refine.write_products
+
+    def killed(*args, **kwargs):  # the run stops once the refined heights are written, before the last solve
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(refine, "write_products", killed)
+    with pytest.raises(KeyboardInterrupt):
+        solve(path, out=tmp_path / "killed", workers=1, plots=False)
+    assert (tmp_path / "killed" / "sfs" / "dem_1" / "dem.tif").exists()
+    monkeypatch.setattr(refine, "write_products", real)
+    text = path.read_text()
+    path.write_text(text.replace("REFINE_DEM_MAX_ITER 15", "REFINE_DEM_MAX_ITER 16"))  # the rounds' files are not theirs
+    with pytest.raises(ResumeError, match="sfs"):
+        solve(path, out=tmp_path / "killed", workers=1, plots=False, resume=True)
+    path.write_text(text)
+    solve(path, out=tmp_path / "killed", workers=1, plots=False, resume=True)
+    for other in ("w2", "killed"):
+        for sub in ("DEM", "albedo", "dem_change", "dem_lit"):
+            for f in sorted((tmp_path / "w1" / sub).glob("*.tif")):
+                with rasterio.open(f) as a, rasterio.open(tmp_path / other / sub / f.name) as b:
+                    x, y = a.read(1), b.read(1)
+                    assert np.array_equal(x, y, equal_nan=True), (other, sub, f.name)
+                    if sub == "DEM":
+                        assert np.isfinite(x).all()
+
+
+def test_simulate_cli_rough_terrain_and_blurred_dem(tmp_path):
+    from click.testing import CliRunner
+
+    from lunaralbedo.cli import main
+
+    args = ["simulate", str(tmp_path / "s"), "--images", "3", "--size", "32", "--overlap", "0.667", "--azimuths", "50,130",
+            "--craters", "30", "--dem-blur", "2"]
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 0, res.output
+    truth = json.loads((tmp_path / "s/truth/truth.json").read_text())
+    assert truth["spec"]["sun_azimuths"] == [50.0, 130.0] and truth["spec"]["dem_blur_px"] == 2.0
+    with rasterio.open(tmp_path / "s/truth/dem.tif") as t, rasterio.open(tmp_path / "s/DEM/dem.tif") as g:
+        # blurring lowers the relief's roughness: the given DEM's Laplacian is several times smaller
+        lap = lambda h: np.abs(h[2:, 1:-1] + h[:-2, 1:-1] + h[1:-1, 2:] + h[1:-1, :-2] - 4 * h[1:-1, 1:-1]).mean()  # noqa
+        assert lap(g.read(1).astype(float)) < 0.5 * lap(t.read(1).astype(float))
+    res = CliRunner().invoke(main, ["simulate", str(tmp_path / "bad"), "--azimuths", "east"])
+    assert res.exit_code == 2 and "--azimuths" in res.output and not (tmp_path / "bad").exists()
