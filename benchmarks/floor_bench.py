@@ -1,4 +1,4 @@
-"""Item 13 of ``make bench``: the floor of the strip's prepare step on one CPU (issue 15's "prepare <= 50 ns").
+"""Item 13 of ``make bench``: the floor of the strip's prepare step on one CPU (the "prepare <= 50 ns" target of docs/performance-history.md).
 
 Whatever the code, preparing the strip of item 6 must at least
 

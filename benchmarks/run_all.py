@@ -10,10 +10,10 @@ Prints, in one run on this machine:
 3. speed-up 1 -> 2 workers, and from one worker confined to one CPU (its cache writer and GDAL
    threads then share that CPU, as the one-worker runs did before they had threads) to 2 workers;
 4. iterations needed to get within 1 % of the converged albedo, default method vs --method seed;
-5. camera response fit (seed 002, ``--response``): seconds per million observations
+5. camera response fit (Kim et al., ``--response``): seconds per million observations
    (one 8-image stack of ~1 M observations; ``benchmarks/response_bench.py`` has the
    accuracy comparison with OpenCV and more sizes);
-6-10. the scenes of issue 15 (``benchmarks/scale_bench.py``): the narrow strip at legacy tile
+6-10. the scale scenes (``benchmarks/scale_bench.py``): the narrow strip at legacy tile
    size, exposure initialisation for 10^3-10^5 images, orthoprojection, memory bandwidth,
    peak memory of one 4000 x 4000 px tile under 16 images (blocks of rows);
 11. what two workers cost each other (``benchmarks/contention_bench.py``): the plain pass, the
@@ -115,7 +115,7 @@ def main() -> int:
         convergence(root, q, figures)
     if 5 in only:
         response_fit(q, figures)
-    from scale_bench import run_scale_items  # noqa: E402  (items 6-10: issue 15)
+    from scale_bench import run_scale_items  # noqa: E402  (items 6-10)
 
     run_scale_items(root, q, figures, only, Path(args.before).resolve() if args.before else None)
     if 11 in only:

@@ -1,6 +1,6 @@
-"""Items 6-10 and 12 of ``make bench`` (issue 15): real tile sizes, 10^5 images, orthoprojection, memory bandwidth.
+"""Items 6-10 and 12 of ``make bench``: real tile sizes, 10^5 images, orthoprojection, memory bandwidth.
 
-6. the narrow-strip scene of issue 15: 24 DRGs of 320 x 2000 px, TILE_SIZE 4 at 0.002 deg/px
+6. the narrow-strip scene: 24 DRGs of 320 x 2000 px, TILE_SIZE 4 at 0.002 deg/px
    (tiles of 2000 x 2000 px), Lunar-Lambert, 10 iterations, 1 worker: wall and CPU time (user +
    sys of the solving process), peak RSS, ns per observation to prepare and per observation and
    iteration to iterate, ratio to one plain read of the DRGs and to one of the DRGs and the DEM

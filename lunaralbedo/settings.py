@@ -1,4 +1,4 @@
-"""Settings: the legacy PhotometryTK settings file (seed 000 section 5) or TOML.
+"""Settings: the legacy PhotometryTK settings file (the PhotometryTK manual, section 5) or TOML.
 
 Two spellings of the same settings are accepted:
 
@@ -95,7 +95,7 @@ def _spec() -> dict[str, tuple[type, Any, tuple | None]]:
 
 @dataclass(frozen=True)
 class Settings:
-    """Validated settings of one albedo run (seed 000 section 5).
+    """Validated settings of one albedo run (the PhotometryTK manual, section 5).
 
     Paths are absolute.  ``simulation_box`` is ``(lon_min, lon_max, lat_min,
     lat_max)`` in degrees; ``tile_size`` is in degrees.
@@ -345,7 +345,7 @@ def _settings(values: dict[str, Any], source: Path | None) -> Settings:
 
 
 def parse_legacy(text: str, source: Path) -> Settings:
-    """Parse the text of a legacy settings file (seed 000 section 5 and appendix)."""
+    """Parse the text of a legacy settings file (the PhotometryTK manual, section 5 and appendix)."""
     pairs = []
     for lineno, line in enumerate(text.splitlines(), 1):
         line = line.split("#", 1)[0].strip()

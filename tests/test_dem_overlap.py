@@ -1,4 +1,4 @@
-"""One DEM-overlap rule: where DEM files overlap, ingest and solve both average their heights (seed 000 section 6)."""
+"""One DEM-overlap rule: where DEM files overlap, ingest and solve both average their heights (the PhotometryTK manual, section 6)."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""The ideal camera of seed 004 (ISIS noproj numbers for LRO NAC) on the real NAC-L crop, and its definition checks."""
+"""The ideal camera of the ASP LRO-NAC notes (ISIS noproj numbers for LRO NAC) on the real NAC-L crop, and its definition checks."""
 from __future__ import annotations
 
 import numpy as np
@@ -31,7 +31,7 @@ def nac_l(realdata):
 
 def test_real_nac_l_gets_the_seed_ideal_camera(nac_l):
     label, le, spec, source, _ = nac_l
-    assert "seed 004" in source
+    assert "the ASP LRO-NAC notes" in source
     # noproj: TransX0/TransY0 = the typed mm, pitch 7 um and axes from the NAC-L IK (x follows lines, y samples)
     assert (spec.x0, spec.y0, spec.samples, spec.pitch) == (0.6475, 16.8833, 10000, pytest.approx(0.007))
     assert spec.sample_axis == pytest.approx((0.0, 0.007)) and spec.line_axis == pytest.approx((0.007, 0.0))

@@ -34,7 +34,7 @@ def test_surface_block_gives_the_bytes_of_body_fixed_and_dem_normals():
 
 
 def _illumination_numpy(p, n, sun, sc):
-    """The former NumPy formula of seed 001 eqs. 4-5 (unit vectors, dot products, arccos)."""
+    """The former NumPy formula of Nefian et al. (LPSC), eqs. 4-5 (unit vectors, dot products, arccos)."""
     l = np.asarray(sun) - p
     l = l / np.sqrt(np.einsum("...i,...i->...", l, l))[..., None]
     v = np.asarray(sc) - p
@@ -205,7 +205,7 @@ def test_pixel_march_and_skipping_march_equal_the_full_march(sun_deg, lat, nan):
 @pytest.mark.parametrize("dtype, alpha, nodata, lut, thresh, saturation", [
     (np.uint8, True, None, False, 10.0, 255.0),     # a DRG of ingest: DN, alpha, shadow type 1, saturation
     (np.float32, False, -3.0, False, 0.7, None),    # float DN with nodata and NaN/inf; 0.7 is not a float32
-    (np.uint8, True, None, True, 12.0, 255.0),      # the camera response applied to the DN (seed 002)
+    (np.uint8, True, None, True, 12.0, 255.0),      # the camera response applied to the DN (Kim et al.)
     (np.int16, False, 0.0, True, None, None),       # neither test: no usable mask
 ])
 def test_window_pixels_equal_the_numpy_steps(dtype, alpha, nodata, lut, thresh, saturation):

@@ -1,4 +1,4 @@
-"""The solver recovers a forward-model truth (seed 000 section 7; issue: 2.5 % albedo, 1 % exposure, 10 iterations)."""
+"""The solver recovers a forward-model truth (the PhotometryTK manual, section 7; issue: 2.5 % albedo, 1 % exposure, 10 iterations)."""
 from __future__ import annotations
 
 import numpy as np

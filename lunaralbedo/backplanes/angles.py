@@ -3,7 +3,7 @@ r"""Photometric angles and ground coordinates of image pixels (pure NumPy; body-
 For a ground point :math:`\mathbf p`, unit vectors to the Sun :math:`\hat l` and to the
 spacecraft :math:`\hat v`, and a unit normal :math:`\hat n`:
 phase :math:`g = \arccos(\hat l\cdot\hat v)`, incidence :math:`i = \arccos(\hat n\cdot\hat l)`,
-emission :math:`e = \arccos(\hat n\cdot\hat v)` (seed 001 eqs. 4-5).  As ISIS does, the
+emission :math:`e = \arccos(\hat n\cdot\hat v)` (Nefian et al. (LPSC), eqs. 4-5).  As ISIS does, the
 plain "Incidence/Emission Angle" use the normal of the reference sphere (radial) and the
 "Local" ones the normal of the DEM surface.
 

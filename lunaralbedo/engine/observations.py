@@ -222,7 +222,7 @@ def gather_blocks(scene: Scene, t: int, lut: np.ndarray | None = None, helpers: 
     See the module docstring for the arrays.  The ``usable`` flag (valid, lit, not
     saturated, not in a cast shadow, DEM, incidence <= 85 degrees and cos e > 0) and the
     blending weight are folded into ``weight``; observations with zero weight are
-    dropped.  ``lut``: camera response g over 0..255 (seed 002), applied to each DRG's DN
+    dropped.  ``lut``: camera response g over 0..255 (Kim et al.), applied to each DRG's DN
     before it is resampled onto the tile grid.  ``helpers`` >= 2: that many helper threads read
     the images' windows and reduce them to observations, as many at once, while this thread
     adds up the earlier ones in tile order (:func:`lunaralbedo.parallel.ahead.ahead`; the same

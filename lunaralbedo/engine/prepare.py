@@ -34,7 +34,7 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | No
                  helpers: int = 0) -> dict:
     """Read every image over tile ``t`` (its footprint window only), compute geometry, cache the observations.
 
-    ``lut``: camera response g over 0..255 (seed 002), applied to each DRG's DN before
+    ``lut``: camera response g over 0..255 (Kim et al.), applied to each DRG's DN before
     it is resampled onto the tile grid; None keeps the DN (linear response).
 
     The tile is done block of rows by block (:func:`observations.gather_blocks`), each

@@ -183,7 +183,7 @@ def solve(
     runtime: Runtime | None = None,
     warn=None,
 ) -> SolveResult:
-    """Solve for albedo, exposures and the photometric model's parameters (seed 000 section 7).
+    """Solve for albedo, exposures and the photometric model's parameters (the PhotometryTK manual, section 7).
 
     ``method="overlap"`` (default) initialises exposures from image overlaps and damps
     the phase step; ``method="seed"`` runs the plain updates of the manual.  Workers:

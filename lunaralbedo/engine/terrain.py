@@ -72,7 +72,7 @@ class TileShadows:
     """The cast shadows of a tile's images: the DEM read once (with the margin), asked pixel by pixel.
 
     ``shadowed(k, rows, cols)`` answers for unpadded tile pixels only, so the march runs
-    only where an image would otherwise have an observation (the narrow strip of issue 15
+    only where an image would otherwise have an observation (the narrow strip of `make bench` item 6
     spent 90 % of its prepare time marching whole tiles per image).
 
     A tile whose DEM with its margin exceeds :data:`WHOLE_DEM_BYTES` (~5700 x 5700 px and more)

@@ -46,7 +46,7 @@ def read_drg_onto_grid(
     outermost valid pixels keep their exact zero blending weight (GDAL's bilinear gave them
     ~1e-13 from the rounding of its coordinates).
 
-    ``lut`` (a camera response g over 0..255, NaN where undefined; seed 002) maps the DN
+    ``lut`` (a camera response g over 0..255, NaN where undefined; Kim et al.) maps the DN
     to sensor exposure *before* resampling, so the result interpolates exposures (the
     seed's virtual observations, eq. 15); the lit test still uses the DN.
     """

@@ -53,7 +53,7 @@ def write_weight_profile(path: Path, profile) -> None:
 
 
 def plot_exposures(path: Path, keys: Sequence[str], exposure: np.ndarray, initial: np.ndarray, haze=None) -> None:
-    """Exposure per image (as seed 001 fig. 4): solved and initial, normalised to their mean; with ``haze``
+    """Exposure per image (as Nefian et al. (LPSC), fig. 4): solved and initial, normalised to their mean; with ``haze``
     (FLOAT_HAZE 1, DRG units) a second panel beside it with each image's haze."""
     import matplotlib
 

@@ -1,6 +1,6 @@
 """Sun and spacecraft position files: one ``KEY x y z`` line per image.
 
-Positions are in km in the Moon-centred body-fixed frame (seed 000 section 6).
+Positions are in km in the Moon-centred body-fixed frame (the PhotometryTK manual, section 6).
 KEY is the 11-character lookup key taken from the start of the DRG file name.
 """
 from __future__ import annotations

@@ -126,7 +126,7 @@ def list_rasters(folder: str | Path, what: str = "raster") -> list[Path]:
 
 
 def lookup_keys(paths: Sequence[Path]) -> list[str]:
-    """The lookup key of each DRG (first 11 characters of its name; seed 000 section 6).
+    """The lookup key of each DRG (first 11 characters of its name; the PhotometryTK manual, section 6).
 
     Two files with the same key raise :class:`DuplicateKeyError` naming both.
     """
@@ -298,7 +298,7 @@ def read_dem_onto_grid(
     """Average of every DEM tile resampled (bilinear) onto the grid; float32 metres, NaN where none.
 
     Overlapping DEM tiles are averaged (:func:`lunaralbedo.model.geometry.merge_dem_layers`,
-    the rule ingest uses too; seed 000 section 6); ``nodata`` applies to
+    the rule ingest uses too; the PhotometryTK manual, section 6); ``nodata`` applies to
     tiles that do not carry their own no-data value.  Scale/offset (ISIS
     Base/Multiplier) are applied, and a tile holding radius (e.g. LOLA or GLD100 cubes,
     ~1.737e6 m) is converted to height above the 1737.4 km sphere.

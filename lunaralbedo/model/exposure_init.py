@@ -1,6 +1,6 @@
 r"""Exposure initialisation.
 
-*Seed* (seed 000 section 7, step 1): :math:`T^k = \mathrm{TR\_CONST} / \overline{R^k}`,
+*Seed* (the PhotometryTK manual, section 7, step 1): :math:`T^k = \mathrm{TR\_CONST} / \overline{R^k}`,
 the mean reflectance over the image's usable pixels.
 
 *Overlap* (our default): where two images :math:`j, k` see the same pixel,
@@ -53,7 +53,7 @@ def _segment_sums(r, start):
 
 
 def seed_exposure(tr_const, r_sum, r_count, dtype=np.float64):
-    r""":math:`T^k = \mathrm{TR\_CONST}/\overline{R^k}` (seed 000 section 7, step 1); images without usable pixels get TR_CONST.
+    r""":math:`T^k = \mathrm{TR\_CONST}/\overline{R^k}` (the PhotometryTK manual, section 7, step 1); images without usable pixels get TR_CONST.
 
     ``dtype=np.float32`` gives the legacy numerics: the mean and the quotient rounded to float32.
     """

@@ -8,7 +8,7 @@ the 1737.4 km sphere) is the point
 
 Normals come from the 3-D points of neighbouring DEM pixels (central differences),
 so they are correct at any latitude, and :math:`\cos i = \mathbf{n}\cdot\mathbf{l}`,
-:math:`\cos e = \mathbf{n}\cdot\mathbf{v}` (seed 001 eqs. 4-5) with unit vectors to
+:math:`\cos e = \mathbf{n}\cdot\mathbf{v}` (Nefian et al. (LPSC), eqs. 4-5) with unit vectors to
 the Sun and to the spacecraft; the phase angle is :math:`\alpha = \arccos(\mathbf{l}\cdot\mathbf{v})`
 (:func:`.vacos.acos`, within 1 ulp of libm's, but one that loops can vectorise).
 
@@ -112,7 +112,7 @@ def dem_normals(points_km, differences: str = "central"):
 
 
 def illumination(points_km, normals, sun_km, spacecraft_km):
-    r"""``(cos i, cos e, alpha)`` per pixel; alpha (phase angle) in radians (seed 001 eqs. 4-5).
+    r"""``(cos i, cos e, alpha)`` per pixel; alpha (phase angle) in radians (Nefian et al. (LPSC), eqs. 4-5).
 
     :math:`\cos i = \mathbf{n}\cdot\mathbf{l}`, :math:`\cos e = \mathbf{n}\cdot\mathbf{v}`,
     :math:`\cos\alpha = \mathbf{l}\cdot\mathbf{v}` with unit vectors from the points to
@@ -131,7 +131,7 @@ def illumination(points_km, normals, sun_km, spacecraft_km):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _cosines_at(px, py, pz, nx, ny, nz, sx, sy, sz, vx, vy, vz):
-    r"""Seed 001 eqs. 4-5 at one point ``p`` with normal ``n``, Sun ``s``, spacecraft ``v`` (body-fixed):
+    r"""Nefian et al. (LPSC), eqs. 4-5 at one point ``p`` with normal ``n``, Sun ``s``, spacecraft ``v`` (body-fixed):
     :math:`\cos i = \mathbf{n}\cdot\mathbf{l}`, :math:`\cos e = \mathbf{n}\cdot\mathbf{v}` and
     :math:`\cos\alpha = \mathbf{l}\cdot\mathbf{v}` (clipped to [-1, 1]) with unit vectors
     :math:`\mathbf{l}, \mathbf{v}` from the point (each scaled by the reciprocal of its length).
@@ -164,7 +164,7 @@ def _illumination_flat(p, n, sun, sc):
 
 
 def merge_dem_layers(layers, shape, dtype=np.float64, owned: bool = False) -> np.ndarray:
-    """Heights where DEMs overlap: the mean of the DEMs with a value there (seed 000 section 6).
+    """Heights where DEMs overlap: the mean of the DEMs with a value there (the PhotometryTK manual, section 6).
 
     The one overlap rule of the package, used by ``ingest`` (:class:`lunaralbedo.ingest.dem.DemMosaic`)
     and ``solve`` (:func:`lunaralbedo.io.rasters.read_dem_onto_grid`): "if the DEM images

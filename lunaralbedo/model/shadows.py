@@ -1,4 +1,4 @@
-r"""Shadow masks :math:`S_{ij}^k` (seed 000 section 5, SHADOW_TYPE; eq. 1).
+r"""Shadow masks :math:`S_{ij}^k` (the PhotometryTK manual, section 5, SHADOW_TYPE; eq. 1).
 
 :math:`S = 0` marks a pixel in shadow (left out of every sum), :math:`S = 1` a lit one.
 
@@ -42,7 +42,7 @@ def window_pixels(dn, alpha=None, nodata=None, lut=None, lit_threshold=None, sat
 
     ``dn`` ``(h, w)``: band 1 as read; ``alpha``: the alpha band (valid where > 0) or None;
     ``nodata``: the band's nodata value or None; ``lut``: a camera response over 0..255 applied
-    to the DN (seed 002; valid where it is finite) or None.  Returns ``value`` (float32, the DN
+    to the DN (Kim et al.; valid where it is finite) or None.  Returns ``value`` (float32, the DN
     or its response, 0 where not valid), ``valid`` (finite, not nodata, alpha > 0) and
     ``usable`` (valid, lit by :func:`static_lit` of the DN with ``lit_threshold`` (shadow type
     1), below ``saturation``: a saturated pixel is left out; None when both are None): the

@@ -1,4 +1,4 @@
-r"""Solver updates of seed 000 section 7 (eqs. 1 and 3-7) as partial sums over a tile.
+r"""Solver updates of the PhotometryTK manual, section 7 (eqs. 1 and 3-7) as partial sums over a tile.
 
 Notation: image stack index :math:`k` first, then pixels; ``I`` is the observed
 value, ``R`` the reflectance, ``T`` the per-image exposure, ``w`` the product of the

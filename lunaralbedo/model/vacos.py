@@ -1,5 +1,5 @@
 r"""An arc cosine LLVM can vectorise, for the phase angle :math:`\alpha = \arccos(\mathbf{l}\cdot\mathbf{v})`
-of seed 001 eqs. 4-5 (float64).
+of Nefian et al. (LPSC), eqs. 4-5 (float64).
 
 glibc's ``acos`` is a call (~13 ns on this project's machine), which keeps the loops of the
 prepare step's geometry scalar; this one is plain arithmetic (~2.4 ns per value in a

@@ -1,4 +1,4 @@
-r"""Blending weights :math:`w_{ij}^k` (seed 000 section 7, eq. 1).
+r"""Blending weights :math:`w_{ij}^k` (the PhotometryTK manual, section 7, eq. 1).
 
 The weights decrease linearly from the centre of an image (:math:`w = 1`) to its
 boundary (:math:`w = 0`) so that the albedo mosaic is seamless.  Each image is

@@ -1,14 +1,14 @@
-"""The ideal line-scan camera of seed 004 (ISIS ``noproj``) and the LE/RE mosaic (``handmos``), pure math.
+"""The ideal line-scan camera of the ASP LRO-NAC notes (ISIS ``noproj``) and the LE/RE mosaic (``handmos``), pure math.
 
 Ideal camera (ISIS ``IdealCamera``, LE as the match): the LE's frame, timing and
 focal length, no distortion, one row of ``samples`` detectors of the LE's pixel
 pitch whose centre sits at focal-plane offset ``(x0, y0)`` mm from the LE's
-boresight (ISIS's ``TransX0``/``TransY0``; seed 004's NAC values are
+boresight (ISIS's ``TransX0``/``TransY0``; the ASP LRO-NAC notes' NAC values are
 ``TransY = 16.8833`` mm, ``TransX = 0.6475`` mm, ``DetectorSamples = 10000``,
 7 um pixels).  For a pair listed in :data:`NOPROJ_INSTRUMENTS` (the real LRO NAC) those
 typed numbers are used, as ISIS ``noproj`` reads them from ``noprojInstruments*.pvl``
 (:func:`noproj_spec`); for any other pair the offset is half-way between the LE and
-RE boresights in the LE focal plane (seed 004: "the angle between the two cameras
+RE boresights in the LE focal plane (the ASP LRO-NAC notes: "the angle between the two cameras
 ... divide by two"), computed from the two camera models (:func:`ideal_spec`).
 
 ``noproj``: every ideal pixel's ray meets the sphere of radius ``R + h`` (``h`` the
@@ -28,7 +28,7 @@ from ..camera.ideal import IdealSpec
 from ..errors import InputError
 
 #: ISIS ``noproj`` ideal-camera definitions (keys ``SpacecraftName/InstrumentId`` of the match cube, as the
-#: groups of ``noprojInstruments*.pvl``): seed 004's LRO NAC numbers, also written by ASP's ``lronac2mosaic.py``.
+#: groups of ``noprojInstruments*.pvl``): the ASP LRO-NAC notes' LRO NAC numbers, also written by ASP's ``lronac2mosaic.py``.
 #: ``TransX``/``TransY`` in mm (focal-plane position of the ideal detector centre, LE frame), ``ItransS``/``ItransL``
 #: the same in unsummed pixels (``-Trans / pitch``), ``DetectorSamples`` unsummed.
 NOPROJ_INSTRUMENTS = {
@@ -86,7 +86,7 @@ def noproj_spec(le: CameraModel, group: dict, summing: float = 1.0, name: str = 
     As ``noproj``: ``TransX0 = TransX``, ``TransY0 = TransY`` (mm), the pitch and axes are the
     match camera's (times ``summing``), ``DetectorSamples / summing`` samples.  ``ItransS``
     and ``ItransL`` must be ``-Trans / pitch`` of the axis that follows samples and lines
-    (seed 004: if they do not match, "funny errors will occur"); InputError otherwise.
+    (the ASP LRO-NAC notes: if they do not match, "funny errors will occur"); InputError otherwise.
     """
     fp = le.focal
     sa, la = np.array([fp.transx[1], fp.transy[1]]), np.array([fp.transx[2], fp.transy[2]])

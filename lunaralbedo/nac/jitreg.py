@@ -1,4 +1,4 @@
-"""LE/RE registration and jitter (``lronacjitreg``/``hijitreg`` of seed 004), pure NumPy/OpenCV math.
+"""LE/RE registration and jitter (``lronacjitreg``/``hijitreg`` of the ASP LRO-NAC notes), pure NumPy/OpenCV math.
 
 Inputs are the two CCD images resampled onto one ideal-camera grid (same shape,
 NaN outside each CCD).  Convention (used everywhere in :mod:`lunaralbedo.nac`):

@@ -81,7 +81,7 @@ def choose_spec(le_label, le_cam, re_cam, ideal: str = "auto"):
     key = f"{value_of(inst.get('SpacecraftName', ''))}/{value_of(inst.get('InstrumentId', ''))}".upper()
     if ideal != "computed" and key in NOPROJ_INSTRUMENTS:
         summing = float(value_of(inst.get("SpatialSumming", 1)) or 1)
-        return noproj_spec(le_cam, NOPROJ_INSTRUMENTS[key], summing, key), f"noproj definition {key} (seed 004)"
+        return noproj_spec(le_cam, NOPROJ_INSTRUMENTS[key], summing, key), f"noproj definition {key} (the ASP LRO-NAC notes)"
     if ideal == "noproj":
         raise InputError(f"{le_label.path}: no noproj ideal-camera definition for {key} "
                          f"(known: {', '.join(NOPROJ_INSTRUMENTS)}); use --ideal computed")

@@ -1,7 +1,7 @@
 """Workers on the nodes of ``$PBS_NODEFILE`` — the legacy way of spreading a run over a PBS job.
 
 PhotometryTK ran GNU parallel over ssh to every host listed in ``PBS_NODEFILE``
-(seed 000 section 4), NUM_PROCESSES processes per node.  Here the same file
+(the PhotometryTK manual, section 4), NUM_PROCESSES processes per node.  Here the same file
 starts a Dask scheduler on this node and ``NUM_PROCESSES`` Dask worker processes on
 every listed node: the local node directly, the others through a remote shell
 (``ssh -o BatchMode=yes`` by default; ``Runtime.remote_shell``, on the command line

@@ -5,10 +5,10 @@ renders its pixels through these functions:
 
 * the Sun and the local frame at a ground point (:func:`local_frame`, :func:`sun_position`:
   one Sun geometry, azimuth clockwise from north and elevation above the local horizon);
-* the recorded exposure :math:`A\,T\,R` of eq. 1 of seed 000 (:func:`exposure_signal`), with
+* the recorded exposure :math:`A\,T\,R` of eq. 1 of the PhotometryTK manual (:func:`exposure_signal`), with
   :math:`R` from the photometric registry (:mod:`lunaralbedo.model.photometry`);
 * the recording: 8-bit DN with additive Gaussian noise, optionally through the S-shaped
-  film curve of seed 002 (:func:`to_dn`, the DRG contract), or a float Level-1 cube value
+  film curve of Kim et al. (:func:`to_dn`, the DRG contract), or a float Level-1 cube value
   with multiplicative Gaussian noise (:func:`to_radiance`, the ISIS contract).
 
 Units: positions in km in the Moon body-fixed frame (1737.4 km sphere), angles in degrees.
@@ -41,7 +41,7 @@ def sun_position(point, azimuth_deg: float, elevation_deg: float, distance_km: f
 
 
 def exposure_signal(albedo, exposure, reflectance):
-    r"""The model of eq. 1 of seed 000: :math:`A\,T\,R` (albedo, exposure time, reflectance; broadcasts)."""
+    r"""The model of eq. 1 of the PhotometryTK manual: :math:`A\,T\,R` (albedo, exposure time, reflectance; broadcasts)."""
     return albedo * exposure * reflectance
 
 
@@ -49,7 +49,7 @@ def to_dn(signal, gain: float, noise_dn: float, rng, film=None) -> np.ndarray:
     r"""8-bit DN of a DRG: :math:`\mathrm{round}(f(\mathrm{gain}\cdot A T R) + n)` clipped to 0..255 (uint8).
 
     ``f`` is the identity, or the film curve ``film`` (a :class:`~lunaralbedo.response.synthetic.FilmCurve`,
-    seed 002: DN = f(A T R)); ``n`` is Gaussian with ``noise_dn`` DN of spread.
+    Kim et al.: DN = f(A T R)); ``n`` is Gaussian with ``noise_dn`` DN of spread.
     """
     dn = gain * signal if film is None else film.forward(np.maximum(signal, 1e-9))
     return np.clip(np.round(dn + rng.normal(0, noise_dn, dn.shape)), 0, 255).astype(np.uint8)

@@ -69,7 +69,7 @@ class SceneSpec:
     cast_shadows: bool = False  # render cast shadows (and attached ones) lit by scattered light only
     scatter: float = 0.25  # shadows receive this fraction of the flat ground's signal
     wrap_lon: bool = False  # DRGs east of 180 deg written at -180..180, SIMULATION_BOX as lon0:east-360
-    film_contrast: float = 0.0  # > 0: DN through the S-shaped film curve of response.synthetic (seed 002)
+    film_contrast: float = 0.0  # > 0: DN through the S-shaped film curve of response.synthetic (Kim et al.)
     film_mid: float = 0.5  # exposure A*T*R at the curve's mid point
     misregister_px: float = 0.0  # each DRG's stated georeference off by up to this many pixels east and north
     haze_dn: tuple[float, float] = (0.0, 0.0)  # additive haze per image, uniform in this range, DN (simulate.defects)

@@ -1,4 +1,4 @@
-r"""Lunar-Lambertian model (REFLECTANCE_TYPE 2; seed 000 section 7, eq. 2).
+r"""Lunar-Lambertian model (REFLECTANCE_TYPE 2; the PhotometryTK manual, section 7, eq. 2).
 
 .. math::
 
@@ -137,7 +137,7 @@ def reflectance(cos_i, cos_e, alpha, params=(1.4, 0.5)):
 MODEL = PhotometricModel(
     name="lunar-lambert",
     code=2,
-    description="Lunar-Lambertian (McEwen), seed 000 eq. 2; fits c1, c2 of the phase factor",
+    description="Lunar-Lambertian (McEwen), the PhotometryTK manual, eq. 2; fits c1, c2 of the phase factor",
     layers=layers,
     layer_names=("geometric", "alpha"),
     reflectance_from=reflectance_from,

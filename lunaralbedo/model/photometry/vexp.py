@@ -1,4 +1,4 @@
-r"""An exponential LLVM can vectorise, for the phase factor :math:`e^{-c_1\alpha}` of eq. 2 (seed 000).
+r"""An exponential LLVM can vectorise, for the phase factor :math:`e^{-c_1\alpha}` of eq. 2 (the PhotometryTK manual).
 
 ``exp(x)`` inside numba: a float32 ``x`` gives :math:`e^x` in float32 arithmetic (below); a
 float64 ``x`` gives ``math.exp(x)`` (libm, full float64 accuracy: the forward model).  glibc's
