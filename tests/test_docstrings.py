@@ -14,6 +14,7 @@ import pytest
 from numpydoc.validate import validate
 
 PUBLIC_API = (
+    "lunaralbedo.engine.solve.solve",
     "lunaralbedo.ingest.run.ingest",
     "lunaralbedo.ingest.positions.compute_positions",
     "lunaralbedo.export.api.export_kml",

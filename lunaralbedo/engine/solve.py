@@ -183,19 +183,71 @@ def solve(
     runtime: Runtime | None = None,
     warn=None,
 ) -> SolveResult:
-    """Solve for albedo, exposures and the photometric model's parameters (the PhotometryTK manual, section 7).
+    """Solve for the albedo, the exposures and the photometric model's parameters.
 
-    ``method="overlap"`` (default) initialises exposures from image overlaps and damps
-    the phase step; ``method="seed"`` runs the plain updates of the manual.  Workers:
-    ``workers`` local processes (default NUM_PROCESSES capped at the CPU count),
-    ``scheduler`` (tcp://host:port) or ``cluster`` ("pbs"/"slurm").  Outputs go to
-    ``out`` (default ``albedo_<settings stem>``); nothing is written to input folders.
-    ``response``: None (linear DN), ``"estimate"`` or a ``response.csv`` (Kim et al., see
-    :mod:`lunaralbedo.response.solve_hook`); ``exposure_times``: a ``key,exposure`` CSV that fixes the exposures.
-    Iterations stop early once ``|Q_n - Q_(n-1)| <= tolerance * Q_n`` (0: run them all).
-    ``runtime``: how the run uses the machine (:class:`lunaralbedo.runtime.Runtime`: memory budgets,
-    how workers start, a node file); no value of it changes a result.
-    ``warn(message)`` is called once the tiles are known when one needs more than the memory budget.
+    Minimises the cost of eq. 1 of the PhotometryTK manual (section 7), :math:`Q = \sum_k \sum_{ij}
+    (I^k_{ij} - T^k A_{ij} R^k_{ij} - H^k)^2 S^k_{ij} w^k_{ij}`, by the albedo update of eqs. 3/6, the
+    exposure update of eq. 4 and the phase-parameter step of eq. 5, over tiles in a fixed order
+    (identical bytes for any number of workers), with the terms the settings turn on: robust weights
+    (``REJECT_OUTLIERS``, ``ROBUST_LOSS``), a haze per image (``FLOAT_HAZE``), image-to-DEM registration
+    (``REGISTER_IMAGES``), refined heights (``REFINE_DEM``) and the exposure mode (``EXPOSURE_MODE``);
+    docs/solver.md and docs/sfs.md give the math.
+
+    Parameters
+    ----------
+    settings : Settings or str or Path
+        The run's settings, or the path of a legacy settings file or a TOML file.
+    out : str or Path, optional
+        Output folder (default ``albedo_<settings stem>`` in the current folder); nothing is written
+        to the input folders.
+    method : {"overlap", "seed"}
+        ``overlap`` initialises the exposures from the images' overlaps and damps the phase step;
+        ``seed`` runs the manual's plain updates.
+    workers : int, optional
+        Local worker processes (default NUM_PROCESSES capped at the CPU count; 1: in-process).
+    scheduler : str, optional
+        Address ``tcp://host:port`` of an existing Dask scheduler to run on.
+    cluster : {"pbs", "slurm"}, optional
+        Start the workers as batch jobs (dask-jobqueue).
+    cluster_options : dict, optional
+        Options of the batch jobs (queue, cores, memory, walltime, jobs, account).
+    resume : bool
+        Continue an interrupted run in ``out`` (same settings and inputs): the same bytes as an
+        uninterrupted run.
+    skip_missing : bool
+        Leave out DRGs without a Sun/spacecraft position (listed in the report) instead of failing.
+    tolerance : float
+        Stop once :math:`|Q_n - Q_{n-1}| \le` ``tolerance`` :math:`Q_n` (0: run MAX_NUM_ITER passes).
+    max_iter : int, optional
+        Passes at most (default: the settings' MAX_NUM_ITER).
+    progress : bool
+        Show progress bars (tiles and rows).
+    plots : bool
+        Write ``exposure.png`` and ``cost.png`` (and the response's plots).
+    response : str or Path, optional
+        Camera response (Kim et al.): None for linear DN, ``"estimate"`` to fit g with the albedo, or a
+        ``response.csv`` to apply.
+    exposure_times : str or Path, optional
+        ``key,exposure`` CSV that fixes the exposures (as ``EXPOSURE_MODE fixed`` with that file).
+    runtime : Runtime, optional
+        How the run uses the machine (:class:`lunaralbedo.runtime.Runtime`: memory budgets, how workers
+        start, a node file); no value of it changes a result.
+    warn : callable, optional
+        ``warn(message)``, called once the tiles are known when one needs more than the memory budget.
+
+    Returns
+    -------
+    SolveResult
+        The output folder, image keys, exposures (per image, in key order), the fitted parameters by
+        name, the cost history, the number of passes, the tile names, and ``report`` (``report.json``).
+
+    Raises
+    ------
+    SettingsError, InputError
+        Exit 2: bad settings or inputs (named); nothing is left in a folder the run created.
+    InfrastructureError, ClusterError
+        Exit 3: a worker lost, the disk full, a cluster that cannot start; the checkpoint is kept for
+        ``resume=True``.
     """
     settings = settings if isinstance(settings, Settings) else load_settings(settings)
     if method not in METHODS:
