@@ -37,13 +37,3 @@ def solve(*args, **kwargs):
     from .engine.solve import solve as _solve
 
     return _solve(*args, **kwargs)
-
-
-def __getattr__(name: str):
-    """``Settings`` and ``load_settings`` are imported when first used (the photometric registry
-    they read compiles numba kernels; ``lunaralbedo --help`` needs none of it)."""
-    if name in ("Settings", "load_settings"):
-        from . import settings
-
-        return getattr(settings, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -24,7 +24,6 @@ compile for the features it chose).
 """
 from __future__ import annotations
 
-import os
 import sys
 from typing import Callable, Mapping
 

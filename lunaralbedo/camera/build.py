@@ -6,7 +6,7 @@ loaded kernel pool or, failing that, from the label's ``NaifKeywords`` object.
 """
 from __future__ import annotations
 
-from ..errors import IsisError, SpiceError
+from ..errors import SpiceError
 from ..isis.labels import IsisLabel, value_of
 from .ideal import is_ideal, spec_from_label
 from .lunar import build_lunar_camera

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import shutil
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -35,11 +34,13 @@ from ..parallel import local_workers, make_executor
 from ..parallel.progress import ROWS
 from ..parallel.workers import trim_malloc
 from ..runtime import Runtime
-from ..response.solve_hook import check_resume, given_exposures, lut_digest, move_outputs, report_parts, resolve_response
+from ..response.solve_hook import check_resume, given_exposures, lut_digest, resolve_response
 from .observations import ROW_PIXEL_BYTES, block_budget
 from .response_pass import response_observations
 from .options import DEFAULT_TOLERANCE, METHODS
 from .tiles import budget_warning
+from .run_report import (CACHE_DIR, CHECKPOINT_DIR, MARKER, OUTPUT_DIRS, REFINE_DIRS, RESPONSE_DIR, RESULT_FILES,
+                         STATE_FILE, TILES_DIR, SolveResult, stage_costs, write_run_outputs)
 from .scene import Scene, build_scene
 from .prepare import WRITER, prepare_tile
 from . import robust
@@ -50,31 +51,6 @@ WORKER_PRELOAD = ("lunaralbedo.engine.prepare", "lunaralbedo.engine.tilework", "
 #: A tile task's fixed cost in observations (~2 ms of a worker's time at ~9 ns per observation),
 #: for sharing the tiles' iterations evenly among workers (:meth:`~lunaralbedo.parallel.DaskExecutor.place`).
 TASK_OBSERVATIONS = 250_000
-CHECKPOINT_DIR = "checkpoint"  # everything --resume needs; removed when the run succeeds
-STATE_FILE = f"{CHECKPOINT_DIR}/state.json"
-CACHE_DIR = f"{CHECKPOINT_DIR}/cache"
-TILES_DIR = f"{CHECKPOINT_DIR}/tiles"  # finalised tiles, moved into OUTDIR at the end
-RESPONSE_DIR = f"{CHECKPOINT_DIR}/response"  # camera response files (response/solve_hook.py), moved likewise
-MARKER = ".lunaralbedo"  # written first into every OUTDIR: marks it as ours
-_TILE_DIRS = ("albedo", "error", "DEM", "weightsSum", "outliers")
-_OUTPUT_DIRS = (*_TILE_DIRS, "weight")
-_REFINE_DIRS = ("sfs", "dem_change", "dem_lit", "dem_input")  # REFINE_DEM 1 (engine/refine.py)
-_RESULT_FILES = ("report.json", "exposure.csv", "haze.csv", "phase.csv", "exposure.png", "cost.png",
-                 "response.csv", "response.png", "loglik.png", "residuals.png", "image_offsets.csv")
-
-
-@dataclass
-class SolveResult:
-    """What a solve produced (also written to ``report.json``)."""
-
-    out_dir: Path
-    keys: list[str]
-    exposure: np.ndarray
-    parameters: dict[str, float]  # the photometric model's fitted parameters by name (none for mosaic/Lambert)
-    cost_history: list[float]
-    iterations: int
-    tiles: list[str]
-    report: dict = field(repr=False, default_factory=dict)
 
 
 def default_out_dir(settings: Settings) -> Path:
@@ -98,19 +74,10 @@ def _check_out_dir(out: Path, settings: Settings) -> bool:
 
 def _clear_previous_run(out: Path) -> None:
     """Remove an earlier run's outputs and checkpoint (called once the inputs are known to be good)."""
-    for name in (*_OUTPUT_DIRS, CHECKPOINT_DIR, *_REFINE_DIRS):
+    for name in (*OUTPUT_DIRS, CHECKPOINT_DIR, *REFINE_DIRS):
         shutil.rmtree(out / name, ignore_errors=True)
-    for name in _RESULT_FILES:
+    for name in RESULT_FILES:
         (out / name).unlink(missing_ok=True)
-
-
-def _move_tiles_into_place(out: Path) -> None:
-    """Move the finalised tile folders from the checkpoint into OUTDIR (one rename each)."""
-    for name in _TILE_DIRS:
-        staged = out / TILES_DIR / name
-        if staged.is_dir():
-            shutil.rmtree(out / name, ignore_errors=True)
-            staged.replace(out / name)
 
 
 def _reduce_init(scene: Scene, metas: list[dict], method: str) -> np.ndarray:
@@ -410,20 +377,8 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     resume_info["tiles_written_before"] = sum(bool(r.pop("reused")) for r in tile_reports)
     timings["finalise"] = time.perf_counter() - t3
     costs = stage_costs(timings, n_obs, ck["iteration"] - resume_info["iterations_done_before"])
-    return _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info,
+    return write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info,
                               costs, extra)
-
-
-def stage_costs(timings: dict, n_obs: int | None, passes: int) -> dict:
-    """The run's size and the cost of its stages per pixel-observation (``report.json``'s ``observations``):
-    ``count`` (observations cached over all tiles), nanoseconds of wall time per observation to
-    prepare, per observation and pass to iterate (the passes this process ran), per observation
-    to finalise (None where not known: a cache resumed from a version that did not count).  A
-    stage that found its work done before (a resumed run) counts what it did."""
-    per = lambda seconds, n: round(1e9 * seconds / n, 2) if n else None  # noqa: E731  (n None: not counted)
-    return {"count": n_obs, "prepare_ns": per(timings.get("prepare", 0.0), n_obs),
-            "iterate_ns_per_pass": per(timings.get("iterate", 0.0), (n_obs or 0) * passes),
-            "finalise_ns": per(timings.get("finalise", 0.0), n_obs)}
 
 
 #: Most threads a one-process run gives its tiles (iterations, finalise) and a block's image windows
@@ -455,60 +410,3 @@ def _prepare(on_tiles, executor, lut) -> list:
         WRITER.drain()  # nothing in flight while the run's folder is cleaned up
         raise
     return metas
-
-
-def _write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timings, executor, plots, resume_info, costs,
-                       extra=None):
-    keys = scene.keys
-    outputs.write_exposure_csv(out / "exposure.csv", keys, state.exposure, t_init)
-    names = scene.model.parameters
-    if names:
-        outputs.write_phase_csv(out / "phase.csv", names, ck["params_history"])
-    for key, prof in zip(keys, scene.profiles):
-        outputs.write_weight_profile(out / "weight" / f"{key}_weight.txt", prof)
-    if state.haze is not None:
-        outputs.write_haze_csv(out / "haze.csv", keys, state.haze)
-    if plots:
-        outputs.plot_exposures(out / "exposure.png", keys, state.exposure, t_init, haze=state.haze)
-        if ck["q"]:
-            outputs.plot_cost(out / "cost.png", ck["q"])
-    report = {
-        "settings": scene.settings.to_dict(),
-        "method": method,
-        "executor": executor.description,
-        "iterations": ck["iteration"],
-        "converged": ck["done"],
-        "cost_q": ck["q"],
-        "photometric_model": scene.model.name,
-        "parameters": {name: [h[m] for h in ck["params_history"]] for m, name in enumerate(names)},
-        "images_used": len(keys),
-        "images_skipped": scene.skipped,
-        "tiles": tile_reports,
-        "resumed": resume_info if any(resume_info.values()) else None,
-        **report_parts(ck.get("response")),
-        "exposure_fixed": bool(ck.get("exposure_fixed")),
-        "exposure_mode": "fixed" if ck.get("exposure_fixed") else scene.settings.exposure_mode,
-        "outliers": robust.report(keys, ck.get("outliers"), ck.get("robust", 0)),
-        "haze": None if state.haze is None else dict(zip(keys, state.haze.tolist())),
-        "haze_inseparable": ck.get("haze_inseparable", []),
-        "timings_s": {k: round(v, 3) for k, v in timings.items()},
-        "observations": costs,
-        **(extra or {}),
-    }
-    from .registration import finish
-
-    report["registration"] = finish(out / CHECKPOINT_DIR, out)  # image_offsets.csv into OUTDIR (None: not registered)
-    _move_tiles_into_place(out)
-    move_outputs(out / RESPONSE_DIR, out)
-    outputs.write_json(out / "report.json", report)  # last: its presence means the run finished
-    shutil.rmtree(out / CHECKPOINT_DIR, ignore_errors=True)
-    return SolveResult(
-        out_dir=out,
-        keys=keys,
-        exposure=state.exposure,
-        parameters=dict(zip(names, state.params.tolist())),
-        cost_history=ck["q"],
-        iterations=ck["iteration"],
-        tiles=[r["tile"] for r in tile_reports],
-        report=report,
-    )
