@@ -72,3 +72,13 @@ def solve_child(d: Path, out: Path, workers: int = 1, method: str = "overlap", m
     if res.returncode:
         raise RuntimeError(res.stderr[-3000:])
     return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def mosaic(files, like: Path):
+    """The rasters ``files`` merged onto the grid of ``like`` (band 1, NaN where none has a value)."""
+    import numpy as np
+    import rasterio
+    from rasterio.merge import merge
+
+    with rasterio.open(like) as t:
+        return merge(sorted(str(f) for f in files), bounds=t.bounds, res=t.res, nodata=np.nan)[0][0]

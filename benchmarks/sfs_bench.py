@@ -23,7 +23,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from common import scene, solve_child  # noqa: E402
+from common import mosaic, scene, solve_child  # noqa: E402
 from lunaralbedo.simulate import SceneSpec  # noqa: E402
 
 STRIP = dict(n_images=8, overlap=2 / 3, image_px=120, sun_azimuths=(50.0, 90.0, 130.0, 70.0, 110.0), fresh_craters=5.0,
@@ -36,14 +36,6 @@ def with_keys(d: Path, name: str, keys: dict) -> Path:
     path = d / name
     path.write_text("\n".join(lines + [f"{k} {v}" for k, v in keys.items()]) + "\n")
     return path
-
-
-def mosaic(files, like: Path) -> np.ndarray:
-    import rasterio
-    from rasterio.merge import merge
-
-    with rasterio.open(like) as t:
-        return merge(sorted(str(f) for f in files), bounds=t.bounds, res=t.res, nodata=np.nan)[0][0]
 
 
 def height_errors(out: Path, d: Path, tile_deg: float) -> dict:

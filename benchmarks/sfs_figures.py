@@ -22,7 +22,7 @@ def draw(root: Path, d: Path, truth_scene: Path, docs: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from sfs_bench import mosaic
+    from common import mosaic
 
     like = d / "truth" / "albedo.tif"
     truth, given = mosaic([d / "truth/dem.tif"], like), mosaic([d / "DEM/dem.tif"], like)
