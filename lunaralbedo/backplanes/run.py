@@ -94,42 +94,18 @@ def write_backplanes(cube, out, band: int = 1, dem=None, ellipsoid: bool = False
         ISIS3 Level-1 cube (``spiceinit``-ed, or with resolvable kernels).
     out : str or Path
         GeoTIFF to write (atomically).
-    band : int, default 1
-        Band of the cube (1-based); a push-frame band has its own framelet geometry.
-    dem : str or Path or sequence of them, optional
-        DEM GeoTIFF(s) or ISIS DEM cube(s) the rays stop on (heights, or radii converted to
-        heights above the 1737.4 km sphere).  Default: the label's ``ShapeModel`` when it
-        resolves, else the sphere.
-    ellipsoid : bool, default False
-        Use the 1737.4 km sphere whatever the DEM (ISIS ``usedem=no``).
-    kernels : sequence of str or Path, optional
-        Extra SPICE kernels, kernel folders or meta-kernels, loaded after the label's.
-    isisdata : str or Path, optional
-        ISIS data area that resolves ``$base``/``$<mission>`` paths (kernels, ShapeModel).
-    source : {"auto", "table", "kernels"}, default "auto"
-        Ephemeris source: the cube's attached SPICE tables when present, or the kernels.
+    band, dem, ellipsoid, kernels, isisdata, source
+        As for :func:`camera_geometry`.
 
     Returns
     -------
-    planes : dict of str to numpy.ndarray
-        One float32 ``(lines, samples)`` array per name of :data:`.angles.BAND_NAMES`, as ISIS
-        ``phocube`` names them: ``"Phase Angle"``, ``"Emission Angle"``, ``"Incidence
-        Angle"`` (sphere normal), ``"Local Emission Angle"``, ``"Local Incidence Angle"``
-        (DEM normal, as ISIS ``Camera::GetLocalNormal``), all degrees; ``"Latitude"``
-        (planetocentric) and ``"Longitude"`` (0..360 east), degrees.  NaN off the body.
-    shape : Shape
-        The surface used: ``name`` (``"sphere"`` or the DEM) and ``height_m(lon, lat)``
-        (metres above the sphere; None for the sphere).
+    planes, shape
+        As :func:`camera_geometry` returns them (the planes also written to ``out``).
 
     Raises
     ------
-    IsisError
-        Exit 2: ``band`` outside the cube's bands, a label without an Instrument group or
-        camera model.
-    SpiceError
-        Exit 2: a missing kernel or a time the kernels do not cover.
-    InputError
-        Exit 2: an unreadable DEM.
+    IsisError, SpiceError, InputError
+        Exit 2, as for :func:`camera_geometry`; OutputError (exit 2) when ``out`` cannot be written.
     """
     label = read_label(cube)
     planes, shape = camera_geometry(label, band, dem, ellipsoid, kernels, isisdata, source)
