@@ -40,6 +40,38 @@ def test_haze_of_5_to_15_dn_is_recovered_with_the_exposures(tmp_path):
     assert (tmp_path / "out" / "exposure.png").read_bytes()[:4] == b"\x89PNG"
 
 
+@pytest.mark.parametrize("seed", [7, 8, 9, 10, 11, 12])
+def test_each_images_haze_error_is_within_its_standard_error(tmp_path, seed):
+    """Across scenes: the albedo and the exposures within the issue's bounds, and every image's haze within
+    3.5 of its reported standard error (the Cramér-Rao bound of the least-squares fit: a chain of overlaps
+    pins the haze only through the spread of R, so on some scenes that bound is itself above 1.5 DN)."""
+    d = tmp_path / "scene"
+    truth = render_scene(d, SceneSpec(haze_dn=(5.0, 15.0), seed=seed))
+    res = solve(_with(d / "settings.txt", d / "haze.txt", FLOAT_HAZE=1), out=tmp_path / "out", workers=1, plots=False)
+    sc = score(tmp_path / "out", d)
+    assert sc["albedo_rel_rmse"] <= 0.021 and sc["exposure_max_rel_err"] <= 0.01, sc
+    got, sigma = _haze(tmp_path / "out"), res.report["haze_sigma"]
+    z = {k: (got[k] - im["haze"]) / sigma[k] for k, im in truth["images"].items()}
+    assert all(0.2 < sigma[k] < 2.0 for k in z) and max(map(abs, z.values())) <= 3.5, (z, sigma)
+
+
+def test_haze_standard_errors_are_those_of_the_linear_least_squares_fit():
+    """The bordered inverse against a direct fit: with the scale constraint, the hazes' covariance is that
+    of the least-squares problem with one exposure held (the constraint only fixes the scale of T)."""
+    rng = np.random.default_rng(1)
+    j = rng.normal(size=(200, 6))  # columns T0, H0, T1, H1, T2, H2
+    s = j.T @ j
+    t = np.ones(3)
+    rss = np.array([2.0 * (200 - 10 - 5), 200.0, 10.0])  # a noise variance of 2
+    got = haze.standard_errors(t, csr_matrix(s), rss, "solve")
+    # dT0/T0 + dT1/T1 + dT2/T2 = 0: eliminate dT0 = -(dT1 + dT2); the reduced Jacobian's covariance
+    jr = np.column_stack([j[:, 1], j[:, 2] - j[:, 0], j[:, 3], j[:, 4] - j[:, 0], j[:, 5]])
+    want = np.sqrt(2.0 * np.diag(np.linalg.inv(jr.T @ jr)))[[0, 2, 4]]
+    assert got == pytest.approx(want, rel=1e-9)
+    fixed = haze.standard_errors(t, csr_matrix(s), np.array([2.0 * (200 - 10 - 3), 200.0, 10.0]), "fixed")
+    assert fixed == pytest.approx(np.sqrt(2.0 * np.diag(np.linalg.inv(s[1::2, 1::2]))), rel=1e-9)
+
+
 def test_the_clean_strip_with_float_haze_finds_almost_none(tmp_path):
     d = tmp_path / "clean"
     render_scene(d, SceneSpec(seed=7))

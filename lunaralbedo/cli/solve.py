@@ -62,7 +62,9 @@ def _print_summary(result) -> None:
         click.echo(f"  images registered to the DEM: {result.out_dir}/image_offsets.csv")
     if rep.get("haze"):
         h = list(rep["haze"].values())
-        click.echo(f"  haze: min {min(h):.4g}, max {max(h):.4g} (haze.csv)")
+        sig = [v for v in (rep.get("haze_sigma") or {}).values() if v is not None]
+        worst = f", standard error up to {max(sig):.3g} (report.json haze_sigma)" if sig else ""
+        click.echo(f"  haze: min {min(h):.4g}, max {max(h):.4g} (haze.csv){worst}")
     for key in rep.get("haze_inseparable", []):
         click.echo(f"  WARNING: image {key}: its haze and exposure cannot be separated (too little contrast); "
                    "its haze.csv value is not reliable", err=True)

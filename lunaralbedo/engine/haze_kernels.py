@@ -29,13 +29,14 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def haze_runs(chunks, run_start, run_pixel, run_image, value, r, w, texp, g, s):
-    """Add the block's :math:`g` (``2 n``) and :math:`S` (``2n x 2n``, local images ``run_image``) to ``g`` and ``s``.
+def haze_runs(chunks, run_start, run_pixel, run_image, value, r, w, texp, g, s, rss):
+    r"""Add the block's :math:`g` (``2 n``) and :math:`S` (``2n x 2n``, local images ``run_image``) to ``g`` and ``s``.
 
     ``value``: haze-subtracted observations (float32); ``r``: reflectance per observation;
     ``w``: the noise weight of each observation (float32: 0 unused, else the robust factor m);
     ``texp``: exposures of the local images.  The albedo eliminated is the one of these
-    weights, :math:`A_p = \sum w (I - H) T R / \sum w (T R)^2`.
+    weights, :math:`A_p = \sum w (I - H) T R / \sum w (T R)^2`.  ``rss`` (3) gets the sum of
+    :math:`w r_o^2`, the number of observations and the number of pixels it runs over.
     """
     most = 1
     for c in range(chunks.shape[0] - 1):
@@ -62,6 +63,9 @@ def haze_runs(chunks, run_start, run_pixel, run_image, value, r, w, texp, g, s):
                     tr = t * np.float64(r[o])
                     cp[p0 + o] += wo * tr * tr
                     cn[p0 + o] += wo * tr * np.float64(value[o])
+        for i in range(hi - lo):
+            if cp[i] > 0:
+                rss[2] += 1.0
         for q in range(q0, q1):  # the per-image terms
             k, t, p0 = run_image[q], np.float64(texp[run_image[q]]), run_pixel[q] - run_start[q] - lo
             for o in range(run_start[q], run_start[q + 1]):
@@ -72,6 +76,8 @@ def haze_runs(chunks, run_start, run_pixel, run_image, value, r, w, texp, g, s):
                 ro = np.float64(r[o])
                 ar = a * ro
                 res = np.float64(value[o]) - ar * t
+                rss[0] += wo * res * res
+                rss[1] += 1.0
                 g[2 * k] += wo * ar * res
                 g[2 * k + 1] += wo * res
                 s[2 * k, 2 * k] += wo * ar * ar

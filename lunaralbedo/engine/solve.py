@@ -131,6 +131,14 @@ def _update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref
     return SolveState(np.asarray(t, dtype=np.float64), np.asarray(c, dtype=np.float64), robust=state.robust, haze=h)
 
 
+def _haze_sigma(state: SolveState, mat, sums: updates.PassSums, fixed: bool, mode: str, t_ref, prior) -> list:
+    """Each image's haze standard error (:func:`lunaralbedo.model.haze.standard_errors`; None: no data)."""
+    how = "fixed" if fixed else ("prior" if mode == "prior" else "solve")
+    w = exposure_prior.prior_weight(t_ref, prior) if how == "prior" else None
+    sig = haze.standard_errors(state.exposure, mat, sums.haze_rss, how, prior_weight=w)
+    return [None if not np.isfinite(v) else float(v) for v in sig]
+
+
 def solve(
     settings: Settings | str | Path,
     out: str | Path | None = None,
@@ -361,7 +369,10 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
         ck.update(iteration=ck["iteration"] + 1, exposure=state.exposure.tolist(), params=state.params.tolist(), done=converged,
                   haze=None if state.haze is None else state.haze.tolist())
         if sums.haze_parts:
-            ck["haze_inseparable"] = [scene.keys[k] for k in haze.inseparable(haze.assemble(len(scene.images), sums.haze_parts)[1])]
+            mat = haze.assemble(len(scene.images), sums.haze_parts)[1]
+            ck["haze_inseparable"] = [scene.keys[k] for k in haze.inseparable(mat)]
+            if converged or ck["iteration"] >= max_iter:  # the last pass: the haze's standard errors at the solution
+                ck["haze_sigma"] = _haze_sigma(state, mat, sums, t_known is not None, mode, t_ref, s.exposure_prior_sigma)
         outputs.write_json(out / STATE_FILE, ck)
     timings["iterate"] = time.perf_counter() - t2
     t3 = time.perf_counter()

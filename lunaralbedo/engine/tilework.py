@@ -239,9 +239,9 @@ def iterate_block(arrays: dict, s, model, state: SolveState, phase: bool, out: u
             r_h, w_h, t_h = block_model(s, model, arrays, state)
         w_n = np.where(w_h > 0, arrays.get("robust_factor", np.float32(1.0)), np.float32(0)).astype(np.float32)  # noise weights
         n_loc = len(arrays["index"])
-        out.haze_g, out.haze_s = np.zeros(2 * n_loc), np.zeros((2 * n_loc, 2 * n_loc))
+        out.haze_g, out.haze_s, out.haze_rss = np.zeros(2 * n_loc), np.zeros((2 * n_loc, 2 * n_loc)), np.zeros(3)
         haze_kernels.haze_runs(arrays["chunks"], arrays["run_start"], arrays["run_pixel"], arrays["run_image"],
-                               arrays["image"], r_h, w_n, t_h, out.haze_g, out.haze_s)
+                               arrays["image"], r_h, w_n, t_h, out.haze_g, out.haze_s, out.haze_rss)
     if n_par > 2:  # no such model yet: the normal equations in NumPy
         jtj, jtr = _normal_equations(arrays, alb, texp, layers[0], dr, ratio if shadow == kernels.SHADOW_ON_LAYER else None,
                                      s.shadow_thresh if shadow != kernels.NO_SHADOW_TEST else None)

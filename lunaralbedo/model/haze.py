@@ -107,3 +107,40 @@ def inseparable(s) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         sep = 1.0 - off * off / (stt * shh)
     return np.flatnonzero((stt > 0) & (shh > 0) & (sep < SEPARATION_MIN))
+
+
+def standard_errors(t, s, rss, mode: str = "solve", prior_weight=None) -> np.ndarray:
+    r"""The standard error of each image's haze (DRG units; NaN without data): the Cramér-Rao bound of the
+    linearised least-squares problem, :math:`\sigma_n^2` times the haze diagonal of the inverse of the
+    reduced normal matrix ``s`` (the albedo eliminated, module docstring), bordered by the scale
+    constraint in ``solve`` mode, exposures removed in ``fixed`` mode, the prior's
+    :math:`\sigma_n^2\lambda_k` added in ``prior`` mode.
+
+    ``rss``: the sum of the noise-weighted squared residuals, the observations and the pixels
+    it runs over; :math:`\sigma_n^2 = \mathrm{rss} / (n_{obs} - n_{pix} - n_{free})`.  Along a chain
+    of images these errors grow with the distance from its best-pinned image (docs/solver.md).
+    """
+    t = np.asarray(t, np.float64)
+    k = len(t)
+    a = np.asarray(s.toarray() if hasattr(s, "toarray") else s, np.float64).copy()
+    d = np.diag(a).copy()
+    keep = d > 0
+    if mode == "fixed":
+        keep[0::2] = False
+    n_free = int(keep.sum()) - (mode == "solve")
+    dof = float(rss[1]) - float(rss[2]) - n_free
+    noise_var = float(rss[0]) / dof if dof > 0 else np.nan
+    if mode == "prior":
+        a[np.arange(0, 2 * k, 2), np.arange(0, 2 * k, 2)] += noise_var * np.asarray(prior_weight, np.float64)
+    idx = np.flatnonzero(keep)
+    m = a[np.ix_(idx, idx)]
+    if mode == "solve":
+        c = np.where(idx % 2 == 0, 1.0 / t[idx // 2], 0.0)
+        m = np.block([[m, c[:, None]], [c[None, :], np.zeros((1, 1))]])
+    try:
+        inv = np.linalg.inv(m)[: len(idx), : len(idx)]
+    except np.linalg.LinAlgError:
+        return np.full(k, np.nan)
+    var = np.full(2 * k, np.nan)
+    var[idx] = np.diag(inv) * noise_var
+    return np.sqrt(np.clip(var[1::2], 0, None))

@@ -144,6 +144,9 @@ class PassSums:
     haze_s: np.ndarray | None = None
     #: The global sums' haze terms: each tile's ``(index, haze_g, haze_s)`` in tile order (:func:`.haze.assemble`).
     haze_parts: list = field(default_factory=list)
+    #: FLOAT_HAZE: the noise-weighted residual sum of squares at the eliminated albedo, the observations and
+    #: the pixels it sums over (the noise variance of the haze's standard errors, :func:`.haze.standard_errors`).
+    haze_rss: np.ndarray | None = None
 
     def __post_init__(self):
         if self.index is not None:
@@ -167,6 +170,8 @@ class PassSums:
         """
         at = part.index if self.index is None else np.searchsorted(self.index, part.index)
         if part.haze_g is not None:
+            if part.haze_rss is not None:
+                self.haze_rss = part.haze_rss.copy() if self.haze_rss is None else self.haze_rss + part.haze_rss
             if self.index is None:
                 self.haze_parts.append((part.index, part.haze_g, part.haze_s))
             else:
