@@ -12,6 +12,7 @@ from lunaralbedo.io.geotiff import write_geotiff
 from lunaralbedo.response.io import read_response_csv
 from lunaralbedo.response import model as R
 from lunaralbedo.response.fit import fit_response
+from lunaralbedo.response.smoothing import exposure_diagnosis, fit_regularised
 from lunaralbedo.response.synthetic import render_stack
 from response_compare import curve_error, opencv_response
 
@@ -138,8 +139,51 @@ def test_residual_analysis_describes_the_fit(fit_known, stack):
     assert 1.6 < ratio < 2.5, ratio
 
 
+#: The issue's stack: 6 exposures at nearly one ratio (1.67-1.75), so the data barely see waves of that period.
+NEAR_GEOMETRIC = (40, 70, 120, 200, 350, 600)
+
+
+def _log_error_and_waves(lut, curve, lo=10, hi=245):
+    """Log-RMS error of g over DN lo..hi after one scale, and its part that a degree-5 polynomial in DN does not explain."""
+    z = np.arange(lo, hi + 1)
+    d = np.log(np.asarray(lut, np.float64)[z]) - np.log(curve.inverse(z))
+    assert np.all(np.isfinite(d))
+    waves = d - np.polyval(np.polyfit(z, d, 5), z)
+    return float(np.sqrt(np.mean((d - d.mean()) ** 2))), float(np.sqrt(np.mean(waves**2)))
+
+
+def test_nearly_commensurate_exposures_smooth_fit():
+    """A held-out stack (seed 7; the weight grid and rule were tuned on seeds 1 and 11): the
+    cross-validated roughness penalty keeps g within 4.5 % log-RMS of the truth, its waves under
+    1.5 %, better than OpenCV's Debevec on the same images.  (Robertson is better here: 0.36 %
+    against 0.46 %, docs/response.md.)"""
+    s = render_stack(n_images=6, exposures=NEAR_GEOMETRIC, seed=7)
+    obs = R.observations_from_stack(s["dn"], np.ones(s["dn"].shape, bool))
+    fit = fit_regularised(obs, s["exposure"])
+    err, waves = _log_error_and_waves(fit.lut(), s["curve"])
+    assert err <= 0.045 and waves <= 0.015, (err, waves)
+    assert err <= _log_error_and_waves(opencv_response(s["dn"], s["exposure"], "debevec"), s["curve"])[0]
+    sm = fit.smoothing
+    k = sm["grid_per_observation"].index(sm["weight_per_observation"])
+    assert sm["weight"] > 0 and sm["excess_over_best"][k] <= sm["excess_se"][k]  # the one-standard-error rule
+    # the diagnosis finds the near-common ratio (1.67-1.75) and how little the data see waves of that period
+    d = sm["exposure_ratios"]
+    assert 1.65 < d["worst_period_ratio"] < 1.76 and d["min_visibility"] < 0.1, d
+
+
+def test_exposure_diagnosis_tells_commensurate_from_incommensurate_ratios():
+    """Exactly geometric exposures leave waves of one ratio invisible (visibility 0); ratios 2 and 3 leave
+    none that invisible (three images: some period is always seen poorly, none unseen)."""
+    rng = np.random.default_rng(0)
+    pix, img = np.repeat(np.arange(500), 3), np.tile(np.arange(3), 500)
+    obs = R.Observations(pix, img, rng.integers(20, 230, len(pix)), 500, 3)
+    geometric = exposure_diagnosis(obs, np.array([1.0, 1.5, 2.25]))
+    assert geometric["min_visibility"] < 0.01 and abs(geometric["worst_period_ratio"] - 1.5) < 0.01
+    other = exposure_diagnosis(obs, np.array([1.0, 2.0, 6.0]))["min_visibility"]
+    assert other > 0.02 and other > 10 * geometric["min_visibility"], other
+
+
 def test_at_least_as_good_as_opencv_where_photon_noise_matters():
-    pytest.importorskip("cv2")
     s = render_stack(n_images=4, exposure_ratio=10.0, shape=(200, 200), seed=1)
     ours = fit_response(R.observations_from_stack(s["dn"], np.ones(s["dn"].shape, bool)), s["exposure"])
     e_ours = curve_error(ours.lut(), s["curve"])[0]

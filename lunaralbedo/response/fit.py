@@ -1,4 +1,4 @@
-r"""Maximum of the profile likelihood of seed 002 (eq. 8 under eq. 7): trust-region Newton in an active set.
+r"""Maximum of the profile likelihood of Kim et al. (eq. 8 under eq. 7): trust-region Newton in an active set.
 
 With :math:`r` at its closed form (eq. 10) the log-likelihood of eq. 8 becomes, per pixel
 :math:`i` with :math:`X_i = \sum_{n\in i} x_n` and :math:`C_i = \sum_{n\in i} t_{j(n)} c_n`,
@@ -18,7 +18,7 @@ one that does not bend the curve: eq. 8 pulls the scale of :math:`g` down (Stirl
 :math:`\ln g(k)`, is exactly normal to the constraint, so it only sets the multiplier.  (A pin
 at one level instead pushes every other level down: a visible step in g.) and, for unknown exposure
 times, :math:`u_j = \ln t_j` for :math:`j \ge 1` (:math:`u_0 = 0`: :math:`r t` is all the
-data see).  The start is the seed's alternation of eqs. 10, 11 and 13 (ten passes).
+data see).  The start is the paper's alternation of eqs. 10, 11 and 13 (ten passes).
 
 Eq. 7 by an active set (:func:`_solve`, Lawson-Hanson style): scipy's ``trust-exact``
 maximises over the increments that are not pooled, unconstrained.  When some come out
@@ -50,7 +50,7 @@ from scipy.special import digamma, polygamma
 
 from .model import (FIT_SCALE, GEOMETRY_STRONG, MID_RANGE, Z_REF, GeometricSlope, Levels, Observations, choose_gauge,
                        choose_levels, exposure_update, gauge_prior, known_factor, log_likelihood, radiance_update,
-                       residual_analysis, response_closed_form)
+                       residual_analysis, response_closed_form, roughness_weights, second_differences)
 
 #: Convergence: largest violation of the first-order (KKT) conditions of -L/N (per observation).
 GTOL_ACCEPT = 1e-6
@@ -78,6 +78,7 @@ class ResponseFit:
     message: str = ""
     passes: int = 1  # active-set passes of the Newton fit
     newton: int = 0  # Newton iterations over all passes (``loglik`` records the feasible points only)
+    smoothing: dict = field(default_factory=dict)  # the weight of the penalty and how it was chosen (.smoothing)
 
     def lut(self, n_levels: int = 256) -> np.ndarray:
         """g as a float32 look-up table over 0..n_levels-1; NaN outside the fitted range."""
@@ -89,7 +90,7 @@ class ResponseFit:
 class _Profile:
     """-L_p / N, its gradient and Hessian in the parameters ``(S, u)``; caches the last point."""
 
-    def __init__(self, obs: Observations, lev_idx, lev: Levels, t_fixed):
+    def __init__(self, obs: Observations, lev_idx, lev: Levels, t_fixed, smoothing: float = 0.0):
         self.obs, self.lev_idx, self.lev, self.t_fixed = obs, lev_idx, lev, t_fixed
         nk, self.n_lev = len(lev.knots), lev.hi - lev.lo + 1
         self.nv = nk - 1
@@ -102,6 +103,10 @@ class _Profile:
         tail = np.cumsum(self.w_mean[::-1])[::-1][1:]  # sum of w_mean over knots above increment m
         self.jac = (m < k).astype(float) - tail[None, :]  # d lg_k / d S_m
         self.scale = float(n)
+        # the roughness penalty (smoothing/2) |D2 ln g|^2 over the DN range, a quadratic form in S
+        d2 = second_differences(self.n_lev) @ lev.matrix @ self.jac
+        d2 *= roughness_weights(lev.dn[1:-1])[:, None]
+        self.pen = smoothing * (d2.T @ d2)
         self._key = None
 
     def unpack(self, p):
@@ -134,8 +139,10 @@ class _Profile:
         if self.t_fixed is None:
             grad.append(np.bincount(obs.image, x - mu, obs.n_images)[1:])
         self._key, self._hess = p.copy(), None
-        self._val = -val / self.scale
+        ps = self.pen @ p[:self.nv]
+        self._val = (-val + 0.5 * float(p[:self.nv] @ ps)) / self.scale
         self._grad = -np.concatenate(grad) / self.scale
+        self._grad[:self.nv] += ps / self.scale
         self.state = (g, t, r, x, mu)
         self._parts = (d_lg, ct, big_x, big_c)
 
@@ -146,7 +153,7 @@ class _Profile:
         h_g = (self.b.T @ sp.diags(1.0 / big_x) @ self.b).toarray() - np.diag(self.cnt * polygamma(1, g + 1.0))
         h_k = mt @ (g[:, None] * h_g * g[None, :] + np.diag(d_lg)) @ self.lev.matrix
         ej = self.jac
-        blocks = [[ej.T @ h_k @ ej]]
+        blocks = [[ej.T @ h_k @ ej - self.pen]]
         if self.t_fixed is None:
             h_uu, h_lgu = self._exposure_blocks(x, ct, big_x, big_c, g)
             cross = ej.T @ (mt @ h_lgu)  # (nv, n_img-1)
@@ -177,7 +184,7 @@ class _Profile:
 
 
 def _juggle(obs, lev_idx, lev: Levels, t, t_free: bool, passes: int):
-    """The seed's alternation (10), (11), (13) from a linear g; returns (g over the range, t, log-likelihoods).
+    """The paper's alternation (10), (11), (13) from a linear g; returns (g over the range, t, log-likelihoods).
 
     g is kept at the fit's scale (mean of ln x over the observations = ln FIT_SCALE) and, with
     unknown exposures, on the prior's gauge (a power after each pass), so the likelihoods
@@ -288,7 +295,7 @@ def _solve(prof: "_Profile", p0: np.ndarray, a_s: np.ndarray | None, record, max
 
 def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_count: int = 20, exclude=(0, 255),
                  juggle_passes: int = 10, max_iter: int = MAX_ITER, z_ref: int = Z_REF,
-                 gauge: str = "auto") -> ResponseFit:
+                 gauge: str = "auto", smoothing: float = 0.0) -> ResponseFit:
     r"""Maximum-likelihood g, r and (if ``exposure`` is None) t of eq. 8 under eq. 7.
 
     Observations at excluded DN (saturation) or outside the range of the free levels
@@ -316,7 +323,7 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
     p0 = np.maximum(np.diff(np.log(g0_k)), 0.0)
     if t_free:
         p0 = np.concatenate([p0, np.log(t_j[1:] / t_j[0])])
-    prof = _Profile(sub, lev_idx, lev, None if t_free else t0)
+    prof = _Profile(sub, lev_idx, lev, None if t_free else t0, smoothing)
 
     def record(p):
         hist.append(-prof.fun(p)[0] * prof.scale)

@@ -1,10 +1,10 @@
-r"""Camera response recovery by continuous-Poisson maximum likelihood (seed 002, eqs. 6-15).
+r"""Camera response recovery by continuous-Poisson maximum likelihood (Kim et al., eqs. 6-15).
 
-Notation of seed 002 section 3: an observation :math:`n=(i,j)` is pixel (or albedo
+Notation of Kim et al., section 3: an observation :math:`n=(i,j)` is pixel (or albedo
 sample) :math:`i` seen in image :math:`j` with digital number :math:`z_n`; the sensor
 exposure is :math:`x_n = g(z_n)` with :math:`g = f^{-1}` the inverse camera response,
 and its mean is :math:`\mu_n = r_i\,t_j\,c_n`.  :math:`c_n` is a known per-observation
-factor: 1 in the aligned case of the seed, the reflectance model :math:`R` of seed 000
+factor: 1 in the aligned case of the paper, the reflectance model :math:`R` of Nefian et al.
 (eq. 2) when the albedo solver uses it (the unaligned case), so :math:`r_i` is then the
 albedo.  Everything here is pure NumPy/SciPy on flat observation arrays (no I/O).
 
@@ -80,7 +80,7 @@ class Observations:
 
 
 def observations_from_stack(dn: np.ndarray, valid: np.ndarray) -> Observations:
-    """Observations of an aligned stack ``(n_images, ...)`` of DN where ``valid`` (the seed's D_j)."""
+    """Observations of an aligned stack ``(n_images, ...)`` of DN where ``valid`` (the paper's D_j)."""
     n_img = dn.shape[0]
     flat = dn.reshape(n_img, -1)
     ok = valid.reshape(n_img, -1)
@@ -229,6 +229,26 @@ class GeometricSlope:
         ss = 1.0 / max(float(self.weight @ self.weight), 1e-300)  # sum of the projected ln c squared
         res = y - beta * self.weight * ss
         return beta, float(np.sqrt(res @ res / self.dof / ss))
+
+
+def second_differences(n: int) -> np.ndarray:
+    r"""The (n-2, n) matrix :math:`D_2` of second differences, :math:`(D_2 v)_k = v_k - 2 v_{k+1} + v_{k+2}`.
+
+    The roughness of the curve is :math:`\lVert D_2 \ln g \rVert^2` over consecutive DN: zero for
+    :math:`g \propto e^{a z}`, large for waves.
+    """
+    return np.diff(np.eye(max(n, 2)), 2, axis=0)
+
+
+def roughness_weights(dn: np.ndarray, n_levels: int = N_LEVELS) -> np.ndarray:
+    r"""Weight of the roughness at DN ``dn``: the hat :math:`\min(z, n-1-z) / ((n-1)/2)` (Debevec and Malik's
+    weighting, applied to the second difference, so the penalty weighs its square).
+
+    Toe and shoulder, where one DN step is a large step in exposure and the true curve bends
+    most, are smoothed least; the straight middle most.
+    """
+    z = np.asarray(dn, np.float64)
+    return np.maximum(np.minimum(z, n_levels - 1 - z), 1.0) / ((n_levels - 1) / 2)
 
 
 def gauge_prior(lev: Levels, mid=MID_RANGE) -> np.ndarray:
