@@ -251,6 +251,23 @@ def roughness_weights(dn: np.ndarray, n_levels: int = N_LEVELS) -> np.ndarray:
     return np.maximum(np.minimum(z, n_levels - 1 - z), 1.0) / ((n_levels - 1) / 2)
 
 
+def bin_widths(n: int) -> np.ndarray:
+    r"""The (n, n) matrix of each DN bin's width in :math:`\ln g`: central differences
+    :math:`(\ln g_{k+1} - \ln g_{k-1})/2`, one-sided at the ends of the range.
+
+    A DN :math:`z` records an exposure anywhere in its bin :math:`[g(z-\tfrac12), g(z+\tfrac12)]`: its
+    probability is the noise density at :math:`g(z)` times the bin's width :math:`g(z)\,w_z` (midpoint rule).
+    """
+    m = np.zeros((n, n))
+    if n < 2:
+        return m
+    i = np.arange(1, n - 1)
+    m[i, i + 1], m[i, i - 1] = 0.5, -0.5
+    m[0, :2] = (-1.0, 1.0)
+    m[-1, -2:] = (-1.0, 1.0)
+    return m
+
+
 def gauge_prior(lev: Levels, mid=MID_RANGE) -> np.ndarray:
     r"""The prior gauge: weights ``a`` over the knots with ``a @ ln g = 1`` meaning "g linear over ``mid``".
 
@@ -332,3 +349,32 @@ def radiance_map(dn: np.ndarray, valid: np.ndarray, lut: np.ndarray, exposure: n
     den = np.sum(np.where(ok, np.asarray(exposure, np.float64)[:, None, None], 0.0), axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(den > 0, num / den, np.nan).astype(np.float32)
+
+
+def alternation(obs: Observations, lev_idx: np.ndarray, lev: Levels, t, t_free: bool, passes: int):
+    """The paper's alternation (10), (11), (13) from a linear g; returns (g over the range, t, log-likelihoods).
+
+    g is kept at the fit's scale (mean of ln x over the observations = ln FIT_SCALE) and, with
+    unknown exposures, on the prior's gauge (a power after each pass), so the likelihoods
+    compare with the Newton ones.
+    """
+    gauge = gauge_prior(lev) if t_free else None
+    g = np.arange(lev.lo, lev.hi + 1, dtype=np.float64)
+    g *= FIT_SCALE / np.exp(np.mean(np.log(g[lev_idx])))
+    hist = []
+    for _ in range(passes):
+        x = g[lev_idx]
+        r = radiance_update(x, obs, t)
+        if t_free:
+            t = exposure_update(x, obs, r)
+            t = t / t[0]
+            r = radiance_update(x, obs, t)
+        mu = r[obs.pixel] * (t[obs.image] if obs.factor is None else t[obs.image] * obs.factor)
+        hist.append(log_likelihood(x, mu))
+        g_new = response_closed_form(np.log(mu), lev_idx, len(g), exact=False)
+        lg = np.log(g_new[lev.knots - lev.lo])
+        if gauge is not None and gauge @ lg > 0:
+            lg /= gauge @ lg
+        g = np.exp(lev.matrix @ lg)
+        g *= FIT_SCALE / np.exp(np.mean(np.log(g[lev_idx])))
+    return g, t, hist

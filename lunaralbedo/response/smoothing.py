@@ -11,10 +11,8 @@ Cross-validation (:func:`choose_smoothing`): the pixels are split into ``folds``
 groups; for each weight on a grid, the fit on the other groups predicts each DN of a held-out
 pixel from that pixel's *other* observations (its radiance by eq. 10 in logs, then :math:`f = g^{-1}`
 by interpolation), and the score is the mean squared DN error.  The weights are tried in
-increasing order until one predicts significantly worse than the best so far; the weight
-chosen is the largest whose excess over the best is within one standard error (paired over
-the held-out pixels): the one-standard-error rule of Breiman et al. (CART), which prefers the
-smoother curve wherever the data cannot tell (flat cross-validation curves).
+increasing order until one predicts worse than the best so far by more than one standard
+error (paired over the held-out pixels); the weight chosen is the one with the least error.
 """
 from __future__ import annotations
 
@@ -100,17 +98,17 @@ def choose_smoothing(obs: Observations, exposure, grid_per_obs=GRID_PER_OBS, fol
                   for k in range(len(errors))]
         if excess[-1][0] > excess[-1][1]:  # significantly worse than the best: past it
             break
-    pick = max(k for k, (d, se) in enumerate(excess) if d <= se)
+    pick = int(np.argmin(scores))
     return {"weight_per_observation": float(grid_per_obs[pick]), "weight": float(grid_per_obs[pick] * len(obs)),
-            "rule": f"{folds}-fold cross-validation over pixels: the largest weight whose held-out DN error is within "
-                    "one paired standard error of the best",
+            "rule": f"{folds}-fold cross-validation over pixels: the weight with the least held-out DN error",
             "grid_per_observation": [float(v) for v in grid_per_obs[:len(errors)]], "heldout_dn_mse": scores,
             "excess_over_best": [d for d, _ in excess], "excess_se": [se for _, se in excess]}
 
 
-def fit_regularised(obs: Observations, exposure=None, smoothing="auto", **fit_kw) -> ResponseFit:
+def fit_regularised(obs: Observations, exposure=None, smoothing="auto", bins: bool = True, **fit_kw) -> ResponseFit:
     """:func:`.fit.fit_response` with the roughness weight chosen by :func:`choose_smoothing` ("auto")
     or given (a weight per observation); ``fit.smoothing`` records it and the exposure diagnosis."""
+    fit_kw["bins"] = bins
     if smoothing == "auto":
         info = choose_smoothing(obs, exposure, **fit_kw)
     else:
