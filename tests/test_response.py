@@ -152,20 +152,25 @@ def _log_error_and_waves(lut, curve, lo=10, hi=245):
     return float(np.sqrt(np.mean((d - d.mean()) ** 2))), float(np.sqrt(np.mean(waves**2)))
 
 
-def test_nearly_commensurate_exposures_smooth_fit():
-    """A held-out stack (seed 7; the weight grid and rule were tuned on seeds 1 and 11): the
-    cross-validated roughness penalty keeps g within 4.5 % log-RMS of the truth, its waves under
-    1.5 %, better than OpenCV's Debevec on the same images.  (Robertson is better here: 0.36 %
-    against 0.46 %, docs/response.md.)"""
+def test_nearly_commensurate_exposures_smooth_fit_beats_opencv():
+    """A held-out stack (seed 7; the weight grid and rule were tuned on seeds 1 and 11): the DN bins with the
+    fitted count scale and the cross-validated roughness penalty keep g within 4.5 % log-RMS of the truth
+    (measured 0.19 %), its waves under 1.5 %, and no worse than either OpenCV method on the same images
+    (Debevec 1.87 %, Robertson 0.36 %)."""
     s = render_stack(n_images=6, exposures=NEAR_GEOMETRIC, seed=7)
     obs = R.observations_from_stack(s["dn"], np.ones(s["dn"].shape, bool))
     fit = fit_regularised(obs, s["exposure"])
     err, waves = _log_error_and_waves(fit.lut(), s["curve"])
     assert err <= 0.045 and waves <= 0.015, (err, waves)
-    assert err <= _log_error_and_waves(opencv_response(s["dn"], s["exposure"], "debevec"), s["curve"])[0]
+    for method in ("debevec", "robertson"):
+        assert err <= _log_error_and_waves(opencv_response(s["dn"], s["exposure"], method), s["curve"])[0], method
+    # Kim et al.'s fit alone on the same images is worse (0.43 %): the likelihood prefers waves there
+    assert err < _log_error_and_waves(fit_response(obs, s["exposure"]).lut(), s["curve"])[0]
     sm = fit.smoothing
     k = sm["grid_per_observation"].index(sm["weight_per_observation"])
-    assert sm["weight"] > 0 and sm["excess_over_best"][k] <= sm["excess_se"][k]  # the one-standard-error rule
+    assert sm["weight"] > 0 and sm["heldout_dn_mse"][k] == min(sm["heldout_dn_mse"])
+    # the fitted count scale (geometric mean of g(z_n) in counts) is the photon noise of 3000 per unit exposure (~2600)
+    assert 1500 < fit.gamma["count_scale"] < 4500, fit.gamma["count_scale"]
     # the diagnosis finds the near-common ratio (1.67-1.75) and how little the data see waves of that period
     d = sm["exposure_ratios"]
     assert 1.65 < d["worst_period_ratio"] < 1.76 and d["min_visibility"] < 0.1, d
