@@ -25,7 +25,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # respon
 
 from lunaralbedo.response.fit import fit_response  # noqa: E402
 from lunaralbedo.response.model import observations_from_stack  # noqa: E402
-from lunaralbedo.response.synthetic import render_stack  # noqa: E402
+from lunaralbedo.response.smoothing import fit_regularised  # noqa: E402
+from lunaralbedo.response.synthetic import FilmCurve, render_stack  # noqa: E402
 from response_compare import curve_error, opencv_response  # noqa: E402
 
 STACKS = {
@@ -33,17 +34,26 @@ STACKS = {
     "5 exp., 300 ph (noisy)": dict(n_images=5, photons=300),
     "4 exp. x10, 200x200": dict(n_images=4, exposure_ratio=10, shape=(200, 200)),
     "8 exp., 30000 ph (quantisation)": dict(photons=30000, seed=3),
+    # nearly geometric exposure ratios (1.67-1.75): the data barely see waves of that period
+    "6 exp. 40-600 ms, seed 7": dict(exposures=(40, 70, 120, 200, 350, 600), seed=7),
+    "6 exp. 40-600 ms, contrast 2.0": dict(exposures=(40, 70, 120, 200, 350, 600), curve=FilmCurve(k=2.0), seed=5),
+    "6 exp. 40-600 ms, contrast 2.5, radiance x200": dict(exposures=(40, 70, 120, 200, 350, 600),
+                                                          curve=FilmCurve(k=2.5), radiance_ratio=200, seed=5),
 }
 
 
 def accuracy(figures: Path | None) -> None:
-    print(f"{'stack':34s} {'ours':>8s} {'Debevec':>8s} {'Robertson':>9s}")
+    print(f"{'stack':46s} {'unpenalised':>11s} {'ours':>8s} {'Debevec':>8s} {'Robertson':>9s}  weight/obs")
     for i, (name, kw) in enumerate(STACKS.items()):
         s = render_stack(**kw)
-        fit = fit_response(observations_from_stack(s["dn"], np.ones(s["dn"].shape, bool)), s["exposure"])
+        obs = observations_from_stack(s["dn"], np.ones(s["dn"].shape, bool))
+        plain = fit_response(obs, s["exposure"])
+        fit = fit_regularised(obs, s["exposure"])
         cv = {m: opencv_response(s["dn"], s["exposure"], m) for m in ("debevec", "robertson")}
-        errs = [curve_error(fit.lut(), s["curve"])[0]] + [curve_error(cv[m], s["curve"])[0] for m in cv]
-        print(f"{name:34s} " + " ".join(f"{100 * e:7.2f}%" for e in errs), flush=True)
+        errs = [curve_error(plain.lut(), s["curve"])[0], curve_error(fit.lut(), s["curve"])[0]]
+        errs += [curve_error(cv[m], s["curve"])[0] for m in cv]
+        print(f"{name:46s} " + " ".join(f"{100 * e:7.2f}%" for e in errs)
+              + f"  {fit.smoothing['weight_per_observation']:g}", flush=True)
         if figures and i == 0:
             plot(figures / "response_vs_opencv.png", s, fit, cv)
             from lunaralbedo.response.io import plot_loglik
@@ -60,7 +70,7 @@ def plot(path: Path, s, fit, cv) -> None:
     z = np.arange(10, 246)
     truth = s["curve"].inverse(z)
     fig, ax = plt.subplots(figsize=(6, 3.6))
-    for label, lut in (("ours (ML, eq. 8)", fit.lut()), ("OpenCV Debevec", cv["debevec"]), ("OpenCV Robertson", cv["robertson"])):
+    for label, lut in (("ours (penalised ML, eq. 8)", fit.lut()), ("OpenCV Debevec", cv["debevec"]), ("OpenCV Robertson", cv["robertson"])):
         est = np.asarray(lut, float)[z]
         d = np.log(est) - np.log(truth)
         ax.plot(z, 100 * (d - np.nanmean(d)), label=label, lw=1)
@@ -99,7 +109,7 @@ def apollo(photk: Path, figures: Path | None, work: Path = Path("/tmp/response_a
     from lunaralbedo.engine.scene import build_scene
     from lunaralbedo.engine.solve import solve
     from lunaralbedo.parallel import make_executor
-    from lunaralbedo.response.aligned import write_outputs
+    from lunaralbedo.response.aligned import longest_flat_run, write_outputs
     from lunaralbedo.settings import load_settings
 
     settings = photk / "photometry_settings_1.txt"
@@ -111,15 +121,19 @@ def apollo(photk: Path, figures: Path | None, work: Path = Path("/tmp/response_a
         obs = response_observations(scene, ex)
     finally:
         ex.close()
+    before = fit_response(obs, None)  # Kim et al. unpenalised: the curve of the earlier releases
     c0 = time.process_time()
-    fit = fit_response(obs, None)
+    fit = fit_regularised(obs, None)
     cpu = time.process_time() - c0
     write_outputs(work / "fit", fit, scene.keys, plots=True, exposure_given=False)
     res = fit.residuals
     row = {"observations": res["n_obs"], "fit_cpu_s": cpu, "converged": fit.converged, "message": fit.message,
            "newton_iterations": fit.newton, "passes": fit.passes,
            "pooled_steps": int(np.sum(np.diff(fit.g) == 0)), "levels": len(fit.g), "chi2_per_dof": res["chi2_per_dof"],
-           "rms_log": res["rms_log"], "gauge": fit.gamma.get("gauge"), "geometry": fit.gamma.get("geometry")}
+           "rms_log": res["rms_log"], "gauge": fit.gamma.get("gauge"), "geometry": fit.gamma.get("geometry"),
+           "smoothing": fit.smoothing, "longest_flat_run_dn": longest_flat_run(fit.g),
+           "before": {"pooled_steps": int(np.sum(np.diff(before.g) == 0)), "longest_flat_run_dn": longest_flat_run(before.g),
+                      "chi2_per_dof": before.residuals["chi2_per_dof"], "rms_log": before.residuals["rms_log"]}}
     print(row, flush=True)
     out = {}
     for name, kw in (("linear", {}), ("response", {"response": work / "fit" / "response.csv"})):
@@ -133,7 +147,70 @@ def apollo(photk: Path, figures: Path | None, work: Path = Path("/tmp/response_a
         shutil.copyfile(work / "fit" / "residuals.png", figures / "response_apollo15_residuals.png")
         _plot_albedo(figures / "response_apollo15_albedo.png", out)
         shutil.copyfile(work / "fit" / "loglik.png", figures / "response_apollo15_loglik.png")
+        _plot_before_after(figures / "response_apollo15_before_after.png", before, fit)
     return row
+
+
+def _plot_before_after(path: Path, before, after) -> None:
+    """The Apollo curve of the unpenalised fit and of the cross-validated penalised one."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 3.8))
+    for label, f, style in (("before: Kim et al. unpenalised", before, "--"),
+                            (f"after: penalised, weight {after.smoothing['weight_per_observation']:g}/obs", after, "-")):
+        ax.semilogy(f.levels.dn, f.g, style, lw=1.2, label=f"{label} ({int(np.sum(np.diff(f.g) == 0))} flat steps)")
+    ax.set_xlabel("DN")
+    ax.set_ylabel("g(z), g(128) = 1")
+    ax.set_title("Apollo 15/16 DRGs (settings 1): inverse response")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def ambiguity(path: Path) -> None:
+    """The figure of docs/response.md: which waves the exposures leave unseen, and the fits they allow."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from lunaralbedo.response.smoothing import PERIODS, exposure_diagnosis
+
+    near = (40, 70, 120, 200, 350, 600)
+    s = render_stack(exposures=near, curve=FilmCurve(k=2.0), seed=5)
+    obs = observations_from_stack(s["dn"], np.ones(s["dn"].shape, bool))
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.8))
+    for label, t in (("40-600 ms (ratios 1.67-1.75)", np.array(near, float)), ("40, 90, 130, 300, 420, 600 ms", np.array([40, 90, 130, 300, 420, 600.0]))):
+        vis = [exposure_diagnosis(obs, t, np.array([p]))["min_visibility"] for p in PERIODS[::4]]
+        a1.plot(np.exp(PERIODS[::4]), vis, lw=1, label=label)
+    a1.set_xscale("log")
+    a1.set_xlabel("period of a wave in g, as an exposure ratio")
+    a1.set_ylabel("visibility (0: the data cannot see it)")
+    a1.set_title("What the exposure ratios determine")
+    a1.legend(fontsize=8)
+    a1.grid(alpha=0.3)
+    z = np.arange(10, 246)
+    truth = np.log(s["curve"].inverse(z))
+    fits = {"Kim et al. unpenalised": fit_response(obs, s["exposure"]), "penalised, cross-validated": fit_regularised(obs, s["exposure"])}
+    for label, f in fits.items():
+        d = np.log(f.lut()[z].astype(float)) - truth
+        a2.plot(z, 100 * (d - d.mean()), lw=1, label=label)
+    d = np.log(opencv_response(s["dn"], s["exposure"], "debevec")[z]) - truth
+    a2.plot(z, 100 * (d - d.mean()), lw=1, label="OpenCV Debevec")
+    a2.axhline(0, color="k", lw=0.5)
+    a2.set_xlabel("DN")
+    a2.set_ylabel("ln g - ln g_true (%)")
+    a2.set_title("Film curve of contrast 2, exposures 40-600 ms")
+    a2.legend(fontsize=8)
+    a2.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
 
 
 def _mosaic(folder: Path) -> np.ndarray:
@@ -177,4 +254,6 @@ if __name__ == "__main__":
         apollo(a.apollo.resolve(), a.figures)
     else:
         accuracy(a.figures)
+        if a.figures:
+            ambiguity(a.figures / "response_ambiguity.png")
         timing()

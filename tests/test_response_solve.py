@@ -157,7 +157,7 @@ def test_a_stopped_run_resumes_without_refitting_the_response(film, estimated, t
     assert (stop / "checkpoint" / "response" / "response.csv").exists() and not (stop / "response.csv").exists()
     with pytest.raises(ResumeError):  # the checkpoint's albedo assumed the estimated response
         solve(film / "settings.txt", out=stop, resume=True, **args)
-    monkeypatch.setattr(engine_response, "fit_response", lambda *a, **k: pytest.fail("response refitted on --resume"))
+    monkeypatch.setattr(engine_response, "fit_regularised", lambda *a, **k: pytest.fail("response refitted on --resume"))
     solve(film / "settings.txt", out=stop, response="estimate", resume=True, **args)
     assert (stop / "response.csv").read_bytes() == (out / "response.csv").read_bytes()
     assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(_tiles(out), _tiles(stop)))

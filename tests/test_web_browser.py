@@ -211,15 +211,16 @@ def test_report_panel_shows_report_json(served, browser, demo_results):
 
 def test_report_panel_shows_a_camera_response(served, browser, demo_results):
     """A solve run with ``--response`` adds report.json ``response`` and ``residuals``
-    (engine/response.py's format); the panel shows the curve dn -> g and the per-DN residual."""
+    (response/solve_hook.py's format, with the nested ``smoothing`` record); the panel shows the curve
+    dn -> g and the per-DN residual."""
     from lunaralbedo.response.solve_hook import report_parts
     from lunaralbedo.response.model import observations_from_stack
-    from lunaralbedo.response.fit import fit_response
+    from lunaralbedo.response.smoothing import fit_regularised
     from lunaralbedo.response.aligned import fit_report
     from lunaralbedo.response.synthetic import render_stack
 
     s = render_stack(n_images=4, shape=(60, 60))
-    fit = fit_response(observations_from_stack(s["dn"], np.ones(s["dn"].shape, bool)), s["exposure"])
+    fit = fit_regularised(observations_from_stack(s["dn"], np.ones(s["dn"].shape, bool)), s["exposure"])
     report = json.loads((demo_results / "report.json").read_text())
     report.update(report_parts({"source": "estimate", **fit_report(fit, ["a", "b", "c", "d"])}))
     text = json.dumps(report, allow_nan=False)  # as report.js carries report.json: strict JSON, key order kept

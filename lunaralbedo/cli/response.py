@@ -20,6 +20,14 @@ def identifiability_line(ident: dict) -> str:
     return f"exposure times estimated; exponential ambiguity fixed by the prior: {ident['prior']}{why}"
 
 
+def smoothing_line(sm: dict) -> str:
+    """One line on the roughness weight and how much of g the exposure ratios determine (shared with ``solve``)."""
+    d = sm.get("exposure_ratios") or {}
+    seen = (f"; exposure ratios: waves of period x{d['worst_period_ratio']:.2f} in exposure are "
+            f"{d['min_visibility']:.0%} visible to the data" if d else "")
+    return f"smoothing weight {sm['weight_per_observation']:g} per observation ({sm['rule']}){seen}"
+
+
 @click.command("response")
 @click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
@@ -42,6 +50,7 @@ def command(images, out_dir, exposure_times, min_count, max_pixels, no_plots):
     click.echo(f"lunaralbedo response: {len(images)} images, DN {rep['dn_range'][0]}-{rep['dn_range'][1]} "
                f"({rep['free_levels']} free levels, {rep['interpolated_levels']} interpolated), {rep['normalisation']}")
     click.echo("  " + identifiability_line(ident))
+    click.echo("  " + smoothing_line(rep["smoothing"]))
     r = rep["residuals"]
     click.echo(f"  fit: chi2/dof {r['chi2_per_dof']:.3g}, log residual RMS {r['rms_log']:.3g}, {r['n_obs']} observations; "
                + ("converged" if rep["converged"] else "NOT CONVERGED") + f" ({rep['convergence']})")

@@ -53,9 +53,11 @@ def _print_summary(result) -> None:
                    + ("converged" if r["converged"] else "NOT CONVERGED") + f" ({r['convergence']})"
                    if rep.get("residuals") else ""))
         if r.get("identifiability"):
-            from .response import identifiability_line
+            from .response import identifiability_line, smoothing_line
 
             click.echo("    " + identifiability_line(r["identifiability"]))
+            if r.get("smoothing"):
+                click.echo("    " + smoothing_line(r["smoothing"]))
         for w in r.get("warnings", []):
             click.echo(f"    WARNING: {w}")
     if rep.get("registration"):

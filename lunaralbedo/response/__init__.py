@@ -1,1 +1,1 @@
-"""Camera response recovery (seed 002): the aligned-stack command and its synthetic test scenes."""
+"""Camera response recovery (Kim et al.) in one package: pure math (model, fit, smoothing), files (io), the aligned command (aligned), the hook of ``solve --response`` (solve_hook) and synthetic test stacks."""

@@ -1,10 +1,10 @@
-"""``lunaralbedo response``: the aligned case of seed 002 section 3 (a co-registered stack of one scene).
+"""``lunaralbedo response``: the aligned case of Kim et al. (section 3) (a co-registered stack of one scene).
 
-Reads the images (band 1 DN, the GDAL mask as the seed's D_j), fits g, r and (unless
-given) t by :func:`lunaralbedo.response.fit.fit_response` on a deterministic
+Reads the images (band 1 DN, the GDAL mask as the paper's D_j), fits g, r and (unless
+given) t by :func:`lunaralbedo.response.smoothing.fit_regularised` on a deterministic
 subsample of pixels, computes the radiance of every pixel by eq. 10, and writes into
 OUTDIR: ``response.csv``, ``radiance.tif``, ``exposure.csv`` (when estimated),
-``report.json`` and the plots ``response.png`` (seed fig. 8), ``exposure.png`` (fig. 9),
+``report.json`` and the plots ``response.png`` (the paper's fig. 8), ``exposure.png`` (fig. 9),
 ``loglik.png`` and ``residuals.png``.  Nothing is written before the fit succeeded.
 """
 from __future__ import annotations
@@ -19,8 +19,9 @@ from ..errors import InputError
 from ..io import outputs
 from . import io as rio
 from ..io.geotiff import write_geotiff
-from .fit import ResponseFit, fit_response
+from .fit import ResponseFit
 from .model import observations_from_stack, radiance_map
+from .smoothing import fit_regularised
 
 
 @dataclass
@@ -86,7 +87,7 @@ def fit_stack(stack: Stack, exposure: np.ndarray | None, min_count: int = 20, ma
     pick = subsample(h * w, max_pixels)
     dn = stack.dn.reshape(n, -1)[:, pick]
     obs = observations_from_stack(dn, stack.valid.reshape(n, -1)[:, pick])
-    return fit_response(obs, exposure, min_count=min_count, exclude=exclude)
+    return fit_regularised(obs, exposure, min_count=min_count, exclude=exclude)
 
 
 def recover_response(images: Sequence[str | Path], out_dir: str | Path, exposure_times: str | Path | None = None,
@@ -191,6 +192,15 @@ def warnings_for(fit: ResponseFit) -> list[str]:
     return out
 
 
+def longest_flat_run(g: np.ndarray) -> int:
+    """The most consecutive DN that share one g (0: strictly increasing)."""
+    run = best = 0
+    for flat in np.diff(g) == 0:
+        run = run + 1 if flat else 0
+        best = max(best, run)
+    return best + 1 if best else 0
+
+
 def fit_report(fit: ResponseFit, names: Sequence[str]) -> dict:
     """The fit as JSON: the curve (``dn``, ``g`` first: the web panel plots the first two
     equal-length number lists), scalars, and ``residuals`` (summary and per-DN lists over
@@ -210,6 +220,8 @@ def fit_report(fit: ResponseFit, names: Sequence[str]) -> dict:
         "converged": fit.converged,
         "convergence": fit.message,
         "flat_steps": int(np.sum(np.diff(fit.g) == 0)),
+        "longest_flat_run_dn": longest_flat_run(fit.g),
+        "smoothing": fit.smoothing,
         "warnings": warnings_for(fit),
         "loglik": fit.loglik,
         "iterations": {"alternation": fit.n_juggle, "newton": fit.newton,

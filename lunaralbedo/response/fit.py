@@ -1,4 +1,4 @@
-r"""Maximum of the profile likelihood of seed 002 (eq. 8 under eq. 7): trust-region Newton in an active set.
+r"""Maximum of the profile likelihood of Kim et al. (eq. 8 under eq. 7): trust-region Newton in an active set.
 
 With :math:`r` at its closed form (eq. 10) the log-likelihood of eq. 8 becomes, per pixel
 :math:`i` with :math:`X_i = \sum_{n\in i} x_n` and :math:`C_i = \sum_{n\in i} t_{j(n)} c_n`,
@@ -18,7 +18,7 @@ one that does not bend the curve: eq. 8 pulls the scale of :math:`g` down (Stirl
 :math:`\ln g(k)`, is exactly normal to the constraint, so it only sets the multiplier.  (A pin
 at one level instead pushes every other level down: a visible step in g.) and, for unknown exposure
 times, :math:`u_j = \ln t_j` for :math:`j \ge 1` (:math:`u_0 = 0`: :math:`r t` is all the
-data see).  The start is the seed's alternation of eqs. 10, 11 and 13 (ten passes).
+data see).  The start is the paper's alternation of eqs. 10, 11 and 13 (ten passes).
 
 Eq. 7 by an active set (:func:`_solve`, Lawson-Hanson style): scipy's ``trust-exact``
 maximises over the increments that are not pooled, unconstrained.  When some come out
@@ -30,6 +30,19 @@ are optimal, the pooled one whose multiplier most wants it open is released.  Th
 wanting to open by more), and reported as not converged after ``MAX_ITER`` Newton
 iterations or ``MAX_PASSES`` passes.  (The earlier log-increment parametrisation put an
 active bound at :math:`-\infty`: trust-exact never settled on the Apollo DRGs.)
+
+Two additions to Kim et al. (both off by default here; :func:`.smoothing.fit_regularised` turns them on):
+
+* ``smoothing`` :math:`\lambda`: the objective is :math:`-L + \tfrac{\lambda}{2}\lVert W D_2 \ln g\rVert^2`
+  (second differences over the DN range, :func:`.model.roughness_weights`), a quadratic form in :math:`S`.
+* ``bins``: the DN is quantised, so its probability is the density at :math:`x = g(z)` times the
+  width of its bin, :math:`g(z)\,w_z` with :math:`w_z` the central difference of :math:`\ln g`
+  (:func:`.model.bin_widths`).  This adds :math:`\sum_n \ln w_{z_n} + N \ln s` to eq. 8, where
+  :math:`s` is the count scale (the mean of :math:`g(z_n)` in counts, in logs): the likelihood
+  becomes a proper distribution of the DN, so an observed DN cannot have an empty (flat) bin and
+  the scale, which eq. 8 alone leaves free, is the noise level the data show.  The fit alternates
+  the shape at a fixed scale (the Newton/active-set solve) with the scale at a fixed shape (a 1-D
+  bounded maximum, scipy's ``minimize_scalar``), at most ``MAX_SCALE_ROUNDS`` times.
 
 Unknown exposure times: the gauge of the exponential ambiguity, g linear over DN 64-192
 (:func:`.model.gauge_prior`, a linear equality in :math:`S`), is eliminated through its null space;
@@ -46,11 +59,11 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.linalg import null_space
 from scipy.optimize import minimize
-from scipy.special import digamma, polygamma
+from scipy.special import digamma, gammaln, polygamma
 
-from .model import (FIT_SCALE, GEOMETRY_STRONG, MID_RANGE, Z_REF, GeometricSlope, Levels, Observations, choose_gauge,
-                       choose_levels, exposure_update, gauge_prior, known_factor, log_likelihood, radiance_update,
-                       residual_analysis, response_closed_form)
+from .model import (FIT_SCALE, GEOMETRY_STRONG, MID_RANGE, Z_REF, GeometricSlope, Levels, Observations, alternation,
+                    bin_widths, choose_gauge, choose_levels, gauge_prior, known_factor, log_likelihood, radiance_update,
+                    residual_analysis, roughness_weights, second_differences)
 
 #: Convergence: largest violation of the first-order (KKT) conditions of -L/N (per observation).
 GTOL_ACCEPT = 1e-6
@@ -58,6 +71,8 @@ GTOL_ACCEPT = 1e-6
 MAX_ITER = 500
 #: Active-set passes before the fit is reported as not converged.
 MAX_PASSES = 200
+#: Rounds of (count scale, shape) when the DN bins are modelled.
+MAX_SCALE_ROUNDS = 10
 
 
 @dataclass
@@ -78,6 +93,7 @@ class ResponseFit:
     message: str = ""
     passes: int = 1  # active-set passes of the Newton fit
     newton: int = 0  # Newton iterations over all passes (``loglik`` records the feasible points only)
+    smoothing: dict = field(default_factory=dict)  # the weight of the penalty and how it was chosen (.smoothing)
 
     def lut(self, n_levels: int = 256) -> np.ndarray:
         """g as a float32 look-up table over 0..n_levels-1; NaN outside the fitted range."""
@@ -89,7 +105,7 @@ class ResponseFit:
 class _Profile:
     """-L_p / N, its gradient and Hessian in the parameters ``(S, u)``; caches the last point."""
 
-    def __init__(self, obs: Observations, lev_idx, lev: Levels, t_fixed):
+    def __init__(self, obs: Observations, lev_idx, lev: Levels, t_fixed, smoothing: float = 0.0, bins: bool = False):
         self.obs, self.lev_idx, self.lev, self.t_fixed = obs, lev_idx, lev, t_fixed
         nk, self.n_lev = len(lev.knots), lev.hi - lev.lo + 1
         self.nv = nk - 1
@@ -102,11 +118,17 @@ class _Profile:
         tail = np.cumsum(self.w_mean[::-1])[::-1][1:]  # sum of w_mean over knots above increment m
         self.jac = (m < k).astype(float) - tail[None, :]  # d lg_k / d S_m
         self.scale = float(n)
+        # the roughness penalty (smoothing/2) |D2 ln g|^2 over the DN range, a quadratic form in S
+        d2 = second_differences(self.n_lev) @ lev.matrix @ self.jac
+        d2 *= roughness_weights(lev.dn[1:-1])[:, None]
+        self.pen = smoothing * (d2.T @ d2)
+        self.bins = bin_widths(self.n_lev) @ lev.matrix @ self.jac if bins else None
+        self.log_scale = np.log(FIT_SCALE)
         self._key = None
 
     def unpack(self, p):
         s = np.concatenate([[0.0], np.cumsum(p[:self.nv])])
-        lg = np.log(FIT_SCALE) + s - self.w_mean @ s
+        lg = self.log_scale + s - self.w_mean @ s
         t = self.t_fixed if self.t_fixed is not None else np.exp(np.concatenate([[0.0], p[self.nv:]]))
         return lg, t
 
@@ -134,8 +156,20 @@ class _Profile:
         if self.t_fixed is None:
             grad.append(np.bincount(obs.image, x - mu, obs.n_images)[1:])
         self._key, self._hess = p.copy(), None
-        self._val = -val / self.scale
+        ps = self.pen @ p[:self.nv]
+        if self.bins is not None:
+            w = self.bins @ p[:self.nv]
+            have = self.cnt > 0
+            if np.any(w[have] <= 0):  # an observed DN with an empty bin: probability 0
+                self._key, self._val, self._grad = p.copy(), np.inf, np.zeros_like(p)
+                return
+            wh = np.where(have, w, 1.0)
+            val += float(self.cnt[have] @ np.log(w[have]))
+            grad[0] = grad[0] + self.bins.T @ np.where(have, self.cnt / wh, 0.0)
+            self._bin_h = np.where(have, self.cnt / wh**2, 0.0)
+        self._val = (-val + 0.5 * float(p[:self.nv] @ ps)) / self.scale
         self._grad = -np.concatenate(grad) / self.scale
+        self._grad[:self.nv] += ps / self.scale
         self.state = (g, t, r, x, mu)
         self._parts = (d_lg, ct, big_x, big_c)
 
@@ -146,7 +180,9 @@ class _Profile:
         h_g = (self.b.T @ sp.diags(1.0 / big_x) @ self.b).toarray() - np.diag(self.cnt * polygamma(1, g + 1.0))
         h_k = mt @ (g[:, None] * h_g * g[None, :] + np.diag(d_lg)) @ self.lev.matrix
         ej = self.jac
-        blocks = [[ej.T @ h_k @ ej]]
+        blocks = [[ej.T @ h_k @ ej - self.pen]]
+        if self.bins is not None:
+            blocks[0][0] = blocks[0][0] - self.bins.T @ (self._bin_h[:, None] * self.bins)
         if self.t_fixed is None:
             h_uu, h_lgu = self._exposure_blocks(x, ct, big_x, big_c, g)
             cross = ej.T @ (mt @ h_lgu)  # (nv, n_img-1)
@@ -176,33 +212,19 @@ class _Profile:
         return self._hess
 
 
-def _juggle(obs, lev_idx, lev: Levels, t, t_free: bool, passes: int):
-    """The seed's alternation (10), (11), (13) from a linear g; returns (g over the range, t, log-likelihoods).
+def _best_log_scale(prof: "_Profile", p) -> float:
+    """ln s maximising the proper log-likelihood of the DN (eq. 8 plus N ln s, the bins' Jacobian) with the shape fixed."""
+    from scipy.optimize import minimize_scalar
 
-    g is kept at the fit's scale (mean of ln x over the observations = ln FIT_SCALE) and, with
-    unknown exposures, on the prior's gauge (a power after each pass), so the likelihoods
-    compare with the Newton ones.
-    """
-    gauge = gauge_prior(lev) if t_free else None
-    g = np.arange(lev.lo, lev.hi + 1, dtype=np.float64)
-    g *= FIT_SCALE / np.exp(np.mean(np.log(g[lev_idx])))
-    hist = []
-    for _ in range(passes):
-        x = g[lev_idx]
-        r = radiance_update(x, obs, t)
-        if t_free:
-            t = exposure_update(x, obs, r)
-            t = t / t[0]
-            r = radiance_update(x, obs, t)
-        mu = r[obs.pixel] * (t[obs.image] if obs.factor is None else t[obs.image] * obs.factor)
-        hist.append(log_likelihood(x, mu))
-        g_new = response_closed_form(np.log(mu), lev_idx, len(g), exact=False)
-        lg = np.log(g_new[lev.knots - lev.lo])
-        if gauge is not None and gauge @ lg > 0:
-            lg /= gauge @ lg
-        g = np.exp(lev.matrix @ lg)
-        g *= FIT_SCALE / np.exp(np.mean(np.log(g[lev_idx])))
-    return g, t, hist
+    prof._eval(p)
+    _, _, _, x, mu = prof.state
+    xt, mt = x / np.exp(prof.log_scale), mu / np.exp(prof.log_scale)
+
+    def neg(ls):
+        sc = np.exp(ls)
+        return -(float(np.sum(sc * xt * np.log(sc * mt) - sc * mt - gammaln(sc * xt + 1.0))) + len(x) * ls)
+
+    return float(minimize_scalar(neg, bounds=(0.0, 20.0), method="bounded", options={"xatol": 1e-4}).x)
 
 
 def _kkt(p, grad, nv, pooled, a_s):
@@ -305,7 +327,7 @@ def _fitted_levels(obs: Observations, min_count: int, exclude) -> tuple:
 
 def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_count: int = 20, exclude=(0, 255),
                  juggle_passes: int = 10, max_iter: int = MAX_ITER, z_ref: int = Z_REF,
-                 gauge: str = "auto") -> ResponseFit:
+                 gauge: str = "auto", smoothing: float = 0.0, bins: bool = False) -> ResponseFit:
     r"""Fit the inverse camera response by maximum likelihood (Kim et al., eq. 8 under eq. 7).
 
     Maximises :math:`L = \sum_n g(z_n)\ln\mu_n - \mu_n - \ln\Gamma(g(z_n)+1)`,
@@ -337,6 +359,12 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
         DN of the normalisation :math:`g(z_{ref}) = 1` (clipped into the fitted range).
     gauge : {"auto", "geometry", "prior"}, default "auto"
         Gauge of the exponential ambiguity when exposures are estimated, as above.
+    smoothing : float, default 0.0
+        Weight :math:`\lambda` of the roughness penalty on :math:`\ln g` (second differences with
+        Debevec-Malik hat weights; the module docstring); 0: none (Kim et al.'s plain fit).
+    bins : bool, default False
+        Model each DN's 8-bit quantisation in the likelihood (density times bin width) and fit the
+        count scale that eq. 8 leaves free.
 
     Returns
     -------
@@ -360,24 +388,37 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
     t_free = exposure is None
     t0 = np.ones(obs.n_images) if t_free else np.asarray(exposure, np.float64)
     zr = int(np.clip(z_ref, lev.lo, lev.hi))
-    g0, t_j, hist = _juggle(sub, lev_idx, lev, t0, t_free, juggle_passes)
+    g0, t_j, hist = alternation(sub, lev_idx, lev, t0, t_free, juggle_passes)
     n_juggle = len(hist)
     g0_k = g0[lev.knots - lev.lo]
-    p0 = np.maximum(np.diff(np.log(g0_k)), 0.0)
+    p0 = np.diff(np.log(g0_k))
+    p0 = np.maximum(p0, 1e-2 * max(float(np.mean(p0)), 1e-6) if bins else 0.0)
     if t_free:
         p0 = np.concatenate([p0, np.log(t_j[1:] / t_j[0])])
-    prof = _Profile(sub, lev_idx, lev, None if t_free else t0)
+    prof = _Profile(sub, lev_idx, lev, None if t_free else t0, smoothing, bins)
 
     def record(p):
         hist.append(-prof.fun(p)[0] * prof.scale)
 
     info = {"exposures_known": not t_free, "gamma": 1.0}
+    def solve_with_scale(p, a_s):
+        """_solve, and with ``bins`` the count scale (noise level) by its own 1-D maximum, then the shape again."""
+        p, converged, passes, its, message = _solve(prof, p, a_s, record, max_iter)
+        for _ in range(MAX_SCALE_ROUNDS if bins else 0):
+            new = _best_log_scale(prof, p)
+            if abs(new - prof.log_scale) < 1e-3:
+                break
+            prof.log_scale, prof._key = new, None
+            p, converged, more, its2, message = _solve(prof, p, a_s, record, max_iter)
+            passes, its = passes + more, its + its2
+        return p, converged, passes, its, message
+
     if not t_free:
-        p, converged, passes, its, message = _solve(prof, p0, None, record, max_iter)
+        p, converged, passes, its, message = solve_with_scale(p0, None)
     else:
         a = gauge_prior(lev)
         p0[:prof.nv] /= max(float(a @ prof.jac @ p0[:prof.nv]), 1e-12)  # start on the prior's gauge
-        p, converged, passes, its, message = _solve(prof, p0, prof.jac.T @ a, record, max_iter)
+        p, converged, passes, its, message = solve_with_scale(p0, prof.jac.T @ a)
         info = {"exposures_known": False, "gauge": "prior", "gamma": 1.0,
                 "prior": f"response linear over DN {MID_RANGE[0]}-{MID_RANGE[1]} (log-log slope 1)"}
         if gauge != "prior" and sub.factor is not None:
@@ -396,12 +437,13 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
                 info.update(gauge="geometry", mode="constraint", gamma=1.0)
             elif use:  # weak geometry: the likelihood's shape under the prior, the geometry's power
                 info.update(gauge="geometry", mode="power", gamma=1.0 / beta)
+    info["count_scale"] = float(np.exp(prof.log_scale)) if bins else None
     prof._eval(p)
     g, t = prof.state[:2]
     if t_free:
         gam = info["gamma"]  # the likelihood's shape, the geometry's power (see choose_gauge)
         g, t, g0 = g**gam, (t / np.exp(np.mean(np.log(t)))) ** gam, g0**gam  # geometric mean of t -> 1
-        g *= FIT_SCALE / np.exp(np.mean(np.log(g[lev_idx])))  # back on the fit's scale: chi2 comparable
+        g *= np.exp(prof.log_scale) / np.exp(np.mean(np.log(g[lev_idx])))  # back on the fit's scale: chi2 comparable
     x = g[lev_idx]
     r_sub = radiance_update(x, sub, t)  # eq. 10 again: r^gamma is not the optimum when c varies
     mu = r_sub[sub.pixel] * known_factor(sub, t)

@@ -49,7 +49,7 @@ def read_response_csv(path: str | Path, n_levels: int = 256) -> np.ndarray:
         raise InputError(f"{path}: dn values must be distinct and within 0..{n_levels - 1}")
     order = np.argsort(dn)
     if not np.all(np.isfinite(g)) or g.min() <= 0 or np.any(np.diff(g[order]) < 0):
-        raise InputError(f"{path}: g must be positive and non-decreasing in dn (eq. 7 of seed 002)")
+        raise InputError(f"{path}: g must be positive and non-decreasing in dn (eq. 7 of Kim et al.)")
     lut[dn] = g
     return lut
 
@@ -94,7 +94,7 @@ def _plt():
 
 def plot_response(path: Path, dn: np.ndarray, g: np.ndarray, g_initial: np.ndarray, se_log_g: np.ndarray,
                   extra: dict | None = None) -> None:
-    """Inverse response g(z) (log scale) with the initial guess of eq. 13 and a 2-sigma band (as seed 002 fig. 8)."""
+    """Inverse response g(z) (log scale) with the initial guess of eq. 13 and a 2-sigma band (as fig. 8 of Kim et al.)."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(5.5, 4))
     se = np.nan_to_num(se_log_g)

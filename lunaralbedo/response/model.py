@@ -1,10 +1,10 @@
-r"""Camera response recovery by continuous-Poisson maximum likelihood (seed 002, eqs. 6-15).
+r"""Camera response recovery by continuous-Poisson maximum likelihood (Kim et al., eqs. 6-15).
 
-Notation of seed 002 section 3: an observation :math:`n=(i,j)` is pixel (or albedo
+Notation of Kim et al., section 3: an observation :math:`n=(i,j)` is pixel (or albedo
 sample) :math:`i` seen in image :math:`j` with digital number :math:`z_n`; the sensor
 exposure is :math:`x_n = g(z_n)` with :math:`g = f^{-1}` the inverse camera response,
 and its mean is :math:`\mu_n = r_i\,t_j\,c_n`.  :math:`c_n` is a known per-observation
-factor: 1 in the aligned case of the seed, the reflectance model :math:`R` of seed 000
+factor: 1 in the aligned case of the paper, the reflectance model :math:`R` of Nefian et al.
 (eq. 2) when the albedo solver uses it (the unaligned case), so :math:`r_i` is then the
 albedo.  Everything here is pure NumPy/SciPy on flat observation arrays (no I/O).
 
@@ -80,7 +80,7 @@ class Observations:
 
 
 def observations_from_stack(dn: np.ndarray, valid: np.ndarray) -> Observations:
-    """Observations of an aligned stack ``(n_images, ...)`` of DN where ``valid`` (the seed's D_j)."""
+    """Observations of an aligned stack ``(n_images, ...)`` of DN where ``valid`` (the paper's D_j)."""
     n_img = dn.shape[0]
     flat = dn.reshape(n_img, -1)
     ok = valid.reshape(n_img, -1)
@@ -231,6 +231,43 @@ class GeometricSlope:
         return beta, float(np.sqrt(res @ res / self.dof / ss))
 
 
+def second_differences(n: int) -> np.ndarray:
+    r"""The (n-2, n) matrix :math:`D_2` of second differences, :math:`(D_2 v)_k = v_k - 2 v_{k+1} + v_{k+2}`.
+
+    The roughness of the curve is :math:`\lVert D_2 \ln g \rVert^2` over consecutive DN: zero for
+    :math:`g \propto e^{a z}`, large for waves.
+    """
+    return np.diff(np.eye(max(n, 2)), 2, axis=0)
+
+
+def roughness_weights(dn: np.ndarray, n_levels: int = N_LEVELS) -> np.ndarray:
+    r"""Weight of the roughness at DN ``dn``: the hat :math:`\min(z, n-1-z) / ((n-1)/2)` (Debevec and Malik's
+    weighting, applied to the second difference, so the penalty weighs its square).
+
+    Toe and shoulder, where one DN step is a large step in exposure and the true curve bends
+    most, are smoothed least; the straight middle most.
+    """
+    z = np.asarray(dn, np.float64)
+    return np.maximum(np.minimum(z, n_levels - 1 - z), 1.0) / ((n_levels - 1) / 2)
+
+
+def bin_widths(n: int) -> np.ndarray:
+    r"""The (n, n) matrix of each DN bin's width in :math:`\ln g`: central differences
+    :math:`(\ln g_{k+1} - \ln g_{k-1})/2`, one-sided at the ends of the range.
+
+    A DN :math:`z` records an exposure anywhere in its bin :math:`[g(z-\tfrac12), g(z+\tfrac12)]`: its
+    probability is the noise density at :math:`g(z)` times the bin's width :math:`g(z)\,w_z` (midpoint rule).
+    """
+    m = np.zeros((n, n))
+    if n < 2:
+        return m
+    i = np.arange(1, n - 1)
+    m[i, i + 1], m[i, i - 1] = 0.5, -0.5
+    m[0, :2] = (-1.0, 1.0)
+    m[-1, -2:] = (-1.0, 1.0)
+    return m
+
+
 def gauge_prior(lev: Levels, mid=MID_RANGE) -> np.ndarray:
     r"""The prior gauge: weights ``a`` over the knots with ``a @ ln g = 1`` meaning "g linear over ``mid``".
 
@@ -312,3 +349,32 @@ def radiance_map(dn: np.ndarray, valid: np.ndarray, lut: np.ndarray, exposure: n
     den = np.sum(np.where(ok, np.asarray(exposure, np.float64)[:, None, None], 0.0), axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(den > 0, num / den, np.nan).astype(np.float32)
+
+
+def alternation(obs: Observations, lev_idx: np.ndarray, lev: Levels, t, t_free: bool, passes: int):
+    """The paper's alternation (10), (11), (13) from a linear g; returns (g over the range, t, log-likelihoods).
+
+    g is kept at the fit's scale (mean of ln x over the observations = ln FIT_SCALE) and, with
+    unknown exposures, on the prior's gauge (a power after each pass), so the likelihoods
+    compare with the Newton ones.
+    """
+    gauge = gauge_prior(lev) if t_free else None
+    g = np.arange(lev.lo, lev.hi + 1, dtype=np.float64)
+    g *= FIT_SCALE / np.exp(np.mean(np.log(g[lev_idx])))
+    hist = []
+    for _ in range(passes):
+        x = g[lev_idx]
+        r = radiance_update(x, obs, t)
+        if t_free:
+            t = exposure_update(x, obs, r)
+            t = t / t[0]
+            r = radiance_update(x, obs, t)
+        mu = r[obs.pixel] * (t[obs.image] if obs.factor is None else t[obs.image] * obs.factor)
+        hist.append(log_likelihood(x, mu))
+        g_new = response_closed_form(np.log(mu), lev_idx, len(g), exact=False)
+        lg = np.log(g_new[lev.knots - lev.lo])
+        if gauge is not None and gauge @ lg > 0:
+            lg /= gauge @ lg
+        g = np.exp(lev.matrix @ lg)
+        g *= FIT_SCALE / np.exp(np.mean(np.log(g[lev_idx])))
+    return g, t, hist

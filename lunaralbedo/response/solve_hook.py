@@ -7,7 +7,8 @@ computes the reflectance model R (the photometric model's reflectance with its i
 parameters) and returns a fixed subsample of ``(pixel, image, DN, R)`` in tile order
 (identical for any worker count).  :func:`resolve_response` fits g, the albedo (the
 paper's r, with c = R) and, unless ``--exposure-times`` gives them, the exposures by
-:func:`lunaralbedo.response.fit.fit_response`.  The prepare pass then applies g to each
+:func:`lunaralbedo.response.smoothing.fit_regularised` (Kim et al.'s likelihood with a roughness
+penalty whose weight is cross-validated).  The prepare pass then applies g to each
 DRG's DN *before* resampling (:func:`lunaralbedo.io.drgs.read_drg_onto_grid`), and the
 usual albedo/exposure solve runs on the linearised values.
 
@@ -26,7 +27,7 @@ import numpy as np
 
 from ..errors import InputError, ResumeError
 from . import io as rio
-from .fit import fit_response
+from .smoothing import fit_regularised
 from .model import Observations
 
 RESPONSE_FILE = "response.csv"
@@ -91,7 +92,7 @@ def resolve_response(spec, observe: Callable[[], Observations], keys: Sequence[s
         if lut_digest(lut) != ck["response"]["digest"]:
             raise ResumeError(f"{folder / RESPONSE_FILE}: differs from the checkpointed response; run without --resume")
         return lut, ck["response"]
-    fit = fit_response(observe(), t_known)
+    fit = fit_regularised(observe(), t_known)
     from .aligned import fit_report, write_outputs
 
     write_outputs(folder, fit, keys, plots, exposure_given=True)

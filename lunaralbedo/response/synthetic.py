@@ -38,18 +38,23 @@ class FilmCurve:
 
 
 def render_stack(n_images: int = 8, shape=(120, 120), exposure_ratio: float = 32.0, radiance_ratio: float = 40.0,
-                 photons: float = 3000.0, curve: FilmCurve = FilmCurve(), seed: int = 1) -> dict:
+                 photons: float = 3000.0, curve: FilmCurve = FilmCurve(), seed: int = 1, exposures=None) -> dict:
     """An aligned stack of ``n_images`` exposures of one textured scene.
 
     Exposure times are log-spaced over ``exposure_ratio`` (geometric mean 1), radiance a
     smooth log-normal texture spanning about ``radiance_ratio``, both scaled so the middle
-    exposure of the middle radiance is the curve's mid point.  ``photons`` is the count
+    exposure of the middle radiance is the curve's mid point; ``exposures`` (any units, e.g.
+    milliseconds) replaces the log-spaced times by these, rescaled to geometric mean 1.  ``photons`` is the count
     per unit exposure (noise 1/sqrt(photons*X) relative).  Returns ``dn`` (uint8,
     (n, h, w)), ``exposure``, ``radiance``, ``curve``.
     """
     rng = np.random.default_rng(seed)
     h, w = shape
-    t = np.exp(np.linspace(-0.5, 0.5, n_images) * np.log(exposure_ratio))
+    if exposures is None:
+        t = np.exp(np.linspace(-0.5, 0.5, n_images) * np.log(exposure_ratio))
+    else:
+        t = np.asarray(exposures, np.float64)
+        t = t / np.exp(np.mean(np.log(t)))
     yy, xx = np.mgrid[0:h, 0:w] / max(h, w)
     field = np.zeros((h, w))
     for _ in range(8):
