@@ -20,6 +20,7 @@ from rasterio.transform import Affine
 
 from ..constants import MOON_RADIUS_KM
 from ..io.atomic import atomic_path
+from ..io.cache import HEADER_LOCK
 from ..io.drgs import read_drg_onto_grid
 from ..io.rasters import intersects_lon, raster_info, read_onto_grid
 from ..model import geometry, shadows
@@ -161,7 +162,7 @@ def refine_tile(t: int, *, scene, windows: list[Piece], grid: HeightGrid, curren
     path = out_dir / f"tile_{t:04d}.npz"
     r0, r1, c0, c1 = grid.window(tile, s.refine_dem_margin)
     if path.exists():
-        with np.load(path) as z:
+        with HEADER_LOCK, np.load(path) as z:  # .npy headers parsed one at a time (io/cache.HEADER_LOCK)
             return {"tile": tile.name, "window": [r0, r1, c0, c1], "reports": [], "reused": True,
                     "lit_mean": float(z["lit"].mean())}
     transform = grid.transform @ Affine.translation(c0, r0)

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.cache import MemoryCache, discard, load_meta, load_stack
+from ..io.cache import MemoryCache, discard, load_meta, load_stack, map_npy
 from ..io.geotiff import GeoTiffRows
 from ..io.rasters import count_finite
 from ..model import outliers, shadows, updates
@@ -142,7 +142,7 @@ def effective_weights(block: Path, arrays: dict, gen: int) -> np.ndarray:
     (held by no cache of this process: memory stays bounded by the blocks)."""
     if gen <= 0:
         return arrays["weight"]
-    w = np.load(block.parent / f"robust_{gen}" / f"{block.name}.npy", mmap_mode="r")
+    w = map_npy(block.parent / f"robust_{gen}" / f"{block.name}.npy")
     if len(w) != len(arrays["weight"]):
         raise FileNotFoundError(f"{block}: robust weights of another preparation; run without --resume")
     return w

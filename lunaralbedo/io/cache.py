@@ -65,7 +65,7 @@ def load_stack(folder: str | Path, mmap: bool = True) -> tuple[dict[str, np.ndar
     if not meta_path.is_file():
         return None
     meta = json.loads(meta_path.read_text())
-    arrays = {p.stem: _map_npy(p) if mmap else np.load(p, allow_pickle=False) for p in sorted(folder.glob("*.npy"))}
+    arrays = {p.stem: _map_npy(p) if mmap else _load_npy(p) for p in sorted(folder.glob("*.npy"))}
     return arrays, meta
 
 
@@ -104,6 +104,22 @@ def load_meta(folder: str | Path) -> dict | None:
     return meta
 
 
+#: One ``.npy`` header parsed at a time in a process.  NumPy reads the header with ``ast.literal_eval``, and
+#: CPython 3.11's AST constructor is not thread-safe before 3.11.8 (gh-106905: "AST constructor recursion depth
+#: mismatch" when threads parse at once): a one-process solve reads its tiles' blocks on several threads.
+HEADER_LOCK = threading.Lock()
+
+
+def _load_npy(path: Path) -> np.ndarray:
+    with HEADER_LOCK:
+        return np.load(path, allow_pickle=False)
+
+
+def map_npy(path: Path) -> np.ndarray:
+    """Public name of :func:`_map_npy` (read-only memory map of a ``.npy`` file, thread-safe)."""
+    return _map_npy(path)
+
+
 def _map_npy(path: Path) -> np.ndarray:
     """The array of a ``.npy`` file, memory-mapped read-only: a view of an :class:`mmap.mmap` (see :func:`mapped`).
 
@@ -115,13 +131,15 @@ def _map_npy(path: Path) -> np.ndarray:
     with open(path, "rb") as f:
         version = np.lib.format.read_magic(f)
         read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-        shape, fortran, dtype = read_header(f)
+        with HEADER_LOCK:  # NumPy parses the header with ast.literal_eval (see HEADER_LOCK)
+            shape, fortran, dtype = read_header(f)
         offset = f.tell()
         count = int(np.prod(shape, dtype=np.int64))
         if dtype.hasobject:
             raise ValueError(f"{path}: object arrays are not cached")
         if count == 0 or os.fstat(f.fileno()).st_size < offset + count * dtype.itemsize:
-            a = np.load(path, allow_pickle=False)  # empty (nothing to map), or short: NumPy's own error
+            with HEADER_LOCK:
+                a = np.load(path, allow_pickle=False)  # empty (nothing to map), or short: NumPy's own error
             a.flags.writeable = False
             return a
         buf = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
