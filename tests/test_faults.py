@@ -107,14 +107,14 @@ def test_disk_full_while_writing_tiles(scene, reference, tmp_path, monkeypatch, 
     real, calls = GeoTiffRows.write, []
     kind = {"finalise": "error", "prepare": "DEM"}[stage]
 
-    def failing(self, rows, row0):  # the tile outputs are written a block of rows at a time
+    def failing(self, rows, row0, col0=0):  # the tile outputs are written a block of rows at a time
         path = Path(self.path)
         if kind in (path.parent.name, path.stem):  # error/tile_*.tif, or DEM.tif in a cache entry
             if path not in calls:
                 calls.append(path)
             if len(calls) == 2:
                 raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
-        return real(self, rows, row0)
+        return real(self, rows, row0, col0)
 
     monkeypatch.setattr(GeoTiffRows, "write", failing)
     out = tmp_path / "out"

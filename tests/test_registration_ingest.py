@@ -24,7 +24,7 @@ MOVES = np.array([[1.5, -1.0], [-1.2, 0.8], [0.4, 1.6], [-1.7, -0.3], [0.9, -1.4
 @pytest.fixture(scope="module")
 def work(tmp_path_factory):
     d = tmp_path_factory.mktemp("ingested") / "work"
-    res = cli("ingest", *CUBES, "--dem", SAMPLE / "dem", "-o", d)
+    res = cli("ingest", *CUBES, "--dem", SAMPLE / "dem", "-o", d, "--match-dem")
     assert res.exit_code == 0, res.stderr
     return d
 
@@ -47,7 +47,7 @@ def test_solve_registers_moved_ingest_drgs(work, tmp_path):
 def test_ingest_register_writes_drgs_with_the_shifts_it_reports(tmp_path):
     plain, moved = tmp_path / "plain", tmp_path / "registered"
     for d, extra in ((plain, ()), (moved, ("--register",))):
-        res = cli("ingest", *CUBES, "--dem", SAMPLE / "dem", "-o", d, *extra)
+        res = cli("ingest", *CUBES, "--dem", SAMPLE / "dem", "-o", d, "--match-dem", *extra)
         assert res.exit_code == 0, res.stderr
     assert "registered" in res.stdout and not (plain / "image_offsets.csv").exists()
     offsets = read_offsets_csv(moved / "image_offsets.csv")

@@ -63,7 +63,7 @@ def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, 
     loss_obs = 0
     for i, (b0, b1) in enumerate(meta["blocks"]):
         block = folder / f"block_{i:04d}"
-        arrays = pixel_stack(block, cache_root)
+        arrays = pixel_stack(block, cache_root, scene)
         ROWS.advance(b1 - b0)
         if not len(arrays["index"]):
             continue

@@ -131,8 +131,13 @@ def block_model(s, model, obs, state: SolveState):
 STACKS = MemoryCache(int(STACK_MEMORY_MB * 2**20))
 
 
-def pixel_stack(folder: Path, cache_root: Path) -> dict:
-    """The observations (chunk-major runs) of one cached block, from :data:`STACKS` (memory-mapped if over its budget)."""
+def pixel_stack(folder: Path, cache_root: Path, scene: Scene | None = None) -> dict:
+    """The observations (chunk-major runs) of one cached block, from :data:`STACKS` (memory-mapped if over its budget).
+
+    ``scene``: its run's ``Runtime.stack_memory_mb`` becomes the budget (a process serves one run at a time);
+    every pass that reads blocks passes it, whichever runs first."""
+    if scene is not None:
+        STACKS.budget = scene.runtime.stack_bytes
     return STACKS.get(folder, lambda arrays, meta: _split(arrays)[0], group=cache_root)
 
 
@@ -179,12 +184,11 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
     if meta is None:
         raise FileNotFoundError(f"{folder}: the prepared tile's meta.json is missing")
     idx = np.asarray(meta["index"], np.int32)
-    STACKS.budget = scene.runtime.stack_bytes  # this run's budget (a process serves one run at a time)
     model = scene.model
     phase = want_phase and bool(model.parameters)
     out = updates.PassSums(len(idx), len(model.parameters), index=idx)
     for i, (b0, b1) in enumerate(meta["blocks"]):
-        arrays = pixel_stack(folder / f"block_{i:04d}", cache_root)
+        arrays = pixel_stack(folder / f"block_{i:04d}", cache_root, scene)
         ROWS.advance(b1 - b0)
         if not len(arrays["index"]):
             continue
