@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Camera response (seed 002): accuracy vs OpenCV on synthetic stacks, and time per million observations.
+"""Camera response (Kim et al.): accuracy vs OpenCV on synthetic stacks, and time per million observations.
 
     python benchmarks/response_bench.py [--figures docs] [--apollo ../shared/photk_tests]
 

@@ -1,4 +1,4 @@
-"""Camera response recovery, aligned case (seed 002 section 3): truth recovery, ambiguity, OpenCV, CLI."""
+"""Camera response recovery, aligned case (Kim et al., section 3): truth recovery, ambiguity, OpenCV, CLI."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""Camera response inside the solver (seed 002, unaligned case): a strip rendered through an unknown S curve."""
+"""Camera response inside the solver (Kim et al., unaligned case): a strip rendered through an unknown S curve."""
 from __future__ import annotations
 
 import glob
