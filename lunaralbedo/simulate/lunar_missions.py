@@ -29,13 +29,11 @@ import numpy as np
 import spiceypy
 
 from ..camera.lunar_optics import ClementineUvvisDistortion
-from ..io.geotiff import write_geotiff
-from ..io.rasters import MOON_CRS
 from ..isis.write import Quantity, write_cube
 from ..spice.kernels import KernelPool
 from ..spice.writers import write_text_kernel
 from .forward import to_radiance
-from .mission import C1, C2, ET_BASE, KERNEL_FILES, MODEL, SC, Shot, make_scene, surface_signal, write_kernels
+from .mission import ET_BASE, KERNEL_FILES, SC, Shot, make_scene, surface_signal, write_kernels, write_scene_truth
 from .truth import write_truth
 
 # -- Kaguya MI-like NIR camera ---------------------------------------------------------------------------
@@ -186,13 +184,7 @@ def build(out: str | Path, instrument: str = "kaguya_mi", seed: int = 4601, n_im
     kdir = out / "kernels"
     geo = write_kernels(kdir, scene, shots)
     inst.kernels(kdir)
-    write_geotiff(out / "dem" / "dem.tif", scene.heights.astype(np.float32), scene.grid.transform, MOON_CRS,
-                  nodata=-32767.0, dtype="float32", compress="deflate")
-    write_geotiff(out / "truth" / "albedo.tif", scene.albedo.astype(np.float32), scene.grid.transform, MOON_CRS,
-                  dtype="float32", compress="deflate")
-    truth = {"c1": C1, "c2": C2, "reflectance_type": MODEL.code, "noise_relative": noise, "seed": seed,
-             "albedo": "truth/albedo.tif", "dem": "dem/dem.tif", "frame": "MOON_ME (= IAU_MOON here), km",
-             "instrument": instrument, **inst.extra, "images": {}}
+    truth = write_scene_truth(out, scene, noise, seed, instrument=instrument, **inst.extra)
     with KernelPool([kdir / n for n in KERNEL_FILES]):
         for s in shots:
             p0, vel, m, _ = geo[s.key]

@@ -237,6 +237,19 @@ def surface_signal(scene: Scene, origins, dirs, p0, sun_km, exposure: float) -> 
     return exposure_signal(bilinear(scene.albedo, col, row), exposure, MODEL.reflectance(cos_i, cos_e, alpha, (C1, C2)))
 
 
+def write_scene_truth(out: Path, scene: Scene, noise: float, seed: int, **extra) -> dict:
+    """Write a mission's DEM (``dem/dem.tif``, heights in metres) and true albedo (``truth/albedo.tif``); return the
+    truth's header (``images`` still empty), with ``extra`` entries."""
+    # compression pinned so the committed files stay byte-identical if the writer's default changes
+    write_geotiff(out / "dem" / "dem.tif", scene.heights.astype(np.float32), scene.grid.transform, MOON_CRS,
+                  nodata=-32767.0, dtype="float32", compress="deflate")
+    write_geotiff(out / "truth" / "albedo.tif", scene.albedo.astype(np.float32), scene.grid.transform, MOON_CRS,
+                  dtype="float32", compress="deflate")
+    return {"c1": C1, "c2": C2, "reflectance_type": MODEL.code, "noise_relative": noise, "seed": seed,
+            "albedo": "truth/albedo.tif", "dem": "dem/dem.tif", "frame": "MOON_ME (= IAU_MOON here), km",
+            **extra, "images": {}}
+
+
 def default_shots(rng, n_frames: int = 5, with_line: bool = False) -> list[Shot]:
     shots = []
     for k in range(n_frames):
@@ -262,14 +275,7 @@ def build(out: str | Path, seed: int = 20240601, n_frames: int = 5, with_line: b
     shots = default_shots(rng, n_frames, with_line)
     kdir = out / "kernels"
     geo = write_kernels(kdir, scene, shots)
-    # compression pinned so the committed files stay byte-identical if the writer's default changes
-    write_geotiff(out / "dem" / "dem.tif", scene.heights.astype(np.float32), scene.grid.transform, MOON_CRS,
-                  nodata=-32767.0, dtype="float32", compress="deflate")
-    write_geotiff(out / "truth" / "albedo.tif", scene.albedo.astype(np.float32), scene.grid.transform, MOON_CRS,
-                  dtype="float32", compress="deflate")
-    truth = {"c1": C1, "c2": C2, "reflectance_type": MODEL.code, "noise_relative": noise, "seed": seed,
-             "albedo": "truth/albedo.tif", "dem": "dem/dem.tif", "frame": "MOON_ME (= IAU_MOON here), km",
-             "images": {}}
+    truth = write_scene_truth(out, scene, noise, seed)
     with KernelPool([kdir / n for n in KERNEL_FILES]):
         for s in shots:
             p0, vel, m, sun_bf = geo[s.key]
