@@ -18,27 +18,42 @@ import numpy as np
 import rasterio
 
 from ..io.guard import raster_errors
+from ..io.rasters import written_windows
 from ..model.grid import Bounds, Grid
 from .sources import Source, read_masked
 
 
 def scan_tile(src: Source, max_values: int) -> tuple[np.ndarray, Bounds | None]:
     """Task: up to about ``max_values`` valid values of one tile (for the stretch; none with 0)
-    and the bounds of its valid pixels (None when it holds none)."""
+    and the bounds of its valid pixels (None when it holds none).
+
+    The sample is every ``step``-th pixel of every ``step``-th row of the whole tile; the tile
+    is read a written window at a time (:func:`~lunaralbedo.io.rasters.written_windows`), so a
+    tile far bigger than its data costs what its data costs.
+    """
+    step = max(1, math.ceil(math.sqrt(src.width * src.height / max_values))) if max_values > 0 else 0
+    r_lo = c_lo = math.inf
+    r_hi = c_hi = -1
+    samples = []
     with raster_errors(src.path), rasterio.open(src.path) as ds:
-        vals = read_masked(ds, None, src.legacy)
-    ok = np.isfinite(vals)
-    if not ok.any():
+        for win in written_windows(ds):
+            vals = read_masked(ds, win, src.legacy)
+            ok = np.isfinite(vals)
+            rows, cols = np.flatnonzero(ok.any(axis=1)), np.flatnonzero(ok.any(axis=0))
+            if not rows.size:
+                continue
+            r0, c0 = int(win.row_off), int(win.col_off)
+            r_lo, r_hi = min(r_lo, r0 + rows[0]), max(r_hi, r0 + rows[-1])
+            c_lo, c_hi = min(c_lo, c0 + cols[0]), max(c_hi, c0 + cols[-1])
+            if step:
+                part = vals[(-r0) % step::step, (-c0) % step::step]
+                samples.append(part[np.isfinite(part)])
+    if r_hi < 0:
         return np.empty(0, np.float32), None
-    rows, cols = np.flatnonzero(ok.any(axis=1)), np.flatnonzero(ok.any(axis=0))
     t = src.shifted_transform
-    west, north = t * (cols[0], rows[0])
-    east, south = t * (cols[-1] + 1, rows[-1] + 1)
-    sample = np.empty(0, np.float32)
-    if max_values > 0:
-        step = max(1, math.ceil(math.sqrt(src.width * src.height / max_values)))
-        sample = vals[::step, ::step]
-        sample = sample[np.isfinite(sample)]
+    west, north = t * (c_lo, r_lo)
+    east, south = t * (c_hi + 1, r_hi + 1)
+    sample = np.concatenate(samples) if samples else np.empty(0, np.float32)
     return sample, (west, max(south, -90.0), east, min(north, 90.0))
 
 

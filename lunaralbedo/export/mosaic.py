@@ -26,7 +26,6 @@ import numpy as np
 import rasterio
 from rasterio.crs import CRS
 from rasterio.enums import Resampling
-from rasterio.warp import reproject
 from rasterio.windows import Window
 from rio_cogeo.cogeo import cog_translate
 from rio_cogeo.profiles import cog_profiles
@@ -35,7 +34,7 @@ from ..io.atomic import TMP_PREFIX, atomic_path
 from ..io.guard import raster_errors
 from ..io.geotiff import write_geotiff
 from ..model.grid import Grid
-from .sources import Source, read_masked, read_region
+from .sources import Source, read_region
 
 COG_BLOCK = 256
 MOSAIC_BLOCK = 2048  # pixels a side of one mosaic task
@@ -109,16 +108,11 @@ def write_sub4(src: Source, path: str | Path, resampling: Resampling = Resamplin
     h4, w4 = sub4_shape(*(part.shape if part is not None else (src.height, src.width)))
     wb, sb, eb, nb = part.bounds if part is not None else src.file_bounds
     dst_transform = Grid.from_bounds((wb, sb, eb, nb), h4, w4).transform
+    # only the window of the tile under ``part`` is read (read_region: the sources' continuous longitudes)
+    shifted = Grid.from_bounds((wb + src.shift, sb, eb + src.shift, nb), h4, w4)
+    out = read_region([src], shifted, resampling, exact_copy=False)
     with raster_errors(src.path), rasterio.open(src.path) as ds:
-        vals = read_masked(ds, None, src.legacy)
         crs = ds.crs
-        out = np.full((h4, w4), np.nan, dtype=np.float32)
-        reproject(
-            source=vals, destination=out,
-            src_transform=ds.transform, src_crs=crs or CRS.from_epsg(4326), src_nodata=np.nan,
-            dst_transform=dst_transform, dst_crs=crs or CRS.from_epsg(4326), dst_nodata=np.nan,
-            resampling=resampling,
-        )
     if src.legacy:
         ok = np.isfinite(out)
         gray = np.where(ok, np.rint(np.where(ok, out, 0)), 0).astype(np.uint8)

@@ -312,8 +312,28 @@ def read_dem_onto_grid(
     return merge_dem_layers(layers, dst_shape, np.float32, owned=True)
 
 
+def written_windows(ds, rows: int = 1024) -> list[Window]:
+    """Windows of band 1 that may hold pixels, in row-major order (a raster of any size in bounded memory).
+
+    A tiled GeoTIFF written sparsely (GDAL leaves out the blocks never written, and
+    reads them as no-data) lists its blocks' byte offsets in the ``TIFF`` metadata
+    domain (``BLOCK_OFFSET_<col>_<row>``): only the written blocks are returned, each
+    row of blocks merged into one window over the columns it spans.  Any other raster
+    is cut into bands of ``rows`` rows.
+    """
+    bh, bw = ds.block_shapes[0]
+    if ds.driver != "GTiff" or bw >= ds.width:
+        return [Window(0, r, ds.width, min(rows, ds.height - r)) for r in range(0, ds.height, rows)]
+    out = []
+    for i in range(-(-ds.height // bh)):
+        cols = [j for j in range(-(-ds.width // bw)) if ds.get_tag_item(f"BLOCK_OFFSET_{j}_{i}", "TIFF", bidx=1)]
+        if cols:
+            c0, c1 = cols[0] * bw, min(ds.width, (cols[-1] + 1) * bw)
+            out.append(Window(c0, i * bh, c1 - c0, min(bh, ds.height - i * bh)))
+    return out
+
+
 def count_finite(path: str | Path, rows: int = 1024) -> int:
-    """Finite pixels of band 1 of a raster, read ``rows`` at a time (a raster of any size in bounded memory)."""
+    """Finite pixels of band 1 of a raster, read a window of :func:`written_windows` at a time."""
     with raster_errors(path), rasterio.open(path) as ds:
-        return sum(int(np.count_nonzero(np.isfinite(ds.read(1, window=Window(0, r, ds.width, min(rows, ds.height - r))))))
-                   for r in range(0, ds.height, rows))
+        return sum(int(np.count_nonzero(np.isfinite(ds.read(1, window=w)))) for w in written_windows(ds, rows))
