@@ -177,3 +177,32 @@ def test_simulate_cli_rough_terrain_and_blurred_dem(tmp_path):
         assert lap(g.read(1).astype(float)) < 0.5 * lap(t.read(1).astype(float))
     res = CliRunner().invoke(main, ["simulate", str(tmp_path / "bad"), "--azimuths", "east"])
     assert res.exit_code == 2 and "--azimuths" in res.output and not (tmp_path / "bad").exists()
+
+
+def test_fill_holes_follows_the_surrounding_heights_near_and_far():
+    """Holes of the given DEM are filled from the heights around them: a hole inside a tilted plane
+    gets GDAL's inverse-distance fill over the whole grid (the fill before it was split in two),
+    within a third of the plane's relief across the hole; a ring of no data 350-400 px wide around the data (a small
+    DEM under a big cast-shadow border) is filled everywhere, within the data's range, and near the
+    data it continues the plane."""
+    from lunaralbedo.engine.refine import fill_holes
+
+    rows, cols = np.mgrid[0:1000, 0:900].astype(np.float32)
+    plane = 2.0 * rows - 1.5 * cols + 100.0  # metres
+    ok = np.zeros(plane.shape, bool)
+    ok[400:600, 350:550] = True
+    ok[490:505, 440:460] = False  # a hole inside the data
+    h = np.where(ok, plane, np.nan).astype(np.float32)
+    out = fill_holes(h, ok)
+    assert out.dtype == np.float32 and np.isfinite(out).all()
+    np.testing.assert_array_equal(out[ok], h[ok])  # the data is kept as it is
+    from rasterio.fill import fillnodata
+
+    whole = fillnodata(np.where(ok, h, 0).astype(np.float32), mask=ok.astype(np.uint8),
+                       max_search_distance=300.0, smoothing_iterations=0)
+    np.testing.assert_allclose(out[490:505, 440:460], whole[490:505, 440:460], atol=1e-3)
+    assert np.abs(out[490:505, 440:460] - plane[490:505, 440:460]).max() < 40.0 / 3  # relief 2*15 + 1.5*20 m
+    data = plane[ok]
+    assert data.min() - 1 <= out.min() and out.max() <= data.max() + 1  # no overshoot far out
+    near = out[390:400, 350:550] - plane[390:400, 350:550]  # 1-10 px above the data: a flat continuation
+    assert np.abs(near).max() < 25.0  # at most the plane's rise over ~10 px (2 m/px) plus the rounding
