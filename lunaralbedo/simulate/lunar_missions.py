@@ -45,6 +45,7 @@ from typing import Callable
 import numpy as np
 import spiceypy
 
+from ..camera.instruments import CHANDRAYAAN2_TMC2, CLEMENTINE_UVVIS, KAGUYA_MI, KAGUYA_TC
 from ..camera.lunar_optics import ClementineUvvisDistortion
 from ..isis.write import Quantity, write_cube
 from ..spice.kernels import KernelPool
@@ -291,11 +292,12 @@ def _tmc_image(scene, s: Shot, p0, vel, m, sun, rng, noise):
     return to_radiance(signal, noise, rng)[None], groups, {f"{s.key:_<11}": dict(exposure=s.exposure, band_center_nm=675.0)}
 
 
-INSTRUMENTS = {"kaguya_mi": _Instrument(_mi_kernels, _line_shots("MNSIM", MI_SAMPLES), _mi_image,
-                                        {"band_gains": dict(zip(map(str, BANDS_NM), GAINS))}),
-               "clementine_uvvis": _Instrument(_uvvis_kernels, _uvvis_shots, _uvvis_image),
-               "kaguya_tc": _Instrument(_tc_kernels, _line_shots("TC1SIM", 120), _tc_image),
-               "chandrayaan2_tmc2": _Instrument(_tmc_kernels, _line_shots("TMCSIM", 120), _tmc_image)}
+#: the missions by instrument name (the names of ``camera.instruments``, which ingest recognises in their labels)
+INSTRUMENTS = {KAGUYA_MI: _Instrument(_mi_kernels, _line_shots("MNSIM", MI_SAMPLES), _mi_image,
+                                      {"band_gains": dict(zip(map(str, BANDS_NM), GAINS))}),
+               CLEMENTINE_UVVIS: _Instrument(_uvvis_kernels, _uvvis_shots, _uvvis_image),
+               KAGUYA_TC: _Instrument(_tc_kernels, _line_shots("TC1SIM", 120), _tc_image),
+               CHANDRAYAAN2_TMC2: _Instrument(_tmc_kernels, _line_shots("TMCSIM", 120), _tmc_image)}
 
 
 def build(out: str | Path, instrument: str = "kaguya_mi", seed: int = 4601, n_images: int = 3, noise: float = 0.005) -> dict:
