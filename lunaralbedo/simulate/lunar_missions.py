@@ -300,13 +300,19 @@ INSTRUMENTS = {KAGUYA_MI: _Instrument(_mi_kernels, _line_shots("MNSIM", MI_SAMPL
                CHANDRAYAAN2_TMC2: _Instrument(_tmc_kernels, _line_shots("TMCSIM", 120), _tmc_image)}
 
 
+def plan(instrument: str, seed: int, n_images: int):
+    """``(rng, scene, shots)`` of a mission: the random scene and shots that :func:`build` renders (the rng then
+    draws the noise); ``mission.shot_geometry(scene, shot)`` gives a shot's spacecraft, velocity and pointing."""
+    rng = np.random.default_rng(seed)
+    scene = make_scene(rng)
+    return rng, scene, INSTRUMENTS[instrument].shots(rng, n_images)
+
+
 def build(out: str | Path, instrument: str = "kaguya_mi", seed: int = 4601, n_images: int = 3, noise: float = 0.005) -> dict:
     """Write DEM, truth albedo, kernels, the instrument's cubes and truth.json under ``out``; return the truth."""
     inst = INSTRUMENTS[instrument]
     out = Path(out)
-    rng = np.random.default_rng(seed)
-    scene = make_scene(rng)
-    shots = inst.shots(rng, n_images)
+    rng, scene, shots = plan(instrument, seed, n_images)
     kdir = out / "kernels"
     geo = write_kernels(kdir, scene, shots)
     inst.kernels(kdir)
