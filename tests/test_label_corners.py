@@ -85,6 +85,19 @@ def arbiter(realdata, generic, name):
     return rows
 
 
+def _phase_angles(realdata, generic, pixels):
+    """Phase angles (degrees) that our camera and kernels give at MI pixels ``[(sample, line)]`` on the sphere."""
+    label, kernels, _isd, _ = _cases(realdata, generic)["kaguya_mi"]
+    with open_observation(label, "X", expand_kernel_args(kernels), source="kernels") as obs:
+        camera = build_camera(obs.label, obs.ephemeris, obs.code)
+        s, l = (np.array([p[k] for p in pixels]) for k in (0, 1))
+        o, d = camera.rays(s, l)
+        p = ray_sphere(o, d, RADIUS_KM)
+        sun = obs.ephemeris.sun(camera.pixel_et(s, l))
+    u, v = ((w - p) / np.linalg.norm(w - p, axis=-1, keepdims=True) for w in (sun, o))
+    return np.degrees(np.arccos(np.sum(u * v, axis=-1)))
+
+
 def affine_residual(rows, reading):
     """Largest |residual| (px) of the (ds, dl) of one reading (0: ours, 1: ale) after removing the best
     affine map of the pixel coordinates (JAXA's other ephemeris: shift, scale, rotation)."""
@@ -111,6 +124,14 @@ def test_kaguya_mi_label_corners_favour_isis(realdata, generic):
     left, right = [r for r in rows if "Left" in r[0]], [r for r in rows if "Right" in r[0]]
     assert abs(np.mean([r[4] for r in right]) - np.mean([r[4] for r in left])) < 0.01
     assert abs(np.mean([r[7] for r in right]) - np.mean([r[7] for r in left])) > 0.4
+
+
+def test_kaguya_mi_scene_centre_is_pixel_161(realdata, generic):
+    """Which pixel JAXA's SceneCenter names, from another of its numbers: the label's PhaseAngle 22.528 (3 decimals)
+    is seen at sample 161 (0-based 160; measured 22.5283) and not at 160.5 (22.5131): the phase changes 0.03 degree
+    per NIR sample across the track, 0.001 along it."""
+    at_161, at_160_5 = _phase_angles(realdata, generic, [(161.0, 161.0), (160.5, 161.0)])
+    assert abs(at_161 - 22.528) < 0.001 < 0.01 < abs(at_160_5 - 22.528)
 
 
 def test_kaguya_tc_label_corners(realdata, generic):
