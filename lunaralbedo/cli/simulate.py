@@ -77,7 +77,8 @@ def command(out_dir, fmt, instrument, n_images, seed, **kwargs):
             truth = render_instrument_mission(out_dir, INSTRUMENT_CHOICES[instrument], seed=4601 if seed is None else seed,
                                               n_images=3 if n_images is None else n_images)
         else:
-            truth = render_mission(out_dir, seed=20240601 if seed is None else seed, n_frames=5 if n_images is None else n_images)
+            truth = render_mission(out_dir, seed=20240601 if seed is None else seed,
+                                   n_frames=5 if n_images is None else n_images)
         cubes = len({im["cube"] for im in truth["images"].values()})
         click.echo(f"rendered {cubes} ISIS cubes into {out_dir}/cubes/ (kernels: {out_dir}/kernels/, "
                    f"DEM: {out_dir}/dem/, truth: {out_dir}/truth/); next: lunaralbedo ingest")

@@ -162,7 +162,8 @@ def _tc_kernels(kdir: Path) -> None:
     k, p = f"INS{TC_CODE}_", TC_PIXEL_MM
     ik = {k + "FOCAL_LENGTH": TC_FOCAL_MM, k + "PIXEL_SIZE": p, k + "PIXEL_SAMPLES": 4096.0, k + "CENTER": [2048.5, 1.0],
           k + "TRANSX": [0.0, 0.0, -p], k + "TRANSY": [0.0, -p, 0.0], k + "ITRANSS": [0.0, 0.0, -1 / p],
-          k + "ITRANSL": [0.0, -1 / p, 0.0], k + "DISTORTION_COEF_X": list(TC_COEF_X), k + "DISTORTION_COEF_Y": list(TC_COEF_Y),
+          k + "ITRANSL": [0.0, -1 / p, 0.0], k + "DISTORTION_COEF_X": list(TC_COEF_X),
+          k + "DISTORTION_COEF_Y": list(TC_COEF_Y),
           k + "BORESIGHT": [-0.0725, 0.0214, TC_FOCAL_MM], k + "FOV_FRAME": "SIM_TC1_HEAD"}
     write_text_kernel(kdir / "sim_inst.tf", "FK", _tk_frame(TC_FRAME, "SIM_TC1_HEAD", HEAD_TO_SC),
                       "Synthetic TC1 head frame: +x along track.")
@@ -263,7 +264,7 @@ def _uvvis_image(scene, s: Shot, p0, vel, m, sun, rng, noise):
 
 def _tc_image(scene, s: Shot, p0, vel, m, sun, rng, noise):
     sample0, line0 = TC_CROP
-    nominal = s.et - (line0 - 0.5 + s.lines / 2.0) * s.line_rate  # parent line 1's start: the crop's middle at the shot's time
+    nominal = s.et - (line0 - 0.5 + s.lines / 2.0) * s.line_rate  # parent line 1: the crop's middle at the shot's time
     count = spiceypy.sce2s(SC, nominal)
     et0 = spiceypy.scs2e(SC, count)  # whole clock ticks
     look = lambda ss: tc_look(ss + sample0 - 0.5 + TC_SWATH_START - 1.0)  # noqa: E731 - cube -> parent -> detector sample
