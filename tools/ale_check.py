@@ -31,7 +31,8 @@ def main() -> int:
     for name in ("kaguya_mi", "kaguya_tc"):  # JAXA's corner coordinates in the labels as the arbiter
         rows = arb.arbiter(realdata, generic, name)
         print(f"\n{name}: JAXA's points in each reading's image, minus the pixel they name\n\n"
-              "| point (sample, line) | ours (samples, lines) | ours, m | ale (samples, lines) | ale, m |\n"
+              "| point (pixel it names) | JAXA's point in our image - pixel (samples, lines) | ours, m | in ale's image - pixel "
+              "| ale, m |\n"
               "| --- | --- | --- | --- | --- |")
         for key, s, l, ds, dl, m, ds2, dl2, m2 in rows:
             print(f"| {key} ({s:g}, {l:g}) | {ds:+.3f}, {dl:+.3f} | {m:.1f} | {ds2:+.3f}, {dl2:+.3f} | {m2:.1f} |")
