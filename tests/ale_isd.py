@@ -148,6 +148,11 @@ def ground_point(isd: dict, line: float, sample: float, isis_conventions: bool =
     """``(point, t)``: body-fixed km point on the sphere seen at CSM image ``(line, sample)``
     (the ISD's body frame) and its image time (s, TDB)."""
     t = image_time(isd, line)
+    return _ground_at(isd, t, line, sample, isis_conventions), t
+
+
+def _ground_at(isd, t, line, sample, isis_conventions):
+    """The sphere point seen at time ``t`` through the focal-plane position of CSM ``(line, sample)``."""
     ip = isd["instrument_position"]
     pos = _interp_rows(ip["ephemeris_times"], ip["positions"], t)
     x, y = focal_plane(isd, line, sample, isis_conventions)
@@ -158,7 +163,30 @@ def ground_point(isd: dict, line: float, sample: float, isis_conventions: bool =
     o, d = body @ pos, body @ j2000
     b = o @ d
     tt = -b - np.sqrt(b * b - (o @ o - RADIUS_KM**2))
-    return o + tt * d, t
+    return o + tt * d
+
+
+def image_point(isd: dict, point, line: float, sample: float, isis_conventions: bool = False):
+    """CSM ``(line, sample)`` whose pixel centre sees the body-fixed ``point`` (km, the ISD's body frame).
+
+    Newton steps from ``(line, sample)``; a line scanner's time follows the line while its
+    detector line stays at the pixel centre (the CSM ``frac(line)`` would make the map jump
+    between lines)."""
+    point = np.asarray(point, dtype=np.float64)
+    frac = 0.5 if "line_scan_rate" in isd else None
+
+    def g(x):
+        return _ground_at(isd, image_time(isd, x[0]), x[0] if frac is None else frac, x[1], isis_conventions)
+
+    x = np.array([line, sample], dtype=np.float64)
+    for _ in range(30):
+        p, h = g(x), 1e-3
+        jac = np.stack([(g(x + [h, 0.0]) - p) / h, (g(x + [0.0, h]) - p) / h], axis=1)
+        step = np.linalg.lstsq(jac, point - p, rcond=None)[0]
+        x = x + step
+        if np.abs(step).max() < 1e-7:
+            break
+    return float(x[0]), float(x[1])
 
 
 def body_vector(isd: dict, key: str, t: float) -> np.ndarray:

@@ -104,3 +104,39 @@ def test_sample_data_truth_is_the_common_format():
     exp = true_exposures(truth)
     assert len(exp) == 5 and all(0.7 < e < 1.3 for e in exp.values())
     assert truth["reflectance_type"] == 2 and (truth["c1"], truth["c2"]) == (1.4, 0.5)
+
+
+@pytest.mark.parametrize("instrument", ["kaguya-mi", "kaguya-tc", "clementine-uvvis", "chandrayaan2-tmc2"])
+def test_instrument_option_renders_that_camera(tmp_path, instrument):
+    """`simulate --instrument NAME`: cubes whose labels ingest recognises as that instrument, and a truth entry
+    for exactly the DRG keys ingest will make of them (one per band for Kaguya MI) with their wavelengths."""
+    from lunaralbedo.camera.instruments import instrument_of
+    from lunaralbedo.ingest.keys import band_items
+    from lunaralbedo.isis import read_label
+
+    out = tmp_path / "scene"
+    res = cli("simulate", out, "--instrument", instrument, "--images", "1", "--seed", "5")
+    assert res.exit_code == 0, res.stderr
+    cubes = sorted((out / "cubes").glob("*.cub"))
+    assert len(cubes) == 1 and instrument_of(read_label(cubes[0])) == instrument.replace("-", "_")
+    truth = read_truth(out)
+    items = band_items(cubes)
+    assert sorted(key for _p, key, _b, _c in items) == sorted(truth["images"])
+    assert all(truth["images"][key]["band_center_nm"] == pytest.approx(c) for _p, key, _b, c in items)
+    assert truth["seed"] == 5 and truth["instrument"] == instrument.replace("-", "_")
+
+
+@pytest.mark.parametrize("args, culprit", [
+    (["--instrument", "kaguya-tc", "--size", "50"], "--size: not an option of --instrument"),
+    (["--instrument", "kaguya-mi", "--format", "drg"], "--format drg"),
+    (["--instrument", "chandrayaan2-tmc2", "--images", "0"], "--images"),
+])
+def test_instrument_option_refuses_what_it_cannot_do(tmp_path, args, culprit):
+    out = tmp_path / "mission"
+    assert_clean_failure(cli("simulate", out, *args), 2, culprit, absent=out)
+
+
+def test_unknown_instrument_is_a_usage_error_naming_the_option(tmp_path):
+    res = cli("simulate", tmp_path / "scene", "--instrument", "tmc2")
+    assert res.exit_code == 2 and "'--instrument'" in res.stderr and "chandrayaan2-tmc2" in res.stderr
+    assert "Traceback" not in res.stderr and not (tmp_path / "scene").exists()

@@ -5,7 +5,11 @@ from pathlib import Path
 
 import click
 
+from ..camera.instruments import CHANDRAYAAN2_TMC2, CLEMENTINE_UVVIS, KAGUYA_MI, KAGUYA_TC
 from ._common import reports_errors
+
+#: ``--instrument`` values: the instrument names of ``camera.instruments`` with hyphens
+INSTRUMENT_CHOICES = {n.replace("_", "-"): n for n in (KAGUYA_MI, KAGUYA_TC, CLEMENTINE_UVVIS, CHANDRAYAAN2_TMC2)}
 
 #: Options of the DRG strip that the ISIS mission does not take.
 _STRIP_ONLY = {"image_px": "--size", "res_deg": "--res", "exposure_spread": "--spread", "reflectance_type": "--reflectance",
@@ -20,7 +24,12 @@ _STRIP_ONLY = {"image_px": "--size", "res_deg": "--res", "exposure_spread": "--s
 @click.option("--format", "fmt", type=click.Choice(["drg", "isis"]), default="drg", show_default=True,
               help="drg: a strip of DRGs in the input contract of `solve`; isis: Level-1 ISIS cubes, SPICE kernels "
                    "and a DEM in the input contract of `ingest` (the sample_data mission).")
-@click.option("--images", "n_images", type=int, default=None, help="Number of images [drg: 6, isis: 5 frames].")
+@click.option("--instrument", type=click.Choice(list(INSTRUMENT_CHOICES)), default=None,
+              help="Render the ISIS mission as this lunar camera sees it: its labels, IK and detector conventions "
+                   "(kaguya-mi: 4-band NIR line scanner; kaguya-tc: TC1 NOMINAL-swath crop; clementine-uvvis: frames, "
+                   "filters A/B; chandrayaan2-tmc2: 2x summed line scanner). Implies --format isis.")
+@click.option("--images", "n_images", type=int, default=None,
+              help="Number of images [drg: 6, isis: 5 frames, --instrument: 3 cubes].")
 @click.option("--size", "image_px", type=int, default=120, show_default=True, help="Image size in pixels (square; drg).")
 @click.option("--res", "res_deg", type=float, default=0.01, show_default=True, help="Pixel size in degrees (drg).")
 @click.option("--spread", "exposure_spread", type=float, default=0.4, show_default=True, help="Exposures within 1 +- spread (drg).")
@@ -45,21 +54,33 @@ _STRIP_ONLY = {"image_px": "--size", "res_deg": "--res", "exposure_spread": "--s
               help="Sun azimuths in degrees clockwise from north, comma-separated, cycled over the images (drg).")
 @click.option("--overlap", type=float, default=0.5, show_default=True,
               help="Fraction of an image shared with the next (drg; 2/3: each column seen by about 3 images).")
-@click.option("--seed", type=int, default=None, help="Random seed [drg: 7, isis: 20240601, the sample_data mission].")
+@click.option("--seed", type=int, default=None,
+              help="Random seed [drg: 7, isis: 20240601, the sample_data mission; --instrument: 4601].")
 @reports_errors
-def command(out_dir, fmt, n_images, seed, **kwargs):
+def command(out_dir, fmt, instrument, n_images, seed, **kwargs):
     """Render a scene from a known albedo, DEM, Sun/spacecraft geometry and exposures; the truth goes to OUT_DIR/truth/."""
     from ..errors import InputError
 
+    ctx = click.get_current_context()
+    if instrument is not None:
+        if ctx.get_parameter_source("fmt") != click.core.ParameterSource.DEFAULT and fmt != "isis":
+            raise InputError(f"--instrument renders ISIS cubes: not with --format {fmt}")
+        fmt = "isis"
     if fmt == "isis":
-        ctx = click.get_current_context()
         given = [flag for name, flag in _STRIP_ONLY.items() if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT]
         if given:
-            raise InputError(f"{', '.join(given)}: not an option of --format isis (only --images and --seed)")
-        from ..simulate import render_mission
+            what = "--instrument" if instrument else "--format isis"
+            raise InputError(f"{', '.join(given)}: not an option of {what} (only --images and --seed)")
+        from ..simulate import render_instrument_mission, render_mission
 
-        truth = render_mission(out_dir, seed=20240601 if seed is None else seed, n_frames=5 if n_images is None else n_images)
-        click.echo(f"rendered {len(truth['images'])} ISIS cubes into {out_dir}/cubes/ (kernels: {out_dir}/kernels/, "
+        if instrument is not None:
+            truth = render_instrument_mission(out_dir, INSTRUMENT_CHOICES[instrument], seed=4601 if seed is None else seed,
+                                              n_images=3 if n_images is None else n_images)
+        else:
+            truth = render_mission(out_dir, seed=20240601 if seed is None else seed,
+                                   n_frames=5 if n_images is None else n_images)
+        cubes = len({im["cube"] for im in truth["images"].values()})
+        click.echo(f"rendered {cubes} ISIS cubes into {out_dir}/cubes/ (kernels: {out_dir}/kernels/, "
                    f"DEM: {out_dir}/dem/, truth: {out_dir}/truth/); next: lunaralbedo ingest")
         return
     from ..simulate import SceneSpec, render_scene

@@ -1,4 +1,5 @@
-"""Instrument-like missions: ISIS cubes with the labels and IKs of Kaguya MI (line scanner) or Clementine UVVIS (frame).
+"""Instrument-like missions: ISIS cubes with the labels and IKs of Kaguya MI and TC, Chandrayaan-2 TMC-2 (line
+scanners) or Clementine UVVIS (frame).
 
 The scene, spacecraft trajectories, kernels and photometry are those of :mod:`.mission`
 (its synthetic spacecraft -999 on straight lines, Lunar-Lambert A*T*R, the one truth format);
@@ -18,6 +19,22 @@ what is new is the camera, which ``ingest`` models with ISIS's plugin convention
   focal length and boresight), ``StartTime`` + ``ExposureDuration`` / 2, ``BandBin`` centre in
   micrometres, and the ``PP``/``OD_K``/``DECENTER`` distortion of ISIS's UVVIS map. Rays are
   pixel -> focal plane (``(s - BORESIGHT_SAMPLE) * pitch``, ...) -> undistorted -> look.
+* ``kaguya_tc`` - TC1 labels (``InstrumentId = TC1``, ``SwathModeId = NOMINAL``: first detector
+  sample 297, ``LineSamplingInterval``, ``SpacecraftClockStartCount`` and a ``StartTime`` 30 ms
+  earlier, as in JAXA's labels) of a crop (``AlphaCube``) of the 3504-sample swath around the
+  detector centre; IK with the TC keywords (``CENTER``, ``PIXEL_SIZE``, ``TRANSX/Y``, 4-term
+  ``DISTORTION_COEF_X/Y``, a ``BORESIGHT`` offset that ISIS's map leaves out). Rays as ISIS's
+  ``KaguyaTcCamera`` reads the IK: detector sample ``n`` (parent sample + 296), origin
+  ``(2048.5, 1)``, ``(x, y) = (-p (0 - 1), -p (n - 2048.5))`` mm, ``u = (x, y) + poly(r)`` with
+  ``r = |(x, y)|``; line ``k`` of the cube (parent line ``k + 20``) exposed at the clock count's time.
+* ``chandrayaan2_tmc2`` - TMC-2 labels (``CH2_TMC_NADIR``, ``StartTime``, ``LineExposureDuration``,
+  ``SpatialSumming = 2``) of a sample crop of the summed 2000-sample line, head flown backwards
+  (yaw 180 degrees, as the real nadir camera); IK ``CENTER`` (1999.5, 0.5), ``TRANSX/Y``, a
+  radial ``OD_K``. Rays: detector sample ``n = 2 a - 0.5`` of parent sample ``a``,
+  ``(x, y) = p (0 - 0.5, n - 1999.5)`` mm, ``u = (x, y) (1 - (k0 + k1 r^2 + k2 r^4))``.
+
+Line ``k`` of every line scanner is exposed at ``start + (parent line - 0.5) * rate`` from the
+moving spacecraft; the crop's middle is the shot's time.
 """
 from __future__ import annotations
 
@@ -28,6 +45,7 @@ from typing import Callable
 import numpy as np
 import spiceypy
 
+from ..camera.instruments import CHANDRAYAAN2_TMC2, CLEMENTINE_UVVIS, KAGUYA_MI, KAGUYA_TC
 from ..camera.lunar_optics import ClementineUvvisDistortion
 from ..isis.write import Quantity, write_cube
 from ..spice.kernels import KernelPool
@@ -53,6 +71,41 @@ HEAD_TO_SC = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 UVVIS_PITCH_MM, UVVIS_SHAPE = 0.023, (120, 160)  # lines, samples
 UVVIS_FILTERS = {"A": (SC * 1000 - 21, 12.0, 80.5, 60.5, 0.415), "B": (SC * 1000 - 22, 12.04, 80.2, 60.9, 0.75)}
 UVVIS_DISTORTION = ClementineUvvisDistortion(pp=(0.01, -0.005), odk=(0.0, -2.0e-3, 0.0), decenter=(2.0e-4, 1.5e-4))
+
+# -- Kaguya TC-like line scanner (NOMINAL swath crop) ------------------------------------------------------
+TC_CODE, TC_FRAME = SC * 1000 - 351, SC * 1000 - 350  # like TC1 (-131351) and LISM_TC1_HEAD (-131350)
+TC_FOCAL_MM, TC_PIXEL_MM, TC_SWATH_SAMPLES, TC_SWATH_START = 2.8, 0.007, 3504, 297.0
+TC_CROP = (1692.5, 20.5)  # AlphaCube: parent sample/line edges where the cube starts (its centre: detector 2048.5)
+#: polynomials in r (mm) of the TC IK's form, larger than TC1's so that they matter at this crop's radii
+TC_COEF_X = (-9.6499e-4, 9.8441e-3, 8.0e-3, -4.0e-3)
+TC_COEF_Y = (-1.3796e-3, 1.3502e-3, 3.0e-3, -6.0e-3)
+
+# -- Chandrayaan-2 TMC-2-like line scanner (2x summed, sample crop, flown backwards) ------------------------
+TMC_CODE, TMC_FOCAL_MM, TMC_PIXEL_MM, TMC_SAMPLES, TMC_SUMMING = SC * 1000 - 210, 5.6, 0.007, 4000, 2
+TMC_CENTER, TMC_CROP_SAMPLE, TMC_ODK = (1999.5, 0.5), 940.5, (0.0, 1.5e-2, 0.0)
+TMC_HEAD_TO_SC = HEAD_TO_SC @ np.diag([-1.0, -1.0, 1.0])  # yaw 180 degrees: head +x against the flight
+
+
+def tc_look(det_samples) -> np.ndarray:
+    """Unit lines of sight ``(..., 3)`` in the TC head frame of detector samples (1-based), as ISIS's
+    KaguyaTcCamera reads the IK: origin (2048.5, 1), line 0, no boresight offset, ``u = d + poly(|d|)``."""
+    y = -(np.asarray(det_samples, dtype=np.float64) - 2048.5) * TC_PIXEL_MM  # TRANSY = (0, -p, 0)
+    x = np.full(np.shape(y), -TC_PIXEL_MM * (0.0 - 1.0))  # TRANSX = (0, 0, -p), detector line 0 - 1
+    r = np.hypot(x, y)
+    ux, uy = x + sum(c * r**k for k, c in enumerate(TC_COEF_X)), y + sum(c * r**k for k, c in enumerate(TC_COEF_Y))
+    v = np.stack([ux, uy, np.full(np.shape(r), TC_FOCAL_MM)], axis=-1)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def tmc_look(det_samples) -> np.ndarray:
+    """Unit lines of sight ``(..., 3)`` in the TMC-2 frame of detector samples (1-based), as ISIS's
+    Chandrayaan2TmcCamera reads the IK: origin CENTER, line 0, radial ``OD_K`` (ISIS's default map)."""
+    y = (np.asarray(det_samples, dtype=np.float64) - TMC_CENTER[0]) * TMC_PIXEL_MM  # TRANSY = (0, p, 0)
+    x = np.full(np.shape(y), TMC_PIXEL_MM * (0.0 - TMC_CENTER[1]))  # TRANSX = (0, 0, p)
+    rr = x * x + y * y
+    d = TMC_ODK[0] + rr * (TMC_ODK[1] + rr * TMC_ODK[2])
+    v = np.stack([x - d * x, y - d * y, np.full(np.shape(y), TMC_FOCAL_MM)], axis=-1)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
 def ik_look(samples) -> np.ndarray:
@@ -105,6 +158,28 @@ def _uvvis_kernels(kdir: Path) -> None:
     write_text_kernel(kdir / "sim_inst.ti", "IK", ik, "Synthetic Clementine-UVVIS-like filters A and B.")
 
 
+def _tc_kernels(kdir: Path) -> None:
+    k, p = f"INS{TC_CODE}_", TC_PIXEL_MM
+    ik = {k + "FOCAL_LENGTH": TC_FOCAL_MM, k + "PIXEL_SIZE": p, k + "PIXEL_SAMPLES": 4096.0, k + "CENTER": [2048.5, 1.0],
+          k + "TRANSX": [0.0, 0.0, -p], k + "TRANSY": [0.0, -p, 0.0], k + "ITRANSS": [0.0, 0.0, -1 / p],
+          k + "ITRANSL": [0.0, -1 / p, 0.0], k + "DISTORTION_COEF_X": list(TC_COEF_X),
+          k + "DISTORTION_COEF_Y": list(TC_COEF_Y),
+          k + "BORESIGHT": [-0.0725, 0.0214, TC_FOCAL_MM], k + "FOV_FRAME": "SIM_TC1_HEAD"}
+    write_text_kernel(kdir / "sim_inst.tf", "FK", _tk_frame(TC_FRAME, "SIM_TC1_HEAD", HEAD_TO_SC),
+                      "Synthetic TC1 head frame: +x along track.")
+    write_text_kernel(kdir / "sim_inst.ti", "IK", ik, "Synthetic Kaguya-TC-like camera (JAXA IK keywords).")
+
+
+def _tmc_kernels(kdir: Path) -> None:
+    k, p = f"INS{TMC_CODE}_", TMC_PIXEL_MM
+    ik = {k + "FOCAL_LENGTH": TMC_FOCAL_MM, k + "PIXEL_SIZE": p / 1000.0, k + "PIXEL_SAMPLES": float(TMC_SAMPLES),
+          k + "CENTER": list(TMC_CENTER), k + "TRANSX": [0.0, 0.0, p], k + "TRANSY": [0.0, p, 0.0],
+          k + "ITRANSS": [0.0, 0.0, 1 / p], k + "ITRANSL": [0.0, 1 / p, 0.0], k + "OD_K": list(TMC_ODK)}
+    write_text_kernel(kdir / "sim_inst.tf", "FK", _tk_frame(TMC_CODE, "SIM_TMC_NADIR", TMC_HEAD_TO_SC),
+                      "Synthetic TMC-2 nadir frame: +x against the flight.")
+    write_text_kernel(kdir / "sim_inst.ti", "IK", ik, "Synthetic Chandrayaan-2-TMC-2-like camera.")
+
+
 @dataclass
 class _Instrument:
     kernels: Callable[[Path], None]
@@ -113,12 +188,31 @@ class _Instrument:
     extra: dict = field(default_factory=dict)
 
 
-def _mi_shots(rng, n_images: int) -> list[Shot]:
-    return [Shot(key=f"MNSIM{k + 1:02d}", kind="line", et=ET_BASE + k * 7200.0 + 77.7, exposure=float(rng.uniform(0.85, 1.2)),
-                 aim_lon=6.0 + rng.uniform(-0.2, 0.2), aim_lat=-6.0 + rng.uniform(-0.2, 0.2),
-                 sun_azimuth=float(rng.uniform(0, 360)), sun_elevation=float(rng.uniform(50, 65)),
-                 view_azimuth=float(rng.uniform(0, 360)), view_zenith=float(rng.uniform(0, 6)), altitude_km=72.0,
-                 lines=160, samples=MI_SAMPLES, line_rate=0.11) for k in range(n_images)]
+def _line_shots(prefix: str, samples: int, lines: int = 160):
+    """Shots of a line-scanner mission: ``prefix`` + number as key, ``lines`` x ``samples`` pixels, ~180 m."""
+    def shots(rng, n_images: int) -> list[Shot]:
+        return [Shot(key=f"{prefix}{k + 1:02d}", kind="line", et=ET_BASE + k * 7200.0 + 77.7,
+                     exposure=float(rng.uniform(0.85, 1.2)), aim_lon=6.0 + rng.uniform(-0.2, 0.2),
+                     aim_lat=-6.0 + rng.uniform(-0.2, 0.2), sun_azimuth=float(rng.uniform(0, 360)),
+                     sun_elevation=float(rng.uniform(50, 65)), view_azimuth=float(rng.uniform(0, 360)),
+                     view_zenith=float(rng.uniform(0, 6)), altitude_km=72.0, lines=lines, samples=samples, line_rate=0.11)
+                for k in range(n_images)]
+    return shots
+
+
+def _line_signal(scene, s: Shot, p0, vel, m, sun, look, head_to_sc, dt: float = 0.0):
+    """Noiseless A*T*R of a line scanner: ``look(samples)`` the head-frame lines of sight of the cube's samples;
+    cube line ``k`` exposed ``(k - 0.5 - lines / 2) * rate + dt`` s after the shot's time (km, s)."""
+    ll, ss = np.meshgrid(np.arange(1, s.lines + 1, dtype=float), np.arange(1, s.samples + 1, dtype=float), indexing="ij")
+    t = (ll - 0.5) * s.line_rate - s.lines * s.line_rate / 2.0 + dt
+    return surface_signal(scene, p0 + vel * t[..., None], look(ss) @ (m @ head_to_sc).T, p0, sun, s.exposure)
+
+
+def _alpha_cube(parent, start, shape) -> dict:
+    """ISIS ``AlphaCube`` group: a ``shape`` (samples, lines) crop starting at ``start`` (pixel edges) of ``parent``."""
+    return {"AlphaSamples": parent[0], "AlphaLines": parent[1], "AlphaStartingSample": start[0],
+            "AlphaStartingLine": start[1], "AlphaEndingSample": start[0] + shape[0], "AlphaEndingLine": start[1] + shape[1],
+            "BetaSamples": shape[0], "BetaLines": shape[1]}
 
 
 def _uvvis_shots(rng, n_images: int) -> list[Shot]:
@@ -139,9 +233,7 @@ def _label_kernels(code: int) -> dict:
 
 
 def _mi_image(scene, s: Shot, p0, vel, m, sun, rng, noise):
-    ll, ss = np.meshgrid(np.arange(1, s.lines + 1, dtype=float), np.arange(1, s.samples + 1, dtype=float), indexing="ij")
-    t = (ll - 0.5) * s.line_rate - s.lines * s.line_rate / 2.0  # line L exposed at StartTime + (L - 0.5) rate
-    signal = surface_signal(scene, p0 + vel * t[..., None], ik_look(ss) @ (m @ HEAD_TO_SC).T, p0, sun, s.exposure)
+    signal = _line_signal(scene, s, p0, vel, m, sun, ik_look, HEAD_TO_SC)  # line L at StartTime + (L - 0.5) rate
     img = np.stack([to_radiance(g * signal, noise, rng) for g in GAINS])
     start = s.et - s.lines * s.line_rate / 2.0
     groups = {"Instrument": {"MissionName": "SELENE", "SpacecraftName": "KAGUYA", "InstrumentName": "Multiband Imager Near Infrared",
@@ -170,17 +262,58 @@ def _uvvis_image(scene, s: Shot, p0, vel, m, sun, rng, noise):
     return to_radiance(signal, noise, rng)[None], groups, {f"{s.key:_<11}": dict(exposure=s.exposure, band_center_nm=um * 1000)}
 
 
-INSTRUMENTS = {"kaguya_mi": _Instrument(_mi_kernels, _mi_shots, _mi_image, {"band_gains": dict(zip(map(str, BANDS_NM), GAINS))}),
-               "clementine_uvvis": _Instrument(_uvvis_kernels, _uvvis_shots, _uvvis_image)}
+def _tc_image(scene, s: Shot, p0, vel, m, sun, rng, noise):
+    sample0, line0 = TC_CROP
+    nominal = s.et - (line0 - 0.5 + s.lines / 2.0) * s.line_rate  # parent line 1: the crop's middle at the shot's time
+    count = spiceypy.sce2s(SC, nominal)
+    et0 = spiceypy.scs2e(SC, count)  # whole clock ticks
+    look = lambda ss: tc_look(ss + sample0 - 0.5 + TC_SWATH_START - 1.0)  # noqa: E731 - cube -> parent -> detector sample
+    signal = _line_signal(scene, s, p0, vel, m, sun, look, HEAD_TO_SC, et0 - nominal)
+    groups = {"Instrument": {"MissionName": "SELENE", "SpacecraftName": "KAGUYA", "InstrumentName": "TERRAIN CAMERA 1",
+                             "InstrumentId": "TC1", "TargetName": "MOON", "SwathModeId": "NOMINAL",
+                             "StartTime": spiceypy.et2utc(et0 - 0.030, "ISOC", 6), "SpacecraftClockStartCount": count,
+                             "LineSamplingInterval": Quantity(s.line_rate * 1000.0, "ms")},
+              "BandBin": {"FilterName": "BroadBand", "Center": "640nm", "Width": "420nm"},
+              "Kernels": _label_kernels(TC_CODE),
+              "AlphaCube": _alpha_cube((TC_SWATH_SAMPLES, s.lines + 2 * int(line0 - 0.5)), TC_CROP, (s.samples, s.lines))}
+    return to_radiance(signal, noise, rng)[None], groups, {f"{s.key:_<11}": dict(exposure=s.exposure, band_center_nm=640.0)}
+
+
+def _tmc_image(scene, s: Shot, p0, vel, m, sun, rng, noise):
+    start = s.et - s.lines * s.line_rate / 2.0
+    look = lambda ss: tmc_look(TMC_SUMMING * (ss + TMC_CROP_SAMPLE - 0.5) - 0.5)  # noqa: E731 - cube -> parent -> detector
+    signal = _line_signal(scene, s, p0, vel, m, sun, look, TMC_HEAD_TO_SC)
+    groups = {"Instrument": {"SpacecraftName": "Chandrayaan-2", "InstrumentId": "CH2_TMC_NADIR", "TargetName": "Moon",
+                             "StartTime": spiceypy.et2utc(start, "ISOC", 6),
+                             "StopTime": spiceypy.et2utc(start + s.lines * s.line_rate, "ISOC", 6),
+                             "LineExposureDuration": Quantity(s.line_rate * 1000.0, "ms"), "SpatialSumming": TMC_SUMMING},
+              "BandBin": {"Center": Quantity(675.0, "nm"), "Width": Quantity(50.0, "nm")},
+              "Kernels": _label_kernels(TMC_CODE),
+              "AlphaCube": _alpha_cube((TMC_SAMPLES // TMC_SUMMING, s.lines), (TMC_CROP_SAMPLE, 0.5), (s.samples, s.lines))}
+    return to_radiance(signal, noise, rng)[None], groups, {f"{s.key:_<11}": dict(exposure=s.exposure, band_center_nm=675.0)}
+
+
+#: the missions by instrument name (the names of ``camera.instruments``, which ingest recognises in their labels)
+INSTRUMENTS = {KAGUYA_MI: _Instrument(_mi_kernels, _line_shots("MNSIM", MI_SAMPLES), _mi_image,
+                                      {"band_gains": dict(zip(map(str, BANDS_NM), GAINS))}),
+               CLEMENTINE_UVVIS: _Instrument(_uvvis_kernels, _uvvis_shots, _uvvis_image),
+               KAGUYA_TC: _Instrument(_tc_kernels, _line_shots("TC1SIM", 120), _tc_image),
+               CHANDRAYAAN2_TMC2: _Instrument(_tmc_kernels, _line_shots("TMCSIM", 120), _tmc_image)}
+
+
+def plan(instrument: str, seed: int, n_images: int):
+    """``(rng, scene, shots)`` of a mission: the random scene and shots that :func:`build` renders (the rng then
+    draws the noise); ``mission.shot_geometry(scene, shot)`` gives a shot's spacecraft, velocity and pointing."""
+    rng = np.random.default_rng(seed)
+    scene = make_scene(rng)
+    return rng, scene, INSTRUMENTS[instrument].shots(rng, n_images)
 
 
 def build(out: str | Path, instrument: str = "kaguya_mi", seed: int = 4601, n_images: int = 3, noise: float = 0.005) -> dict:
     """Write DEM, truth albedo, kernels, the instrument's cubes and truth.json under ``out``; return the truth."""
     inst = INSTRUMENTS[instrument]
     out = Path(out)
-    rng = np.random.default_rng(seed)
-    scene = make_scene(rng)
-    shots = inst.shots(rng, n_images)
+    rng, scene, shots = plan(instrument, seed, n_images)
     kdir = out / "kernels"
     geo = write_kernels(kdir, scene, shots)
     inst.kernels(kdir)
@@ -193,7 +326,7 @@ def build(out: str | Path, instrument: str = "kaguya_mi", seed: int = 4601, n_im
             img, groups, keys = inst.image(scene, s, p0, vel if s.kind == "line" else np.zeros(3), m, sun, rng, noise)
             write_cube(out / "cubes" / f"{s.key}.cub", img if len(img) > 1 else img[0], groups)
             for key, extra in keys.items():
-                truth["images"][key] = {"sun_km": sun.tolist(), "spacecraft_km": p0.tolist(), "cube": f"cubes/{s.key}.cub",
-                                        **extra}
+                truth["images"][key] = {"sun_km": sun.tolist(), "spacecraft_km": p0.tolist(), "et": s.et,
+                                        "cube": f"cubes/{s.key}.cub", **extra}
     write_truth(out, truth)
     return truth
