@@ -78,6 +78,11 @@ class Runtime:
     tune_process : bool, default False
         The same in this process, for tile tasks run in it (one worker, thread pools).  Off for
         library calls: a notebook's process is left as it was; the command line turns it on.
+    wide_vectors : bool, default False
+        Local worker processes compile the kernels for full-width SIMD vectors on AVX-512 CPUs
+        (:mod:`lunaralbedo.parallel.worker_vectors`), as the command line does for its own process
+        (:mod:`lunaralbedo.simd`), so the run uses one width and one set of cached kernels.  Off for
+        library calls (numba's own choice everywhere); the command line sets it to its own choice.
 
     Raises
     ------
@@ -94,6 +99,7 @@ class Runtime:
     nodefile: str | None = None
     tune_workers: bool = True
     tune_process: bool = False
+    wide_vectors: bool = False
 
     def __post_init__(self):
         self.validate()

@@ -13,7 +13,8 @@ the host's), read once, when it makes its CPU target (at the first ``@njit(cache
 defines).  :func:`apply` sets them to the host's features with ``-prefer-256-bit`` in this
 process; the command line calls it as a command starts, before any of the package's modules defines
 a kernel (``cli/_common.reports_errors``); importing :mod:`lunaralbedo` does not (the library changes
-nothing process-wide), and worker processes keep numba's own choice.  It changes no result: there
+nothing process-wide), and local workers follow it (``Runtime.wide_vectors``,
+:mod:`lunaralbedo.parallel.worker_vectors`).  It changes no result: there
 is no fast-math, no contraction into fused multiply-adds and no reassociation, so each lane does
 the same IEEE operations at either width (``tests/test_simd.py`` compares a solve's bytes at both).
 

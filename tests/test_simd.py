@@ -119,3 +119,34 @@ def test_a_solve_gives_the_same_bytes_at_either_vector_width(tmp_path):
     reports = [json.loads((outs[b] / "report.json").read_text()) for b in ("512", "256")]
     for key in ("cost_q", "parameters"):  # float64 in full: the global sums' lanes at either width
         assert reports[0][key] == reports[1][key], key
+
+
+_WORKERS = """
+import sys
+from lunaralbedo.parallel.executor import make_executor
+from lunaralbedo.runtime import Runtime
+
+def features():
+    from lunaralbedo.engine import kernels  # noqa: F401  (a kernel module: numba's target is made)
+    from numba.core import config
+    return str(config.CPU_FEATURES).endswith("-prefer-256-bit")
+
+ex = make_executor(workers=2, runtime=Runtime(wide_vectors=sys.argv[1] == "1"))
+try:
+    print(*sorted(ex.client.run(features).values()))
+finally:
+    ex.close()
+"""
+
+
+@needs_avx512
+@pytest.mark.parametrize("wide", [True, False])
+def test_local_workers_compile_for_the_vector_width_of_the_run(wide):
+    """With ``Runtime(wide_vectors=True)`` (the command line's choice where it took full-width vectors for
+    itself) both local workers compile for the same features as the command's process, so a run uses one
+    width and one set of cached kernels; without it they keep numba's own choice."""
+    env = {k: v for k, v in os.environ.items() if k not in (simd.SWITCH, *simd.NUMBA_VARIABLES)}
+    res = subprocess.run([sys.executable, "-c", _WORKERS, "1" if wide else "0"], env=env, capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert res.stdout.split() == [str(wide)] * 2

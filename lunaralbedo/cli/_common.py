@@ -22,6 +22,8 @@ from ..errors import ClusterError, InputError, Interrupted, LunarAlbedoError, ty
 INTERNAL_ERROR = 1
 #: Exit status when the reader of our output went away (``| head -1``): 128 + SIGPIPE, as a shell tool killed by it.
 BROKEN_PIPE = 141
+#: Whether this command chose full-width vectors for itself (:func:`_vector_width`); its workers follow.
+_WIDE_VECTORS = [False]
 
 
 def cli_runtime(**given):
@@ -32,7 +34,8 @@ def cli_runtime(**given):
     from ..runtime import Runtime
 
     users = any(k in os.environ for k in (*MALLOC_ENV, *NUMPY_ENV))
-    return Runtime.from_environ(os.environ, tune_workers=not users, tune_process=not users, **given)
+    return Runtime.from_environ(os.environ, tune_workers=not users, tune_process=not users,
+                                wide_vectors=_WIDE_VECTORS[0], **given)
 
 
 def debug_enabled() -> bool:
@@ -62,7 +65,7 @@ def _vector_width() -> None:
     from .. import simd
 
     try:
-        simd.apply(os.environ)
+        _WIDE_VECTORS[0] = simd.apply(os.environ) is not None
     except ValueError as exc:  # a bad LUNARALBEDO_VECTOR_BITS: say so, and leave numba's defaults
         click.echo(f"warning: {exc}", err=True)
 

@@ -369,6 +369,8 @@ def make_executor(
     if workers <= 1:
         return SerialExecutor(progress)
     if local == "processes":
+        if runtime.wide_vectors:  # the workers compile for this process's vector width (and its cache entries)
+            preload = (forkserver.VECTORS_SETUP, *preload)
         what, description = f"local cluster of {workers} processes", f"local cluster ({workers} processes)"
         start = _starting("server of local workers", forkserver.ready, preload, runtime.worker_start, runtime.tune_workers)
         if background:

@@ -27,9 +27,11 @@ import threading
 from ..runtime import WORKER_STARTS
 
 SERVER_SETUP = "lunaralbedo.parallel.worker_server"
+#: Preloaded first when the run wants full-width vectors in its workers (``Runtime.wide_vectors``).
+VECTORS_SETUP = "lunaralbedo.parallel.worker_vectors"
 
 _LOCK = threading.Lock()
-_OURS = None  # how the running forkserver was started by this module: (tuned,), or None (not by us)
+_OURS = None  # how the running forkserver was started by this module: (tuned, wide), or None (not by us)
 
 
 def start_method(wanted: str | None = None) -> str:
@@ -46,7 +48,8 @@ def start_method(wanted: str | None = None) -> str:
 
 def ready(preload: tuple = (), wanted: str | None = None, tuned: bool = True) -> str:
     """The start method for local workers (``wanted``: see :func:`start_method`): with ``forkserver``, this
-    process's server is started now (once per process; it imports :mod:`.worker_server` when ``tuned``, then
+    process's server is started now (once per process; it imports :mod:`.worker_vectors` first when ``preload``
+    names it, :mod:`.worker_server` when ``tuned``, then
     ``distributed`` and ``preload``, before forking the first worker).  ``spawn`` when another part of the
     process started a forkserver first (its imports are not ours) or ours was started with the other tuning.
     The process's own environment is not touched.
@@ -59,9 +62,11 @@ def ready(preload: tuple = (), wanted: str | None = None, tuned: bool = True) ->
 
     with _LOCK:
         running = getattr(getattr(forkserver, "_forkserver", None), "_forkserver_pid", None) is not None
-        if running and _OURS != (tuned,):
-            return "spawn"  # someone else's server, or ours with the other tuning
-        forkserver.set_forkserver_preload([*((SERVER_SETUP,) if tuned else ()), "distributed", *preload])
+        ours = (tuned, VECTORS_SETUP in preload)
+        if running and _OURS != ours:
+            return "spawn"  # someone else's server, or ours with the other tuning or vector width
+        setup = [*((VECTORS_SETUP,) if ours[1] else ()), *((SERVER_SETUP,) if tuned else ())]
+        forkserver.set_forkserver_preload([*setup, "distributed", *(m for m in preload if m != VECTORS_SETUP)])
         forkserver.ensure_running()  # started once; started again (the same way) only if it has died
-        _OURS = (tuned,)
+        _OURS = ours
     return method
