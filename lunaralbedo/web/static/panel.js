@@ -78,7 +78,43 @@
     return section(id, title, body, false);
   }
 
-  function render(root, report, exposures, meta) {
+  // FLOAT_HAZE 1: each image's additive haze (haze.csv as written; report.json's when the file is absent),
+  // beside the exposures, with its standard error and whether it separates from the exposure.
+  function haze(report, rows) {
+    const values = rows.length ? rows.map(r => [r.key, r.haze]) : Object.entries(report.haze || {});
+    if (!values.length) return null;
+    const bad = new Set(report.haze_inseparable || []), sigma = report.haze_sigma || {};
+    return section('haze', `Haze (${values.length} images, DRG units)`,
+      [plot(values.map((_, i) => i + 1), values.map(r => r[1]), 'image (exposure.csv order)', 'haze'),
+       table(['key', 'haze', 'standard error', 'separable from the exposure'],
+         values.map(([k, h]) => [k, h, sigma[k], bad.has(k) ? 'NO' : 'yes']))], true);
+  }
+
+  // REGISTER_IMAGES 1: the ground shift added to each image's stated position (image_offsets.csv as written,
+  // metres, with standard errors), and in the image's pixels (report.json registration.offsets_px).
+  function offsets(report, rows) {
+    if (!rows.length) return null;
+    const px = (report.registration || {}).offsets_px || {};
+    const body = [table(['key', 'east_m', 'north_m', 'east_se_m', 'north_se_m'],
+      rows.map(r => [r.key, r.east_m, r.north_m, r.east_se_m, r.north_se_m]), 'offsets-m')];
+    if (Object.keys(px).length) {
+      body.push(table(['key', 'east, image px', 'north, image px'], rows.map(r => [r.key, ...(px[r.key] || ['', ''])]), 'offsets-px'));
+    }
+    return section('offsets', `Image offsets (${rows.length} images, metres on the ground)`, body, true);
+  }
+
+  // REFINE_DEM 1: the height change's RMS and the rounds; the map shows the hillshade before and after.
+  function refineDem(d) {
+    if (!d) return null;
+    const scalars = Object.fromEntries(Object.entries(d).filter(([k]) => k !== 'rounds'));
+    const rounds = d.rounds || [];
+    return section('refine_dem', 'Refined DEM (REFINE_DEM)', [keyValues(scalars),
+      table(['round', 'change RMS m', 'L-BFGS iterations', 'CPU s'],
+        rounds.map(r => [r.round, r.change_rms_m, (r.lbfgs_iterations || []).join(' '), r.cpu_s]))], false);
+  }
+
+  function render(root, report, exposures, meta, tables) {
+    tables = tables || {};
     const q = report.cost_q || [];
     const params = report.parameters || {};
     const names = Object.keys(params);
@@ -94,13 +130,7 @@
         [plot(exposures.map((_, i) => i + 1), exposures.map(r => r.exposure), 'image (exposure.csv order)', 'exposure'),
          table(['key', 'exposure', 'initial', 'change %'], rows)], true));
     }
-    if (report.haze) {  // FLOAT_HAZE 1: each image's additive haze (haze.csv), beside the exposures
-      const keys = Object.keys(report.haze);
-      const bad = new Set(report.haze_inseparable || []);
-      parts.push(section('haze', `Haze (${keys.length} images, DRG units)`,
-        [plot(keys.map((_, i) => i + 1), keys.map(k => report.haze[k]), 'image (exposure.csv order)', 'haze'),
-         table(['key', 'haze', 'separable from the exposure'], keys.map(k => [k, report.haze[k], bad.has(k) ? 'NO' : 'yes']))], true));
-    }
+    for (const s of [haze(report, tables.haze || []), offsets(report, tables.image_offsets || [])]) if (s) parts.push(s);
     if (report.outliers) {  // the robust weights: per image the observations rejected or down-weighted
       const im = report.outliers.images;
       parts.push(section('outliers', `Outliers (${(100 * report.outliers.rejected_fraction).toFixed(3)} % rejected)`,
@@ -116,6 +146,8 @@
       const rows = params[names[0]].map((_, i) => [i, ...names.map(n => params[n][i])]);
       parts.push(section('parameters', `Model parameters (${report.photometric_model})`, table(['iteration', ...names], rows), false));
     }
+    const dem = refineDem(report.refine_dem);
+    if (dem) parts.push(dem);
     for (const [key, title] of [['response', 'Camera response'], ['residuals', 'Residuals']]) {
       const s = extra(key, title, report[key]);
       if (s) parts.push(s);
