@@ -84,10 +84,12 @@
     const values = rows.length ? rows.map(r => [r.key, r.haze]) : Object.entries(report.haze || {});
     if (!values.length) return null;
     const bad = new Set(report.haze_inseparable || []), sigma = report.haze_sigma || {};
+    const se = v => typeof v === 'number' ? v.toPrecision(3) : '';
     return section('haze', `Haze (${values.length} images, DRG units)`,
       [plot(values.map((_, i) => i + 1), values.map(r => r[1]), 'image (exposure.csv order)', 'haze'),
-       table(['key', 'haze', 'standard error', 'separable from the exposure'],
-         values.map(([k, h]) => [k, h, sigma[k], bad.has(k) ? 'NO' : 'yes']))], true);
+       table(['key', 'haze', '\u00b1', 'separable'], values.map(([k, h]) => [k, h, se(sigma[k]), bad.has(k) ? 'NO' : 'yes'])),
+       el('p', { class: 'note' }, 'haze.csv; \u00b1: standard error (report.json haze_sigma); separable NO: too little ' +
+         'contrast in the image to tell its haze from its exposure (the solve warned).')], true);
   }
 
   // REGISTER_IMAGES 1: the ground shift added to each image's stated position (image_offsets.csv as written,
@@ -95,8 +97,10 @@
   function offsets(report, rows) {
     if (!rows.length) return null;
     const px = (report.registration || {}).offsets_px || {};
-    const body = [table(['key', 'east_m', 'north_m', 'east_se_m', 'north_se_m'],
-      rows.map(r => [r.key, r.east_m, r.north_m, r.east_se_m, r.north_se_m]), 'offsets-m')];
+    const body = [table(['key', 'east', 'north', '\u00b1 east', '\u00b1 north'],
+      rows.map(r => [r.key, r.east_m, r.north_m, r.east_se_m, r.north_se_m]), 'offsets-m'),
+      el('p', { class: 'note' }, 'image_offsets.csv (east_m, north_m, east_se_m, north_se_m): the shift added to each ' +
+        "image's stated ground position to put it on the DEM, and its standard errors; the footprints are drawn moved by it.")];
     if (Object.keys(px).length) {
       body.push(table(['key', 'east, image px', 'north, image px'], rows.map(r => [r.key, ...(px[r.key] || ['', ''])]), 'offsets-px'));
     }
@@ -161,7 +165,7 @@
         report.tiles.map(t => [t.tile, t.valid_pixels, (t.images || []).length, (t.images_without_usable_pixels || []).join(' ')])), false));
     }
     if (report.settings) parts.push(section('settings', 'Settings', keyValues(report.settings), false));
-    parts.push(section('map', 'Map', keyValues({
+    parts.push(section('map-facts', 'Map', keyValues({
       extent: meta.bounds.join(', '), native_size: meta.native_size.join(' x '), pyramid_levels: meta.levels,
       tile_size: meta.tile_size, layers: meta.layers.map(l => l.stretch ? `${l.id} ${num(l.stretch.lo)}..${num(l.stretch.hi)}` : l.id).join('; '),
       footprints: meta.footprints, generator: meta.generator,
