@@ -257,3 +257,19 @@ def test_hillshade_before_and_after_show_the_input_and_refined_dems(run, browser
     assert r_diff > 0.6 and np.abs(after - before)[np.isfinite(dz)].mean() > 5
     assert np.nanmax(np.abs(dz)) > 10
     assert _network(browser)[1] == [] and _console_errors(browser) == []
+
+
+@pytest.mark.parametrize("name, text", [("haze.csv", "key,haze\nSIM-IMG-000,a lot\n"),
+                                        ("image_offsets.csv", "key,east_m\nSIM-IMG-000,3\n")])
+def test_a_broken_table_is_a_clear_error_and_the_site_stays(run, tmp_path, name, text):
+    import shutil
+
+    copy = tmp_path / "out"
+    shutil.copytree(run, copy)
+    (copy / name).write_text(text)
+    before = sorted(p.relative_to(copy) for p in (copy / "web").rglob("*"))
+    res = CliRunner().invoke(main, ["export-web", str(copy), "--workers", "1"])
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    errors = [ln for ln in res.output.splitlines() if ln.startswith("error:")]
+    assert len(errors) == 1 and str(copy / name) in errors[0], res.output
+    assert sorted(p.relative_to(copy) for p in (copy / "web").rglob("*")) == before

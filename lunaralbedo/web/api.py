@@ -29,10 +29,10 @@ from ..constants import MOON_RADIUS_M
 from ..export.api import remove_stale_staging, staged_dir
 from ..export.plan import albedo_sources, plan_export, scan_sources
 from ..export.sources import find_sources
+from ..export.stretch import Stretch
 from ..export.tiling import compute_tasks, pyramid_tasks
 from ..io.atomic import atomic_write_text
 from ..parallel import local_workers, make_executor
-from ..export.stretch import Stretch
 from .data import footprints, js_assign, read_exposures, read_key_table, read_report, write_values
 from .render import ColorTiles, GrayTiles, HillshadeTiles, colormap_lut
 

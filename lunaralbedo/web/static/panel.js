@@ -88,7 +88,7 @@
     return section('haze', `Haze (${values.length} images, DRG units)`,
       [plot(values.map((_, i) => i + 1), values.map(r => r[1]), 'image (exposure.csv order)', 'haze'),
        table(['key', 'haze', '\u00b1', 'separable'], values.map(([k, h]) => [k, h, se(sigma[k]), bad.has(k) ? 'NO' : 'yes'])),
-       el('p', { class: 'note' }, 'haze.csv; \u00b1: standard error (report.json haze_sigma); separable NO: too little ' +
+       el('p', { class: 'note' }, (rows.length ? 'haze.csv' : 'report.json haze') + '; \u00b1: standard error (report.json haze_sigma); separable NO: too little ' +
          'contrast in the image to tell its haze from its exposure (the solve warned).')], true);
   }
 
