@@ -207,6 +207,41 @@ def _screen(browser, layer):
     return np.asarray(Image.open(io.BytesIO(browser.find_element(By.ID, "map").screenshot_as_png)).convert("L"), np.float64)
 
 
+def _on_screen(browser):
+    """``f(values, transform)``: a raster of the web grid resampled (nearest) onto the map's screen pixels."""
+    w, h = browser.execute_script("const s = lunaralbedo.map.getSize(); return [s.x, s.y];")
+    bounds = browser.execute_script("const b = lunaralbedo.map.getBounds(); return [b.getWest(), b.getSouth(), b.getEast(), b.getNorth()];")
+    screen = from_bounds(*bounds, w, h)
+
+    def resample(values, transform):
+        out = np.full((h, w), np.nan, np.float32)
+        reproject(values.astype(np.float32), out, src_transform=transform, dst_transform=screen, src_crs="EPSG:4326",
+                  dst_crs="EPSG:4326", src_nodata=np.nan, dst_nodata=np.nan, resampling=Resampling.nearest)
+        return out
+
+    return resample
+
+
+def test_outliers_layer_shows_the_weight_lost(run, browser, page):  # noqa: F811
+    """The layer's colours (``inferno``: black at 0, pale yellow at 1) follow the ``outliers/`` raster on screen."""
+    browser.execute_script("const a = lunaralbedo; a.map.fitBounds(a.layers.albedo.options.bounds);")
+    time.sleep(0.4)
+    gray = _screen(browser, "outliers")
+    frac = _mosaic(run, "outliers")
+    shown = _on_screen(browser)(*frac)
+    # screen pixels whose 3x3 neighbourhood is one raster pixel (not on a pixel's edge, where placement rounds)
+    from scipy import ndimage
+
+    flat = (ndimage.maximum_filter(np.nan_to_num(shown, nan=-1), 3) == ndimage.minimum_filter(np.nan_to_num(shown, nan=-1), 3))
+    zero, one, part = flat & (shown == 0), flat & (shown == 1), flat & (shown > 0) & (shown < 1)
+    assert zero.sum() > 1000 and one.sum() > 20 and part.sum() > 100
+    print(f"outliers layer: gray {np.median(gray[zero]):.0f} where 0, {np.median(gray[one]):.0f} where 1, "
+          f"r = {np.corrcoef(gray[part], shown[part])[0, 1]:.3f} between")
+    assert np.median(gray[zero]) < 10 and np.median(gray[one]) > 220
+    assert np.corrcoef(gray[part], shown[part])[0, 1] > 0.9  # inferno's lightness rises with the value
+    assert _network(browser)[1] == [] and _console_errors(browser) == []
+
+
 def _hillshade(z, transform):
     """The test's own hillshade: cosine between the normal of ``z`` (metres on a lon/lat grid, central differences,
     x east, y north) and a Sun at azimuth 315 deg, 45 deg up (the legend's), clipped at 0."""
@@ -224,16 +259,7 @@ def test_hillshade_before_and_after_show_the_input_and_refined_dems(run, browser
     browser.execute_script("const a = lunaralbedo; a.map.fitBounds(a.layers.albedo.options.bounds);")
     time.sleep(0.4)
     after, before = _screen(browser, "hillshade"), _screen(browser, "hillshade_input")
-    size = browser.execute_script("const s = lunaralbedo.map.getSize(); return [s.x, s.y];")
-    bounds = browser.execute_script("const b = lunaralbedo.map.getBounds(); return [b.getWest(), b.getSouth(), b.getEast(), b.getNorth()];")
-    screen = from_bounds(*bounds, size[0], size[1])
-
-    def on_screen(values, transform):
-        out = np.full(after.shape, np.nan, np.float32)
-        reproject(values.astype(np.float32), out, src_transform=transform, dst_transform=screen, src_crs="EPSG:4326",
-                  dst_crs="EPSG:4326", src_nodata=np.nan, dst_nodata=np.nan, resampling=Resampling.nearest)
-        return out
-
+    on_screen = _on_screen(browser)
     dem, t = _mosaic(run, "DEM")
     hs_after, hs_before = on_screen(_hillshade(dem, t), t), on_screen(_hillshade(_mosaic(run, "dem_input")[0], t), t)
     dz = on_screen(_mosaic(run, "dem_change")[0], t)
