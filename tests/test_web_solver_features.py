@@ -299,3 +299,14 @@ def test_a_broken_table_is_a_clear_error_and_the_site_stays(run, tmp_path, name,
     errors = [ln for ln in res.output.splitlines() if ln.startswith("error:")]
     assert len(errors) == 1 and str(copy / name) in errors[0], res.output
     assert sorted(p.relative_to(copy) for p in (copy / "web").rglob("*")) == before
+
+
+def test_offsets_not_determined_are_empty_cells(tmp_path):
+    """``image_offsets.csv`` leaves a standard error empty where it was not determined: None in the page's table."""
+    from lunaralbedo.web.data import read_key_table
+
+    path = tmp_path / "image_offsets.csv"
+    path.write_text("key,east_m,north_m,east_se_m,north_se_m\nA,-300,12.5,,4\n")
+    cols = ("key", "east_m", "north_m", "east_se_m", "north_se_m")
+    assert read_key_table(path, cols) == [{"key": "A", "east_m": -300.0, "north_m": 12.5, "east_se_m": None, "north_se_m": 4.0}]
+    assert read_key_table(tmp_path / "absent.csv", cols) == []
