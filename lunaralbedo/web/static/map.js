@@ -4,6 +4,9 @@
   const META = window.LUNARALBEDO_META;
   const REPORT = window.LUNARALBEDO_REPORT || {};
   const EXPOSURES = window.LUNARALBEDO_EXPOSURES || [];
+  const TABLES = window.LUNARALBEDO_TABLES || {};
+  const LABELS = META.value_labels || { albedo: 'albedo', error: 'error' };
+  const EXTRA = (META.values || []).filter(n => n !== 'albedo' && n !== 'error');  // outliers, dem_change
   const FOOT = window.LUNARALBEDO_FOOTPRINTS || { type: 'FeatureCollection', features: [] };
   const P = window.LunarPanel;
   const [W, S, E, N] = META.bounds;
@@ -79,7 +82,8 @@
     onEachFeature: (f, layer) => {
       const p = f.properties;
       layer.bindTooltip(`<b>${p.key}</b><br>exposure ${p.exposure === undefined ? 'n/a' : fmt(p.exposure, 7)}` +
-        (p.initial_exposure === undefined ? '' : `<br>initial ${fmt(p.initial_exposure, 7)}`), { sticky: true });
+        (p.initial_exposure === undefined ? '' : `<br>initial ${fmt(p.initial_exposure, 7)}`) +
+        (p.east_m === undefined ? '' : `<br>moved ${fmt(p.east_m, 6)} m east, ${fmt(p.north_m, 6)} m north`), { sticky: true });
       layer.on('mouseover', () => layer.setStyle({ weight: 3, fillOpacity: 0.12 }));
       layer.on('mouseout', () => footprints.resetStyle(layer));
     },
@@ -99,7 +103,8 @@
   function showLegend(id) {
     const l = META.layers.find(x => x.id === id);
     const ramp = l.ramp ? `linear-gradient(to right, ${l.ramp.join(', ')})` : 'linear-gradient(to right, #000, #fff)';
-    const ends = l.stretch ? [fmt(l.stretch.lo, 4), fmt(l.stretch.hi, 4)] : ['shadow', 'lit (sun az 315\u00b0, alt 45\u00b0)'];
+    const unit = l.unit ? ` ${l.unit}` : '';
+    const ends = l.stretch ? [fmt(l.stretch.lo, 4) + unit, fmt(l.stretch.hi, 4) + unit] : ['shadow', 'lit (sun az 315\u00b0, alt 45\u00b0)'];
     legend.getContainer().innerHTML = `<b>${l.name}</b><div class="ramp" style="background:${ramp}"></div>` +
       `<div class="ends"><span>${ends[0]}</span><span>${ends[1]}</span></div>`;
   }
@@ -111,7 +116,7 @@
   cursor.addTo(map);
   map.on('mousemove', e => { cursor.getContainer().textContent = `lon ${e.latlng.lng.toFixed(5)}  lat ${e.latlng.lat.toFixed(5)}`; });
 
-  // Values on click: the finest-level tile's albedo and error, from data/values/<col>/<row>.js.
+  // Values on click: the finest-level tile's albedo, error (and outliers, dem_change), from data/values/<col>/<row>.js.
   const cache = new Map(), waiting = new Map();
   function decode(b64) {
     const bin = atob(b64), bytes = new Uint8Array(bin.length);
@@ -165,19 +170,23 @@
     const at = tile ? px.j * tile.width + px.i : -1;
     const value = name => (tile && tile[name]) ? tile[name][at] : null;
     const albedo = value('albedo'), error = value('error'), seen = imagesSeen(ll);
+    const extra = Object.fromEntries(EXTRA.map(n => [n, value(n)]));
     const rows = [['lon', `${ll.lng.toFixed(6)}\u00b0`], ['lat', `${ll.lat.toFixed(6)}\u00b0`],
-      ['albedo', fmt(albedo, 7)], ['error', fmt(error, 4)], ['pixel', px ? `${px.x}, ${px.y} (level ${FINEST})` : 'outside'],
+      ['albedo', fmt(albedo, 7)], ['error', fmt(error, 4)], ...EXTRA.map(n => [LABELS[n], fmt(extra[n], 7)]),
+      ['pixel', px ? `${px.x}, ${px.y} (level ${FINEST})` : 'outside'],
       [`images seen (${seen.length})`, seen.join(' ') || 'none']];
     const box = document.getElementById('readout');
     box.replaceChildren(P.table(null, rows, 'kv'));
-    Object.assign(box.dataset, { lon: ll.lng, lat: ll.lat, albedo: albedo === null ? '' : albedo, error: error === null ? '' : error, images: seen.join(' ') });
+    const data = { lon: ll.lng, lat: ll.lat, albedo: albedo, error: error, ...extra };
+    for (const [k, v] of Object.entries(data)) box.dataset[k] = v === null ? '' : v;
+    box.dataset.images = seen.join(' ');
     popup.setLatLng(ll).setContent(P.table(null, rows, 'kv').outerHTML).openOn(map);
-    return { albedo: albedo, error: error, images: seen };
+    return { albedo: albedo, error: error, ...extra, images: seen };
   }
   map.on('click', e => { showValues(e.latlng); });
 
   layerById.albedo.on('load', () => { document.body.dataset.mapReady = '1'; });
   map.fitBounds(dataBounds);
-  P.render(document.getElementById('report'), REPORT, EXPOSURES, META);
+  P.render(document.getElementById('report'), REPORT, EXPOSURES, META, TABLES);
   window.lunaralbedo = { map: map, layers: layerById, overlays: { footprints: footprints, graticule: graticule }, showValues: showValues, pixelAt: pixelAt };
 })();

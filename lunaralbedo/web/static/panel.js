@@ -78,7 +78,47 @@
     return section(id, title, body, false);
   }
 
-  function render(root, report, exposures, meta) {
+  // FLOAT_HAZE 1: each image's additive haze (haze.csv as written; report.json's when the file is absent),
+  // beside the exposures, with its standard error and whether it separates from the exposure.
+  function haze(report, rows) {
+    const values = rows.length ? rows.map(r => [r.key, r.haze]) : Object.entries(report.haze || {});
+    if (!values.length) return null;
+    const bad = new Set(report.haze_inseparable || []), sigma = report.haze_sigma || {};
+    const se = v => typeof v === 'number' ? v.toPrecision(3) : '';
+    return section('haze', `Haze (${values.length} images, DRG units)`,
+      [plot(values.map((_, i) => i + 1), values.map(r => r[1]), 'image (exposure.csv order)', 'haze'),
+       table(['key', 'haze', '\u00b1', 'separable'], values.map(([k, h]) => [k, h, se(sigma[k]), bad.has(k) ? 'NO' : 'yes'])),
+       el('p', { class: 'note' }, (rows.length ? 'haze.csv' : 'report.json haze') + '; \u00b1: standard error (report.json haze_sigma); separable NO: too little ' +
+         'contrast in the image to tell its haze from its exposure (the solve warned).')], true);
+  }
+
+  // REGISTER_IMAGES 1: the ground shift added to each image's stated position (image_offsets.csv as written,
+  // metres, with standard errors), and in the image's pixels (report.json registration.offsets_px).
+  function offsets(report, rows) {
+    if (!rows.length) return null;
+    const px = (report.registration || {}).offsets_px || {};
+    const body = [table(['key', 'east', 'north', '\u00b1 east', '\u00b1 north'],
+      rows.map(r => [r.key, r.east_m, r.north_m, r.east_se_m, r.north_se_m]), 'offsets-m'),
+      el('p', { class: 'note' }, 'image_offsets.csv (east_m, north_m, east_se_m, north_se_m): the shift added to each ' +
+        "image's stated ground position to put it on the DEM, and its standard errors; the footprints are drawn moved by it.")];
+    if (Object.keys(px).length) {
+      body.push(table(['key', 'east, image px', 'north, image px'], rows.map(r => [r.key, ...(px[r.key] || ['', ''])]), 'offsets-px'));
+    }
+    return section('offsets', `Image offsets (${rows.length} images, metres on the ground)`, body, true);
+  }
+
+  // REFINE_DEM 1: the height change's RMS and the rounds; the map shows the hillshade before and after.
+  function refineDem(d) {
+    if (!d) return null;
+    const scalars = Object.fromEntries(Object.entries(d).filter(([k]) => k !== 'rounds'));
+    const rounds = d.rounds || [];
+    return section('refine_dem', 'Refined DEM (REFINE_DEM)', [keyValues(scalars),
+      table(['round', 'change RMS m', 'L-BFGS iterations', 'CPU s'],
+        rounds.map(r => [r.round, r.change_rms_m, (r.lbfgs_iterations || []).join(' '), r.cpu_s]))], false);
+  }
+
+  function render(root, report, exposures, meta, tables) {
+    tables = tables || {};
     const q = report.cost_q || [];
     const params = report.parameters || {};
     const names = Object.keys(params);
@@ -94,13 +134,7 @@
         [plot(exposures.map((_, i) => i + 1), exposures.map(r => r.exposure), 'image (exposure.csv order)', 'exposure'),
          table(['key', 'exposure', 'initial', 'change %'], rows)], true));
     }
-    if (report.haze) {  // FLOAT_HAZE 1: each image's additive haze (haze.csv), beside the exposures
-      const keys = Object.keys(report.haze);
-      const bad = new Set(report.haze_inseparable || []);
-      parts.push(section('haze', `Haze (${keys.length} images, DRG units)`,
-        [plot(keys.map((_, i) => i + 1), keys.map(k => report.haze[k]), 'image (exposure.csv order)', 'haze'),
-         table(['key', 'haze', 'separable from the exposure'], keys.map(k => [k, report.haze[k], bad.has(k) ? 'NO' : 'yes']))], true));
-    }
+    for (const s of [haze(report, tables.haze || []), offsets(report, tables.image_offsets || [])]) if (s) parts.push(s);
     if (report.outliers) {  // the robust weights: per image the observations rejected or down-weighted
       const im = report.outliers.images;
       parts.push(section('outliers', `Outliers (${(100 * report.outliers.rejected_fraction).toFixed(3)} % rejected)`,
@@ -116,6 +150,8 @@
       const rows = params[names[0]].map((_, i) => [i, ...names.map(n => params[n][i])]);
       parts.push(section('parameters', `Model parameters (${report.photometric_model})`, table(['iteration', ...names], rows), false));
     }
+    const dem = refineDem(report.refine_dem);
+    if (dem) parts.push(dem);
     for (const [key, title] of [['response', 'Camera response'], ['residuals', 'Residuals']]) {
       const s = extra(key, title, report[key]);
       if (s) parts.push(s);
@@ -129,7 +165,7 @@
         report.tiles.map(t => [t.tile, t.valid_pixels, (t.images || []).length, (t.images_without_usable_pixels || []).join(' ')])), false));
     }
     if (report.settings) parts.push(section('settings', 'Settings', keyValues(report.settings), false));
-    parts.push(section('map', 'Map', keyValues({
+    parts.push(section('map-facts', 'Map', keyValues({
       extent: meta.bounds.join(', '), native_size: meta.native_size.join(' x '), pyramid_levels: meta.levels,
       tile_size: meta.tile_size, layers: meta.layers.map(l => l.stretch ? `${l.id} ${num(l.stretch.lo)}..${num(l.stretch.hi)}` : l.id).join('; '),
       footprints: meta.footprints, generator: meta.generator,
