@@ -65,8 +65,8 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     "REFINE_DEM": (int, 0, (0, 1)),
     "REFINE_DEM_ROUNDS": (int, 1, None),  # outer rounds: albedo solve, then heights, then albedo again
     "REFINE_DEM_SMOOTHNESS": (float, 0.01, None),  # mu, on the change of slope between pixels
-    "REFINE_DEM_FIDELITY": (float, None, None),  # lambda; None: 1 when REFINE_DEM_INPUT_BLUR is given, else 0.01
-    "REFINE_DEM_INPUT_BLUR": (float, None, None),  # sigma (pixels) of the input DEM's resolution; None: from its pixel
+    "REFINE_DEM_FIDELITY": (float, 1.0, None),  # lambda, on the refined heights smoothed to the input's resolution
+    "REFINE_DEM_INPUT_BLUR": (float, "auto", None),  # sigma (pixels) of the input DEM's resolution; auto: estimated
     "REFINE_DEM_MARGIN": (int, 16, None),  # pixels of overlap around each window's heights
     "REFINE_DEM_WINDOW": (int, 256, None),  # most pixels a side of a height window (tiles are cut into such)
     "REFINE_DEM_LEVELS": (int, 2, None),  # coarse to fine: levels of a factor 2
@@ -130,8 +130,8 @@ class Settings:
     refine_dem: int = 0
     refine_dem_rounds: int = 1
     refine_dem_smoothness: float = 0.01
-    refine_dem_fidelity: float | None = None
-    refine_dem_input_blur: float | None = None
+    refine_dem_fidelity: float = 1.0
+    refine_dem_input_blur: float | str = "auto"
     refine_dem_margin: int = 16
     refine_dem_window: int = 256
     refine_dem_levels: int = 2
@@ -247,6 +247,10 @@ def _parse_box(text: str, where: str) -> tuple[float, float, float, float]:
     return (lon0, lon1, max(lat0, -90.0), min(lat1, 90.0))
 
 
+#: Numeric keys that also take the word ``auto`` (estimated by the run).
+_AUTO_KEYS = ("REFINE_DEM_INPUT_BLUR",)
+
+
 def _convert(key: str, raw: Any, base: Path, where: str, spec: dict) -> Any:
     typ, _default, allowed = spec[key]
     if raw is None or (isinstance(raw, str) and raw.strip() == ""):
@@ -258,6 +262,8 @@ def _convert(key: str, raw: Any, base: Path, where: str, spec: dict) -> Any:
         if isinstance(raw, (list, tuple)):
             raw = ":".join(str(x) for x in raw)
         return _parse_box(raw, where)
+    if key in _AUTO_KEYS and str(raw).strip().lower() == "auto":
+        return "auto"
     if typ is str:
         if str(raw) not in allowed:
             raise SettingsError(f"{where}: {key} must be one of {', '.join(allowed)}, got {raw!r}")
@@ -315,8 +321,12 @@ def _validate_refine(values: dict[str, Any], where: str, model) -> None:
                     ("REFINE_DEM_MAX_ITER", 1)):
         if values[key] < lo:
             raise SettingsError(f"{where}: {key} must be >= {lo}, got {values[key]}")
+    if values["REFINE_DEM_INPUT_BLUR"] is None:  # an empty value: estimated, as the default
+        values["REFINE_DEM_INPUT_BLUR"] = "auto"
     for key in ("REFINE_DEM_SMOOTHNESS", "REFINE_DEM_FIDELITY", "REFINE_DEM_INPUT_BLUR"):
-        if values[key] is not None and not 0 <= values[key] < float("inf"):
+        if values[key] is None or values[key] == "auto" and key in _AUTO_KEYS:
+            continue
+        if not 0 <= values[key] < float("inf"):
             raise SettingsError(f"{where}: {key} must be a number >= 0, got {values[key]}")
 
 

@@ -79,12 +79,59 @@ def write_given_dem(scene, grid: HeightGrid, path: Path) -> None:
     write_geotiff(path, h.astype(np.float32), grid.transform, scene.crs)
 
 
-def input_blur_px(scene, grid: HeightGrid) -> float:
-    """``REFINE_DEM_INPUT_BLUR``, or the input DEM's pixel in pixels of ``grid``, at least 2 (docs/sfs.md)."""
-    s = scene.settings
-    if s.refine_dem_input_blur is not None:
-        return float(s.refine_dem_input_blur)
-    return float(max(2.0, max(d.lonlat_res[0] for d in scene.dems) / abs(grid.transform.a)))
+def input_blur_px(scene) -> float | None:
+    """``REFINE_DEM_INPUT_BLUR`` (pixels of the heights grid), or None for ``auto`` (:func:`estimate_input_blur`)."""
+    v = scene.settings.refine_dem_input_blur
+    return None if v in (None, "auto") else float(v)
+
+
+#: Candidate input blurs (sigma, pixels) of the first stage of :func:`estimate_input_blur`: a factor 1.5 apart.
+BLUR_CANDIDATES = (0.67, 1.0, 1.5, 2.25, 3.4, 5.1, 7.6)
+#: Windows the estimate is made on, at most (spread evenly over the window order): its cost does not grow with the box.
+BLUR_WINDOWS = 8
+#: Level of the estimate (blocks of 2**level pixels).
+BLUR_LEVEL = 1
+
+
+def _vertex(x: np.ndarray, y: np.ndarray) -> float:
+    """The abscissa of the minimum of the parabola through the three points ``(x, y)``, within ``[x[0], x[2]]``."""
+    a = np.polyfit(x, y, 2)
+    if a[0] <= 0:
+        return float(x[int(np.argmin(y))])
+    return float(np.clip(-a[1] / (2 * a[0]), x[0], x[2]))
+
+
+def estimate_input_blur(executor, n_windows: int, levels: int, **kw) -> dict:
+    """The input DEM's resolution (``REFINE_DEM_INPUT_BLUR auto``): the Gaussian sigma (pixels) at which the heights,
+    held to the input smoothed by it, best explain the images.
+
+    Held at a blur finer than the input's, the heights cannot take the relief the input lost; held at a coarser one,
+    they must invent relief to match the input at that scale: either way the images' misfit (the shading term after
+    the height step, :func:`.sfs_tile.blur_misfits`) grows.  Its sum over up to :data:`BLUR_WINDOWS` windows is taken
+    at :data:`BLUR_CANDIDATES`, then at the two geometric midpoints around the best; the estimate is the vertex of the
+    parabola in ``log sigma`` through the best candidate and its two neighbours.  Returns ``{"sigma_px", "sigmas",
+    "misfits"}``."""
+    from .sfs_tile import blur_misfits
+
+    level = min(BLUR_LEVEL, levels - 1)
+    chosen = [int(i) for i in np.unique(np.linspace(0, n_windows - 1, min(n_windows, BLUR_WINDOWS)).round())]
+
+    def total(sigmas):
+        rows = executor.map(blur_misfits, chosen, "input DEM's resolution", shared=("scene",), sigmas=list(sigmas),
+                            level=level, **kw)
+        return [float(sum(r[i] for r in rows)) for i in range(len(sigmas))]  # window order: any worker count
+
+    sig = list(BLUR_CANDIDATES)
+    mis = total(sig)
+    k = int(np.argmin(mis))
+    extra = [x for x in (sig[k] / 1.5**0.5, sig[k] * 1.5**0.5) if BLUR_CANDIDATES[0] <= x <= BLUR_CANDIDATES[-1]]
+    sig, mis = sig + extra, mis + total(extra)
+    order = np.argsort(sig)
+    sig, mis = [sig[i] for i in order], [mis[i] for i in order]
+    k = min(max(int(np.argmin(mis)), 1), len(sig) - 2)
+    best = float(np.exp(_vertex(np.log(sig[k - 1:k + 2]), np.asarray(mis[k - 1:k + 2]))))
+    return {"sigma_px": round(best, 3), "sigmas": [round(x, 3) for x in sig], "misfits": mis, "level": level,
+            "windows": len(chosen)}
 
 
 def _with_dem(scene, dem: Path):
@@ -158,25 +205,34 @@ def refine_solve(scene, out: Path, run_solve, executor, resume: bool):
     given = sfs / "dem_0" / "dem.tif"
     if not given.exists():
         write_given_dem(scene, grid, given)
-    sigma = input_blur_px(scene, grid)
+    sigma, blur_fit = input_blur_px(scene), None
     current, rounds = given, []
     for r in range(s.refine_dem_rounds):
         scene_r = _with_dem(scene, current)
         state = sfs / f"round_{r}.json"
         if not state.exists():
             res = run_solve(scene_r, sfs / f"round_{r}", None)
-            atomic_write_text(state, json.dumps({"exposure": res.exposure.tolist(),
+            atomic_write_text(state, json.dumps({"exposure": res.exposure.tolist(), "haze": res.report.get("haze"),
                                                  "params": list(res.parameters.values())}))
         got = json.loads(state.read_text())
         nxt = sfs / f"dem_{r + 1}" / "dem.tif"
+        fit = sfs / "input_blur.json"
+        if sigma is None and fit.exists():
+            blur_fit = json.loads(fit.read_text())
+            sigma = blur_fit["sigma_px"]
         info = json.loads((nxt.parent / "round.json").read_text()) if nxt.exists() else None
         if info is None:
             albedo = [(p, raster_info(p).lonlat_bounds) for p in sorted((sfs / f"round_{r}" / "albedo").glob("*.tif"))]
             windows = pieces(scene_r, s.refine_dem_window)
+            kw = dict(scene=scene_r, windows=windows, grid=grid, current=current, given=given, albedo=albedo,
+                      exposure=np.asarray(got["exposure"]), params=got["params"],
+                      haze=None if got.get("haze") is None else np.asarray(list(got["haze"].values())))
+            if sigma is None:  # auto: estimated once, from the first round's albedo (kept for --resume)
+                atomic_write_text(fit, json.dumps(estimate_input_blur(executor, len(windows), s.refine_dem_levels, **kw)))
+                blur_fit = json.loads(fit.read_text())
+                sigma = blur_fit["sigma_px"]
             parts = executor.map(refine_tile, range(len(windows)), f"refine heights {r + 1}", shared=("scene",),
-                                 scene=scene_r, windows=windows, grid=grid, current=current, given=given, albedo=albedo,
-                                 exposure=np.asarray(got["exposure"]), params=got["params"], sigma_px=sigma,
-                                 out_dir=sfs / f"tiles_{r + 1}")
+                                 sigma_px=sigma, out_dir=sfs / f"tiles_{r + 1}", **kw)
             info = {"tiles": [{k: p[k] for k in ("tile", "reports", "lit_mean")} for p in parts]}
             info.update(blend(grid, current, parts, sfs / f"tiles_{r + 1}", nxt))
             atomic_write_text(nxt.parent / "round.json", json.dumps(info))
@@ -185,11 +241,18 @@ def refine_solve(scene, out: Path, run_solve, executor, resume: bool):
         rounds.append({"round": r + 1, "change_rms_m": info["change_rms_m"],
                        "lbfgs_iterations": [sum(rep["iterations"] for rep in t["reports"]) for t in info["tiles"]],
                        "cpu_s": round(sum(rep["cpu_s"] for rep in reps), 3),
+                       # the finest level's terms at the end, summed over the windows (in window order)
+                       "cost_parts": {k: float(sum(rep["parts"][k] for rep in reps if rep["level"] == 0))
+                                      for k in (reps[0]["parts"] if reps else {})},
+                       "coarse_parts": {k: float(sum(rep["parts"][k] for rep in reps if rep["level"] == 1))
+                                      for k in (reps[0]["parts"] if reps else {})},
+                       "cpu_levels": [sum(rep["cpu_s"] for rep in reps if rep["level"] == lv) for lv in (0, 1)],
                        # CPU time per observation per evaluation of the cost and its gradient (one core)
                        "ns_per_observation_evaluation": round(1e9 * sum(rep["cpu_s"] for rep in reps) / work, 1)
                        if work else None})
         current = nxt
-    report = {"settings": s.to_dict(), "refine_dem": {"rounds": rounds, "input_blur_px": sigma, "fidelity": fidelity_weight(s),
+    report = {"settings": s.to_dict(), "refine_dem": {"rounds": rounds, "input_blur_px": sigma, "input_blur_fit": blur_fit,
+                                                      "fidelity": fidelity_weight(s),
                                                       "pixel_m": grid.pixel_m(),
                                                       # the rounds before the last solve (this process's share, if resumed)
                                                       "seconds": round(time.perf_counter() - t0, 3),
