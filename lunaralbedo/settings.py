@@ -64,7 +64,7 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     # shape from shading (docs/sfs.md): the DEM's heights refined with the albedo
     "REFINE_DEM": (int, 0, (0, 1)),
     "REFINE_DEM_ROUNDS": (int, 1, None),  # outer rounds: albedo solve, then heights, then albedo again
-    "REFINE_DEM_SMOOTHNESS": (float, 0.01, None),  # mu, on the change of slope between pixels
+    "REFINE_DEM_SMOOTHNESS": (float, 0.003, None),  # mu, on the change of slope between pixels
     "REFINE_DEM_FIDELITY": (float, 1.0, None),  # lambda, on the refined heights smoothed to the input's resolution
     "REFINE_DEM_INPUT_BLUR": (float, "auto", None),  # sigma (pixels) of the input DEM's resolution; auto: estimated
     "REFINE_DEM_MARGIN": (int, 16, None),  # pixels of overlap around each window's heights
@@ -75,9 +75,12 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
 }
 
 
-#: Keys of the default solver only (real images): :func:`legacy_text` leaves them out at their defaults.
+#: Keys of the default solver only (real images, shape from shading): :func:`legacy_text` leaves them out at their
+#: defaults, so that a settings file does not pin today's defaults.
 _UNWRITTEN_DEFAULTS = ("REJECT_OUTLIERS", "ROBUST_LOSS", "ROBUST_THRESHOLD", "FLOAT_HAZE", "EXPOSURE_MODE", "EXPOSURE_FILE",
-                       "EXPOSURE_PRIOR_SIGMA")
+                       "EXPOSURE_PRIOR_SIGMA", "REFINE_DEM", "REFINE_DEM_ROUNDS", "REFINE_DEM_SMOOTHNESS",
+                       "REFINE_DEM_FIDELITY", "REFINE_DEM_INPUT_BLUR", "REFINE_DEM_MARGIN", "REFINE_DEM_WINDOW",
+                       "REFINE_DEM_LEVELS", "REFINE_DEM_MAX_ITER", "REFINE_DEM_FLOAT_ALBEDO")
 
 
 def _model_keys_spec() -> dict[str, tuple[type, Any, tuple | None]]:
@@ -129,7 +132,7 @@ class Settings:
     exposure_prior_sigma: float = 0.02
     refine_dem: int = 0
     refine_dem_rounds: int = 1
-    refine_dem_smoothness: float = 0.01
+    refine_dem_smoothness: float = 0.003
     refine_dem_fidelity: float = 1.0
     refine_dem_input_blur: float | str = "auto"
     refine_dem_margin: int = 16

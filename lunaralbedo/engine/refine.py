@@ -39,7 +39,7 @@ from ..model.cast_shadows import shadow_reach_km
 from .sfs_tile import HeightGrid, fidelity_weight, pieces, refine_tile
 
 SFS_DIR = "sfs"
-PRODUCT_DIRS = ("dem_change", "dem_lit", "dem_input")
+PRODUCT_DIRS = ("dem_change", "dem_lit", "dem_input", "dem_sigma")
 #: Rows of the input DEM resampled at a time onto the heights grid.
 _ROWS = 512
 
@@ -91,6 +91,9 @@ BLUR_CANDIDATES = (0.67, 1.0, 1.5, 2.25, 3.4, 5.1, 7.6)
 BLUR_WINDOWS = 8
 #: Level of the estimate (blocks of 2**level pixels).
 BLUR_LEVEL = 1
+#: L-BFGS iterations of each candidate's height step (None: REFINE_DEM_MAX_ITER): 10 gave 3.12 px on the strip of
+#: docs/sfs.md (30: 3.17 px; the true blur 3 px) at a third of the cost.
+BLUR_MAX_ITER = 10
 
 
 def _vertex(x: np.ndarray, y: np.ndarray) -> float:
@@ -101,7 +104,7 @@ def _vertex(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.clip(-a[1] / (2 * a[0]), x[0], x[2]))
 
 
-def estimate_input_blur(executor, n_windows: int, levels: int, **kw) -> dict:
+def estimate_input_blur(executor, n_windows: int, levels: int, max_iter: int, **kw) -> dict:
     """The input DEM's resolution (``REFINE_DEM_INPUT_BLUR auto``): the Gaussian sigma (pixels) at which the heights,
     held to the input smoothed by it, best explain the images.
 
@@ -114,11 +117,12 @@ def estimate_input_blur(executor, n_windows: int, levels: int, **kw) -> dict:
     from .sfs_tile import blur_misfits
 
     level = min(BLUR_LEVEL, levels - 1)
+    max_iter = BLUR_MAX_ITER or max_iter
     chosen = [int(i) for i in np.unique(np.linspace(0, n_windows - 1, min(n_windows, BLUR_WINDOWS)).round())]
 
     def total(sigmas):
         rows = executor.map(blur_misfits, chosen, "input DEM's resolution", shared=("scene",), sigmas=list(sigmas),
-                            level=level, **kw)
+                            level=level, max_iter=max_iter, **kw)
         return [float(sum(r[i] for r in rows)) for i in range(len(sigmas))]  # window order: any worker count
 
     sig = list(BLUR_CANDIDATES)
@@ -147,6 +151,13 @@ def _read(path: Path) -> np.ndarray:
         return ds.read(1)
 
 
+def _crs(path: Path):
+    import rasterio
+
+    with rasterio.open(path) as ds:
+        return ds.crs
+
+
 def blend(grid: HeightGrid, current: Path, parts: list[dict], tiles_dir: Path, out: Path) -> dict:
     """Mosaic the tiles' refined windows (weighted mean, tile order) over ``current``; write ``out`` and its
     lit counts ``lit.tif``; returns the change's RMS (metres) over the pixels the tiles reached."""
@@ -154,6 +165,7 @@ def blend(grid: HeightGrid, current: Path, parts: list[dict], tiles_dir: Path, o
 
     h = _read(current).astype(np.float64)
     num, den = np.zeros(grid.shape), np.zeros(grid.shape)
+    snum, sden = np.zeros(grid.shape), np.zeros(grid.shape)
     lit = np.zeros(grid.shape, np.int16)
     for t, part in enumerate(parts):  # fixed tile order: the same bytes for any number of workers
         r0, r1, c0, c1 = part["window"]
@@ -161,7 +173,13 @@ def blend(grid: HeightGrid, current: Path, parts: list[dict], tiles_dir: Path, o
             num[r0:r1, c0:c1] += z["w"] * z["h"]
             den[r0:r1, c0:c1] += z["w"]
             lit[r0:r1, c0:c1] = np.maximum(lit[r0:r1, c0:c1], z["lit"])
+            ok = np.isfinite(z["sigma"]) & (z["w"] > 0)
+            snum[r0:r1, c0:c1] += np.where(ok, z["w"] * z["sigma"], 0.0)
+            sden[r0:r1, c0:c1] += np.where(ok, z["w"], 0.0)
     new = np.where(den > 0, num / np.where(den > 0, den, 1.0), h)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        write_geotiff(out.parent / "sigma.tif", np.where(sden > 0, snum / sden, np.nan).astype(np.float32),
+                      grid.transform, _crs(current), nodata=float("nan"))
     change = (new - h)[den > 0]
     with rasterio.open(current) as ds:
         crs = ds.crs
@@ -171,9 +189,12 @@ def blend(grid: HeightGrid, current: Path, parts: list[dict], tiles_dir: Path, o
 
 
 def write_products(scene, grid: HeightGrid, given: Path, final: Path, lit: Path, out: Path) -> dict:
-    """``dem_change/`` (final minus input heights, metres), ``dem_lit/`` (lit images) and ``dem_input/`` (the input
-    heights on the tile grid, holes filled: the web report's hillshade before) tiles; the change's RMS."""
+    """``dem_change/`` (final minus input heights, metres), ``dem_lit/`` (lit images), ``dem_sigma/`` (each height's
+    standard error, metres: :func:`lunaralbedo.model.sfs.height_uncertainty`) and ``dem_input/`` (the input heights
+    on the tile grid, holes filled: the web report's hillshade before) tiles; the change's RMS, the median error."""
     g, f, n = _read(given).astype(np.float64), _read(final).astype(np.float64), _read(lit)
+    sig = _read(lit.parent / "sigma.tif")
+    sigmas = []
     sq, count = 0.0, 0
     for tile in scene.tiles:
         r, c = grid.offset(tile)
@@ -184,9 +205,14 @@ def write_products(scene, grid: HeightGrid, given: Path, final: Path, lit: Path,
         write_geotiff(out / "dem_change" / f"{tile.name}.tif", d.astype(np.float32), tile.transform, scene.crs,
                       nodata=float("nan"))
         write_geotiff(out / "dem_lit" / f"{tile.name}.tif", n[core].astype(np.int16), tile.transform, scene.crs)
+        write_geotiff(out / "dem_sigma" / f"{tile.name}.tif", sig[core].astype(np.float32), tile.transform, scene.crs,
+                      nodata=float("nan"))
+        sigmas.append(sig[core][np.isfinite(sig[core])])
         write_geotiff(out / "dem_input" / f"{tile.name}.tif", g[core].astype(np.float32), tile.transform, scene.crs,
                       nodata=float("nan"))
-    return {"dem_change_rms_m": float(np.sqrt(sq / max(count, 1)))}
+    allsig = np.concatenate(sigmas) if sigmas else np.zeros(0)
+    return {"dem_change_rms_m": float(np.sqrt(sq / max(count, 1))),
+            "dem_sigma_median_m": float(np.median(allsig)) if allsig.size else None}
 
 
 def refine_solve(scene, out: Path, run_solve, executor, resume: bool):
@@ -228,7 +254,8 @@ def refine_solve(scene, out: Path, run_solve, executor, resume: bool):
                       exposure=np.asarray(got["exposure"]), params=got["params"],
                       haze=None if got.get("haze") is None else np.asarray(list(got["haze"].values())))
             if sigma is None:  # auto: estimated once, from the first round's albedo (kept for --resume)
-                atomic_write_text(fit, json.dumps(estimate_input_blur(executor, len(windows), s.refine_dem_levels, **kw)))
+                atomic_write_text(fit, json.dumps(estimate_input_blur(executor, len(windows), s.refine_dem_levels,
+                                                                      s.refine_dem_max_iter, **kw)))
                 blur_fit = json.loads(fit.read_text())
                 sigma = blur_fit["sigma_px"]
             parts = executor.map(refine_tile, range(len(windows)), f"refine heights {r + 1}", shared=("scene",),
@@ -244,9 +271,6 @@ def refine_solve(scene, out: Path, run_solve, executor, resume: bool):
                        # the finest level's terms at the end, summed over the windows (in window order)
                        "cost_parts": {k: float(sum(rep["parts"][k] for rep in reps if rep["level"] == 0))
                                       for k in (reps[0]["parts"] if reps else {})},
-                       "coarse_parts": {k: float(sum(rep["parts"][k] for rep in reps if rep["level"] == 1))
-                                      for k in (reps[0]["parts"] if reps else {})},
-                       "cpu_levels": [sum(rep["cpu_s"] for rep in reps if rep["level"] == lv) for lv in (0, 1)],
                        # CPU time per observation per evaluation of the cost and its gradient (one core)
                        "ns_per_observation_evaluation": round(1e9 * sum(rep["cpu_s"] for rep in reps) / work, 1)
                        if work else None})

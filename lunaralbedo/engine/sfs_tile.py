@@ -26,7 +26,7 @@ from ..io.rasters import intersects_lon, raster_info, read_onto_grid
 from ..model import geometry, outliers, shadows
 from ..model.cast_shadows import cast_shadow_mask
 from ..model.grid import Grid
-from ..model.sfs import Cost, minimise
+from ..model.sfs import Cost, height_uncertainty, minimise
 from ..model.sfs.fidelity import Fidelity
 from ..model.sfs.shading import Shading, observation, unit_up
 from ..model.sfs.smoothness import Smoothness
@@ -142,6 +142,7 @@ def _refine(level_data, s, pixel_m: float, sigma_px: float) -> tuple[np.ndarray,
                         "observations": n_obs})
         if f == 1:
             h = hr
+            reports[-1]["sigma"], _ = height_uncertainty(cost, hr)
         else:  # the coarse change of the heights, interpolated onto the finer grid
             from scipy.ndimage import zoom
 
@@ -261,24 +262,28 @@ def refine_tile(t: int, *, scene, windows: list[Piece], grid: HeightGrid, curren
     _, data, lit = _load(t, scene, windows, grid, current, given, albedo, exposure, params, haze)
     shape = lit.shape
     h, reports = data[2].copy(), []
+    sigma = np.full(shape, np.nan)
     box, cropped = _cropped(data, lit, s.refine_dem_margin, params)
     if box is not None:  # the heights are solved where images see the ground, and a margin around
         h[box], reports = _refine(cropped, s, grid.pixel_m(), sigma_px)
+        if reports and "sigma" in reports[-1]:
+            sigma[box] = reports[-1].pop("sigma")
     wy = ramp(shape[0], s.refine_dem_margin if r0 > 0 else 0, s.refine_dem_margin if r1 < grid.shape[0] else 0,
               s.refine_dem_margin)
     wx = ramp(shape[1], s.refine_dem_margin if c0 > 0 else 0, s.refine_dem_margin if c1 < grid.shape[1] else 0,
               s.refine_dem_margin)
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
-            np.savez(fh, h=h.astype(np.float32), w=np.outer(wy, wx).astype(np.float32), lit=lit.astype(np.int16))
+            np.savez(fh, h=h.astype(np.float32), w=np.outer(wy, wx).astype(np.float32), lit=lit.astype(np.int16),
+                     sigma=sigma.astype(np.float32))
     return {"tile": tile.name, "window": [r0, r1, c0, c1], "reports": reports, "reused": False,
             "lit_mean": float(lit.mean())}
 
 
 def blur_misfits(t: int, *, scene, windows: list[Piece], grid: HeightGrid, current: Path, given: Path, albedo: list,
-                 exposure, params, sigmas: list[float], level: int, haze=None) -> list[float]:
+                 exposure, params, sigmas: list[float], level: int, max_iter: int, haze=None) -> list[float]:
     """The shading term (:mod:`lunaralbedo.model.sfs.shading`) of ``windows[t]`` after the height step on level
-    ``level`` (blocks of ``2**level`` pixels) with each input blur of ``sigmas`` (pixels) held at
+    ``level`` (blocks of ``2**level`` pixels, ``max_iter`` L-BFGS iterations) with each input blur of ``sigmas`` (pixels) held at
     :func:`fidelity_weight`: the images' misfit at each candidate resolution of the input DEM (engine/refine.py
     ``estimate_input_blur``)."""
     s = scene.settings
@@ -290,7 +295,7 @@ def blur_misfits(t: int, *, scene, windows: list[Piece], grid: HeightGrid, curre
     out = []
     for sigma in sigmas:
         cost, hc, _ = _level_cost(cropped, s, grid.pixel_m(), sigma, cropped[2], f, fidelity_weight(s))
-        hr, _ = minimise(cost, hc, grid.pixel_m() * f, s.refine_dem_max_iter)
+        hr, _ = minimise(cost, hc, grid.pixel_m() * f, max_iter)
         out.append(cost.parts(hr)["shading"])
     return out
 
