@@ -281,6 +281,7 @@ def _convert(key: str, raw: Any, base: Path, where: str, spec: dict) -> Any:
             val = float(raw)
     except (TypeError, ValueError):
         hint = f"one of {', '.join(map(str, allowed))}" if allowed else f"a {typ.__name__}"
+        hint += " or auto" if key in _AUTO_KEYS else ""
         raise SettingsError(f"{where}: {key} must be {hint}, got {raw!r}") from None
     if allowed is not None and val not in allowed:
         raise SettingsError(f"{where}: {key} must be one of {', '.join(map(str, allowed))}, got {raw!r}")
@@ -330,7 +331,8 @@ def _validate_refine(values: dict[str, Any], where: str, model) -> None:
         if values[key] is None or values[key] == "auto" and key in _AUTO_KEYS:
             continue
         if not 0 <= values[key] < float("inf"):
-            raise SettingsError(f"{where}: {key} must be a number >= 0, got {values[key]}")
+            auto = " (or auto)" if key in _AUTO_KEYS else ""
+            raise SettingsError(f"{where}: {key} must be a number >= 0{auto}, got {values[key]}")
 
 
 def _build(pairs: list[tuple[str, Any, str]], base: Path, source: Path) -> Settings:
