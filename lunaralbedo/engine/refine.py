@@ -91,6 +91,9 @@ BLUR_CANDIDATES = (0.67, 1.0, 1.5, 2.25, 3.4, 5.1, 7.6)
 BLUR_WINDOWS = 8
 #: Level of the estimate (blocks of 2**level pixels).
 BLUR_LEVEL = 1
+#: Blurs below this many pixels of the estimate's level are told apart on the fine level (blocks of 2 px
+#: could not: 1.75 px was estimated for a blur of 1.5 px, and the heights came out x0.55 instead of x0.37).
+BLUR_FINE_BELOW = 1.25
 #: L-BFGS iterations of each candidate's height step (None: REFINE_DEM_MAX_ITER): 10 gave 3.12 px on the strip of
 #: docs/sfs.md (30: 3.17 px; the true blur 3 px) at a third of the cost.
 BLUR_MAX_ITER = 10
@@ -111,8 +114,9 @@ def estimate_input_blur(executor, n_windows: int, levels: int, max_iter: int, **
     Held at a blur finer than the input's, the heights cannot take the relief the input lost; held at a coarser one,
     they must invent relief to match the input at that scale: either way the images' misfit (the shading term after
     the height step, :func:`.sfs_tile.blur_misfits`) grows.  Its sum over up to :data:`BLUR_WINDOWS` windows is taken
-    at :data:`BLUR_CANDIDATES`, then at the two geometric midpoints around the best; the estimate is the vertex of the
-    parabola in ``log sigma`` through the best candidate and its two neighbours.  Returns ``{"sigma_px", "sigmas",
+    at :data:`BLUR_CANDIDATES`, then at the two geometric midpoints around the best (on the fine level, with the best
+    itself, when the best is below :data:`BLUR_FINE_BELOW` pixels of the coarse level); the estimate is the vertex of
+    the parabola in ``log sigma`` through the best candidate and its two neighbours.  Returns ``{"sigma_px", "sigmas",
     "misfits"}``."""
     from .sfs_tile import blur_misfits
 
@@ -120,16 +124,27 @@ def estimate_input_blur(executor, n_windows: int, levels: int, max_iter: int, **
     max_iter = BLUR_MAX_ITER or max_iter
     chosen = [int(i) for i in np.unique(np.linspace(0, n_windows - 1, min(n_windows, BLUR_WINDOWS)).round())]
 
-    def total(sigmas):
+    def total(sigmas, lv):
         rows = executor.map(blur_misfits, chosen, "input DEM's resolution", shared=("scene",), sigmas=list(sigmas),
-                            level=level, max_iter=max_iter, **kw)
+                            level=lv, max_iter=max_iter, **kw)
         return [float(sum(r[i] for r in rows)) for i in range(len(sigmas))]  # window order: any worker count
 
     sig = list(BLUR_CANDIDATES)
-    mis = total(sig)
+    mis = total(sig, level)
     k = int(np.argmin(mis))
-    extra = [x for x in (sig[k] / 1.5**0.5, sig[k] * 1.5**0.5) if BLUR_CANDIDATES[0] <= x <= BLUR_CANDIDATES[-1]]
-    sig, mis = sig + extra, mis + total(extra)
+    if sig[k] < BLUR_FINE_BELOW * 2**level:  # too fine for the coarse level to tell apart: three candidates on the fine
+        level, step = 0, 1.5**0.5
+        sig = [sig[k] / step, sig[k], sig[k] * step]
+        mis = total(sig, level)
+        for _ in range(3):  # the fine minimum at an end: one more candidate beyond it
+            j = int(np.argmin(mis))
+            nxt = sig[0] / step if j == 0 else sig[-1] * step
+            if 0 < j < len(sig) - 1 or not BLUR_CANDIDATES[0] / step <= nxt <= BLUR_CANDIDATES[-1]:
+                break
+            sig, mis = ([nxt] + sig, total([nxt], level) + mis) if j == 0 else (sig + [nxt], mis + total([nxt], level))
+    else:
+        extra = [x for x in (sig[k] / 1.5**0.5, sig[k] * 1.5**0.5) if BLUR_CANDIDATES[0] <= x <= BLUR_CANDIDATES[-1]]
+        sig, mis = sig + extra, mis + total(extra, level)
     order = np.argsort(sig)
     sig, mis = [sig[i] for i in order], [mis[i] for i in order]
     k = min(max(int(np.argmin(mis)), 1), len(sig) - 2)
