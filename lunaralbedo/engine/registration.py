@@ -143,13 +143,12 @@ class _Image:
             self._levels[f] = (coef, u, sigma == 0)
         return self._levels[f]
 
-    def pixels_of(self, x, y, shift_m) -> tuple[np.ndarray, np.ndarray]:
-        """The (row, column) of the averaged image's pixel nearest to each map point ``x, y`` moved back by ``shift_m``."""
+    def rowcol(self, x, y, shift_m) -> tuple[np.ndarray, np.ndarray]:
+        """The (row, column) in the averaged image (pixel centres at integers) of map points ``x, y`` moved back by
+        ``shift_m``."""
         dx, dy = self.m @ shift_m
         inv = self.inv
-        col = inv.a * (x - dx) + inv.b * (y - dy) + inv.c - 0.5
-        row = inv.d * (x - dx) + inv.e * (y - dy) + inv.f - 0.5
-        return np.rint(row).astype(np.int64), np.rint(col).astype(np.int64)
+        return (inv.d * (x - dx) + inv.e * (y - dy) + inv.f - 0.5, inv.a * (x - dx) + inv.b * (y - dy) + inv.c - 0.5)
 
     def drop(self, rows: np.ndarray, cols: np.ndarray) -> int:
         """Make the pixels ``(rows, cols)`` unusable (and their neighbours: the bilinear samples they enter); returns
@@ -168,10 +167,7 @@ class _Image:
         ``x, y`` moved back by ``shift_m``: the spline of the level's image, its derivatives by central differences
         of the spline itself over :data:`DERIVATIVE_PX` (the derivative of the interpolant the cost sees)."""
         coef, u, _ = self.level(f)
-        dx, dy = self.m @ shift_m
-        inv = self.inv
-        col = inv.a * (x - dx) + inv.b * (y - dy) + inv.c - 0.5
-        row = inv.d * (x - dx) + inv.e * (y - dy) + inv.f - 0.5
+        row, col = self.rowcol(x, y, shift_m)
         at = np.stack([row, col])
         spline = lambda pts: ndimage.map_coordinates(coef, pts, order=ORDER, mode="mirror", prefilter=False)  # noqa: E731
         val = spline(at)
@@ -340,26 +336,23 @@ def _coarse_to_fine(scene, images, top, factor, res, box, max_m, pixel_m, progre
 
 
 def _drop_outliers(images, lv, shifts, exposure, a) -> int:
-    """Make unusable the image pixels whose log ratio :math:`e = \log(I / (T A R))` at the found shifts lies beyond the
+    r"""Make unusable the image pixels whose log ratio :math:`e = \log(I / (T A R))` at the found shifts lies beyond the
     threshold of the solve's spatial test (:mod:`lunaralbedo.model.outliers`: :data:`~lunaralbedo.model.outliers.SIGMAS`
     robust standard deviations of the image's :math:`e`, at least :data:`~lunaralbedo.model.outliers.TAU_MIN`): defects
     of one image (hot spots, dropout rows) pulled the least-squares shifts by whole pixels.
     Returns the number of pixels dropped."""
-    from ..model import outliers
+    from ..model.outliers import standing_out
 
     dropped = 0
     for k, (im, win, o) in enumerate(zip(images, lv.windows, lv.observations(images, shifts, derivatives=False))):
         if win is None or not len(o.value):
             continue
-        model = exposure[k] * np.nan_to_num(a[o.pix]) * o.r
         with np.errstate(divide="ignore", invalid="ignore"):
-            e = np.log(o.value / model)
-        tau = max(outliers.TAU_MIN, outliers.SIGMAS * outliers.robust_sigma(e))
-        bad = ~(np.abs(e - np.nanmedian(e)) <= tau)
+            bad = standing_out(np.log(o.value / (exposure[k] * np.nan_to_num(a[o.pix]) * o.r)))
         if bad.any():
             ok = np.isin(win["pix"], o.pix[bad])
-            rows, cols = im.pixels_of(win["x"][ok], win["y"][ok], shifts[k])
-            dropped += im.drop(rows, cols)
+            rows, cols = im.rowcol(win["x"][ok], win["y"][ok], shifts[k])
+            dropped += im.drop(np.rint(rows).astype(np.int64), np.rint(cols).astype(np.int64))
     return dropped
 
 
