@@ -22,8 +22,11 @@ are dimensionless and do not depend on the camera's gain) and with the fidelity 
 input's resolution.  Nefian et al. (LPSC), the albedo method this package implements, names
 shape from shading to correct the DTM as its future work.
 
-Other terms (a robust loss, haze, registration offsets) join as more named terms: a term is any
-object with ``name``, ``weight`` and ``value_grad(h) -> (value, gradient)``.
+Other terms join as more named terms: a term is any object with ``name``, ``weight`` and
+``value_grad(h) -> (value, gradient)`` (and ``diagonal(shape)``, its Gauss-Newton diagonal, for
+:func:`height_uncertainty`).  Haze, outliers and registration act on the observations (the engine takes each
+image's haze off :math:`I`, leaves rejected observations out with :math:`w = 0`, and reads the images at their
+registered place).
 """
 from __future__ import annotations
 
