@@ -64,9 +64,9 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
     # shape from shading (docs/sfs.md): the DEM's heights refined with the albedo
     "REFINE_DEM": (int, 0, (0, 1)),
     "REFINE_DEM_ROUNDS": (int, 1, None),  # outer rounds: albedo solve, then heights, then albedo again
-    "REFINE_DEM_SMOOTHNESS": (float, 0.01, None),  # mu, on the change of slope between pixels
-    "REFINE_DEM_FIDELITY": (float, None, None),  # lambda; None: 1 when REFINE_DEM_INPUT_BLUR is given, else 0.01
-    "REFINE_DEM_INPUT_BLUR": (float, None, None),  # sigma (pixels) of the input DEM's resolution; None: from its pixel
+    "REFINE_DEM_SMOOTHNESS": (float, 0.003, None),  # mu, on the change of slope between pixels
+    "REFINE_DEM_FIDELITY": (float, 1.0, None),  # lambda, on the refined heights smoothed to the input's resolution
+    "REFINE_DEM_INPUT_BLUR": (float, "auto", None),  # sigma (pixels) of the input DEM's resolution; auto: estimated
     "REFINE_DEM_MARGIN": (int, 16, None),  # pixels of overlap around each window's heights
     "REFINE_DEM_WINDOW": (int, 256, None),  # most pixels a side of a height window (tiles are cut into such)
     "REFINE_DEM_LEVELS": (int, 2, None),  # coarse to fine: levels of a factor 2
@@ -75,9 +75,12 @@ _CORE: dict[str, tuple[type, Any, tuple | None]] = {
 }
 
 
-#: Keys of the default solver only (real images): :func:`legacy_text` leaves them out at their defaults.
+#: Keys of the default solver only (real images, shape from shading): :func:`legacy_text` leaves them out at their
+#: defaults, so that a settings file does not pin today's defaults.
 _UNWRITTEN_DEFAULTS = ("REJECT_OUTLIERS", "ROBUST_LOSS", "ROBUST_THRESHOLD", "FLOAT_HAZE", "EXPOSURE_MODE", "EXPOSURE_FILE",
-                       "EXPOSURE_PRIOR_SIGMA")
+                       "EXPOSURE_PRIOR_SIGMA", "REFINE_DEM", "REFINE_DEM_ROUNDS", "REFINE_DEM_SMOOTHNESS",
+                       "REFINE_DEM_FIDELITY", "REFINE_DEM_INPUT_BLUR", "REFINE_DEM_MARGIN", "REFINE_DEM_WINDOW",
+                       "REFINE_DEM_LEVELS", "REFINE_DEM_MAX_ITER", "REFINE_DEM_FLOAT_ALBEDO")
 
 
 def _model_keys_spec() -> dict[str, tuple[type, Any, tuple | None]]:
@@ -129,9 +132,9 @@ class Settings:
     exposure_prior_sigma: float = 0.02
     refine_dem: int = 0
     refine_dem_rounds: int = 1
-    refine_dem_smoothness: float = 0.01
-    refine_dem_fidelity: float | None = None
-    refine_dem_input_blur: float | None = None
+    refine_dem_smoothness: float = 0.003
+    refine_dem_fidelity: float = 1.0
+    refine_dem_input_blur: float | str = "auto"
     refine_dem_margin: int = 16
     refine_dem_window: int = 256
     refine_dem_levels: int = 2
@@ -247,6 +250,10 @@ def _parse_box(text: str, where: str) -> tuple[float, float, float, float]:
     return (lon0, lon1, max(lat0, -90.0), min(lat1, 90.0))
 
 
+#: Numeric keys that also take the word ``auto`` (estimated by the run).
+_AUTO_KEYS = ("REFINE_DEM_INPUT_BLUR",)
+
+
 def _convert(key: str, raw: Any, base: Path, where: str, spec: dict) -> Any:
     typ, _default, allowed = spec[key]
     if raw is None or (isinstance(raw, str) and raw.strip() == ""):
@@ -258,6 +265,8 @@ def _convert(key: str, raw: Any, base: Path, where: str, spec: dict) -> Any:
         if isinstance(raw, (list, tuple)):
             raw = ":".join(str(x) for x in raw)
         return _parse_box(raw, where)
+    if key in _AUTO_KEYS and str(raw).strip().lower() == "auto":
+        return "auto"
     if typ is str:
         if str(raw) not in allowed:
             raise SettingsError(f"{where}: {key} must be one of {', '.join(allowed)}, got {raw!r}")
@@ -272,6 +281,7 @@ def _convert(key: str, raw: Any, base: Path, where: str, spec: dict) -> Any:
             val = float(raw)
     except (TypeError, ValueError):
         hint = f"one of {', '.join(map(str, allowed))}" if allowed else f"a {typ.__name__}"
+        hint += " or auto" if key in _AUTO_KEYS else ""
         raise SettingsError(f"{where}: {key} must be {hint}, got {raw!r}") from None
     if allowed is not None and val not in allowed:
         raise SettingsError(f"{where}: {key} must be one of {', '.join(map(str, allowed))}, got {raw!r}")
@@ -315,9 +325,14 @@ def _validate_refine(values: dict[str, Any], where: str, model) -> None:
                     ("REFINE_DEM_MAX_ITER", 1)):
         if values[key] < lo:
             raise SettingsError(f"{where}: {key} must be >= {lo}, got {values[key]}")
+    if values["REFINE_DEM_INPUT_BLUR"] is None:  # an empty value: estimated, as the default
+        values["REFINE_DEM_INPUT_BLUR"] = "auto"
     for key in ("REFINE_DEM_SMOOTHNESS", "REFINE_DEM_FIDELITY", "REFINE_DEM_INPUT_BLUR"):
-        if values[key] is not None and not 0 <= values[key] < float("inf"):
-            raise SettingsError(f"{where}: {key} must be a number >= 0, got {values[key]}")
+        if values[key] is None or values[key] == "auto" and key in _AUTO_KEYS:
+            continue
+        if not 0 <= values[key] < float("inf"):
+            auto = " (or auto)" if key in _AUTO_KEYS else ""
+            raise SettingsError(f"{where}: {key} must be a number >= 0{auto}, got {values[key]}")
 
 
 def _build(pairs: list[tuple[str, Any, str]], base: Path, source: Path) -> Settings:

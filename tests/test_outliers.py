@@ -114,3 +114,15 @@ def test_bad_robust_settings_exit_2_naming_the_key(tmp_path, key, value, needle)
     s = _with(d / "settings.txt", d / "bad.txt", **{key: value})
     res = CliRunner().invoke(main, ["solve", str(s), "-o", str(tmp_path / "o"), "--workers", "1", "--quiet"])
     assert res.exit_code == 2 and needle in res.output and "Traceback" not in res.output, res.output
+
+
+def test_standing_out_flags_defects_of_one_image_not_its_noise():
+    rng = np.random.default_rng(5)
+    e = rng.normal(0.0, 0.01, 5000)  # log ratios of a clean image: 1 % noise
+    e[[10, 20]] = [np.log(2.0), np.log(0.3)]  # a hot spot and a dropout pixel
+    e[30] = np.nan  # no model there
+    bad = outliers.standing_out(e)
+    assert bad[[10, 20, 30]].all() and np.count_nonzero(bad) == 3  # tau = max(0.15, 6 x 0.01): no clean one
+    wide = rng.normal(0.0, 0.05, 5000)  # 5 % noise: tau 0.3, a 16 % deviation is not an outlier
+    wide[0] = 0.16
+    assert not outliers.standing_out(wide)[0]

@@ -125,7 +125,7 @@ def test_shifts_stay_within_register_max_shift(rough):
     px = np.abs(r.offsets_m) / r.pixel_m[:, None]
     truth = np.abs(true_offsets(rough, r.keys)) / r.pixel_m[:, None]
     assert np.all(px <= 0.5 + 1e-9) and np.any(px > 0.49) and truth.max() > 1.0
-    assert [lv["pixel_factor"] for lv in r.levels] == [1]  # no coarse level for half a pixel
+    assert {lv["pixel_factor"] for lv in r.levels} == {1}  # no coarse level for half a pixel (in any outlier pass)
 
 
 def test_identical_bytes_for_one_and_two_workers(rough, registered, tmp_path):

@@ -95,6 +95,8 @@ def test_legacy_whole_moon_box_is_clamped_to_valid_latitudes(tmp_path):
         ("SIMULATION_BOX -190:180:-10:-9", ["more than 360 degrees"]),
         ("TILE_SIZE -4", ["TILE_SIZE", "> 0"]),
         ("MAX_NUM_ITER 2.5", ["MAX_NUM_ITER", "int"]),
+        ("REFINE_DEM_INPUT_BLUR wide", ["REFINE_DEM_INPUT_BLUR", "float or auto"]),
+        ("REFINE_DEM_INPUT_BLUR -1", ["REFINE_DEM_INPUT_BLUR", ">= 0 (or auto)"]),
     ],
 )
 def test_invalid_values_name_key_and_allowed_values(tmp_path, line, words):
@@ -104,6 +106,13 @@ def test_invalid_values_name_key_and_allowed_values(tmp_path, line, words):
     for w in words:
         assert w in str(exc.value)
     assert str(tmp_path / "s.txt") in str(exc.value)
+
+
+@pytest.mark.parametrize("value, want", [("", "auto"), ("auto", "auto"), ("AUTO", "auto"), ("2.5", 2.5)])
+def test_refine_dem_input_blur_is_estimated_unless_stated(tmp_path, value, want):
+    s = load_settings(write(tmp_path, f"DRG_DIR d\nREFLECTANCE_TYPE 0\nREFINE_DEM_INPUT_BLUR {value}\n"))
+    assert s.refine_dem_input_blur == want
+    assert "REFINE_DEM_INPUT_BLUR" not in s.to_legacy_text() or want != "auto"  # the default is not pinned in a file
 
 
 @pytest.mark.parametrize("box", ["170:190:-1:1", "170:-170:-1:1", "-190:-170:-1:1"])

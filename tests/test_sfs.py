@@ -13,10 +13,10 @@ from lunaralbedo.engine import refine
 from lunaralbedo.errors import ResumeError
 from lunaralbedo.engine.solve import solve
 from lunaralbedo.model import geometry, photometry
-from lunaralbedo.model.sfs import Cost, lbfgs
+from lunaralbedo.model.sfs import Cost, height_uncertainty, lbfgs
 from lunaralbedo.model.sfs.fidelity import Fidelity
 from lunaralbedo.model.sfs.shading import Shading, interior_normals, observation, unit_up
-from lunaralbedo.model.sfs.smoothness import Smoothness
+from lunaralbedo.model.sfs.smoothness import Smoothness, laplacian
 from lunaralbedo.simulate import SceneSpec, forward, render_scene, score
 
 #: A small strip: each column seen by about 3 images, Sun azimuths spread +-40 degrees, fresh craters,
@@ -68,6 +68,41 @@ def test_cost_gradient_matches_finite_differences():
     np.testing.assert_allclose(interior_normals(pts)[0], geometry.dem_normals(pts)[1:-1, 1:-1], atol=1e-14)
 
 
+def test_height_uncertainty_is_the_gauss_newton_diagonal():
+    """The diagonal of J^T J + mu L^T L + lambda S^T S against the Jacobian of the residuals by finite differences."""
+    rng = np.random.default_rng(1)
+    h_, w_ = 9, 11
+    lon, lat = np.meshgrid(10 + 0.01 * np.arange(w_), -5 - 0.01 * np.arange(h_))
+    h = rng.normal(0, 50, (h_, w_))
+    pts = geometry.body_fixed(lon, lat, h)
+    obs = [observation(rng.uniform(0.3, 0.8, (h_ - 2, w_ - 2)), rng.uniform(0.5, 1.5, (h_ - 2, w_ - 2)), pts,
+                       forward.sun_position(geometry.body_fixed(10.05, -5.05, 0), az, 55),
+                       geometry.body_fixed(10.05, -5.05, 1e5)) for az in (50, 130)]
+    shading = Shading(1.0, unit_up(lon, lat), 1737.4, obs, photometry.get(2).reflectance, (1.4, 0.5), float_albedo=False)
+    smooth, fid = Smoothness(0.3, 300.0), Fidelity(0.2, 300.0, rng.normal(0, 50, (h_, w_)), 1.5)
+    sigma, s2 = height_uncertainty(Cost([shading, smooth, fid]), h)
+
+    def residuals(x):  # every term's residuals, weighted so that their squares sum to the cost
+        out = []
+        p = shading.points(x)
+        n = interior_normals(p)[0]
+        for o in shading.observations:
+            ci, ce = (n * o.l).sum(-1), (n * o.v).sum(-1)
+            out.append((np.sqrt(o.w) * (o.j - shading.reflectance(ci, ce, o.alpha, shading.params))).ravel())
+        out.append(np.sqrt(smooth.weight) * laplacian(x).ravel() / smooth.pixel_m)
+        out.append(np.sqrt(fid.weight) * ((fid.smooth(x) - fid.h0) / fid.pixel_m).ravel())
+        return np.concatenate(out)
+
+    r0 = residuals(h)
+    assert s2 == pytest.approx(np.sum(r0[:2 * (h_ - 2) * (w_ - 2)] ** 2) / (2 * (h_ - 2) * (w_ - 2)), rel=1e-9)
+    jac = np.empty((r0.size, h.size))
+    for p in range(h.size):
+        e = np.zeros(h.size)
+        e[p] = 1e-3
+        jac[:, p] = (residuals(h + e.reshape(h.shape)) - residuals(h - e.reshape(h.shape))) / 2e-3
+    np.testing.assert_allclose(sigma.ravel(), np.sqrt(s2 / np.sum(jac**2, axis=0)), rtol=1e-4)
+
+
 def test_lbfgs_minimises_a_badly_scaled_quadratic():
     d = np.geomspace(1, 1e3, 500)
     x, f, _ = lbfgs(lambda x: (0.5 * float(np.sum(d * x * x)), d * x), np.ones(500), 300)
@@ -103,8 +138,18 @@ def test_refine_dem_recovers_the_heights_and_the_albedo(small, tmp_path):
     tiles = sorted(p.name for p in (tmp_path / "sfs" / "DEM").glob("*.tif"))
     assert tiles == sorted(p.name for p in (tmp_path / "sfs" / "dem_change").glob("*.tif"))
     assert tiles == sorted(p.name for p in (tmp_path / "sfs" / "dem_lit").glob("*.tif"))
+    assert tiles == sorted(p.name for p in (tmp_path / "sfs" / "dem_sigma").glob("*.tif"))
     lit = _mosaic(glob.glob(str(tmp_path / "sfs" / "dem_lit" / "*.tif")), small / "truth/albedo.tif", nodata=-1)
     assert 2 <= np.median(lit) <= 4  # each column is seen by about 3 images
+    # each height's standard error: larger where the heights are worse (against the truth), and where fewer images see
+    like = small / "truth/albedo.tif"
+    sig = _mosaic(glob.glob(str(tmp_path / "sfs" / "dem_sigma" / "*.tif")), like)
+    err = np.abs(_mosaic(glob.glob(str(tmp_path / "sfs" / "DEM" / "*.tif")), like) - _mosaic([small / "truth/dem.tif"], like))
+    assert np.isfinite(sig).mean() > 0.95 and rep["dem_sigma_median_m"] > 0
+    lo, hi = np.nanpercentile(sig, [33, 67])
+    rms = lambda m: float(np.sqrt(np.mean(err[m] ** 2)))  # noqa: E731
+    assert rms(sig <= lo) < 0.8 * rms(sig >= hi), (rms(sig <= lo), rms(sig >= hi))
+    assert np.nanmedian(sig[lit >= 3]) < np.nanmedian(sig[lit <= 1])
     assert not (tmp_path / "sfs" / "sfs").exists() and not (tmp_path / "sfs" / "checkpoint").exists()
     # the web report shows the hillshade before and after
     from lunaralbedo.web.api import export_web
@@ -151,7 +196,7 @@ def test_refine_dem_same_bytes_for_two_workers_after_a_kill_and_with_a_dem_with_
     path.write_text(text)
     solve(path, out=tmp_path / "killed", workers=1, plots=False, resume=True)
     for other in ("w2", "killed"):
-        for sub in ("DEM", "albedo", "dem_change", "dem_lit"):
+        for sub in ("DEM", "albedo", "dem_change", "dem_lit", "dem_sigma"):
             for f in sorted((tmp_path / "w1" / sub).glob("*.tif")):
                 with rasterio.open(f) as a, rasterio.open(tmp_path / other / sub / f.name) as b:
                     x, y = a.read(1), b.read(1)
@@ -206,3 +251,26 @@ def test_fill_holes_follows_the_surrounding_heights_near_and_far():
     assert data.min() - 1 <= out.min() and out.max() <= data.max() + 1  # no overshoot far out
     near = out[390:400, 350:550] - plane[390:400, 350:550]  # 1-10 px above the data: a flat continuation
     assert np.abs(near).max() < 25.0  # at most the plane's rise over ~10 px (2 m/px) plus the rounding
+
+
+
+#: The strip of docs/sfs.md (8 images of 120 px, each column seen by about 3, Sun azimuths 90 +- 40 degrees, small
+#: fresh craters, the DEM blurred by 3 px), with every defect at once.
+DEFECTS = dict(n_images=8, overlap=2 / 3, image_px=120, sun_azimuths=(50.0, 90.0, 130.0, 70.0, 110.0), fresh_craters=5.0,
+               tile_size=1.0, seed=7, max_num_iter=10, dem_blur_px=3.0, haze_dn=(5.0, 15.0), outlier_fraction=0.01,
+               misregister_px=2.0)
+
+
+@pytest.mark.slow
+def test_refine_dem_with_every_defect_haze_outliers_misregistration(tmp_path):
+    """Blurred DEM, 5-15 DN of haze, 1 % outliers (hot spots, dropout rows), every image off by up to 2 px: heights,
+    haze, registration and the outlier test compose (two workers; ~30 s on a busy 2-core machine)."""
+    d = tmp_path / "scene"
+    render_scene(d, SceneSpec(**DEFECTS))
+    path = _settings(d, ["REFINE_DEM 1", "FLOAT_HAZE 1", "REGISTER_IMAGES 1"])
+    res = solve(path, out=tmp_path / "sfs", workers=2, plots=False)
+    err, given = _height_errors(tmp_path / "sfs", d)
+    sc = score(tmp_path / "sfs", d)
+    assert err <= 0.6 * given, (err, given)  # measured x0.29-0.31
+    assert sc["albedo_rel_rmse"] <= 0.03 and sc["exposure_max_rel_err"] <= 0.015, sc  # measured 1.7 %, 0.7-0.9 %
+    assert res.report["refine_dem"]["input_blur_fit"]["sigma_px"] == pytest.approx(3.0, abs=0.4)  # the scene's blur

@@ -74,8 +74,11 @@ def _print_summary(result) -> None:
         click.echo(f"  outliers: {100 * rep['outliers']['rejected_fraction']:.3f} % of the observations rejected (outliers/)")
     if rep.get("refine_dem"):
         d = rep["refine_dem"]
+        how = "estimated" if d.get("input_blur_fit") else "stated"
+        sig = f", median standard error {d['dem_sigma_median_m']:.3g} m" if d.get("dem_sigma_median_m") is not None else ""
         click.echo(f"  heights refined (REFINE_DEM, docs/sfs.md): {len(d['rounds'])} round(s) in {d['seconds']:.1f}s, "
-                   f"change {d['dem_change_rms_m']:.3g} m RMS (dem_change/, dem_lit/, dem_input/)")
+                   f"input DEM's blur {d['input_blur_px']:.3g} px ({how}), change {d['dem_change_rms_m']:.3g} m RMS{sig} "
+                   "(dem_change/, dem_lit/, dem_sigma/, dem_input/)")
     click.echo("  time " + ", ".join(f"{k} {v:.2f}s" for k, v in t.items()))
     click.echo(f"  results in {result.out_dir}/ (albedo/, error/, exposure.csv, phase.csv, report.json, *.png)")
 

@@ -39,7 +39,7 @@ from ..model.cast_shadows import shadow_reach_km
 from .sfs_tile import HeightGrid, fidelity_weight, pieces, refine_tile
 
 SFS_DIR = "sfs"
-PRODUCT_DIRS = ("dem_change", "dem_lit", "dem_input")
+PRODUCT_DIRS = ("dem_change", "dem_lit", "dem_input", "dem_sigma")
 #: Rows of the input DEM resampled at a time onto the heights grid.
 _ROWS = 512
 _FILL_NEAR = 64  # pixels: GDAL's fill near the data
@@ -110,12 +110,87 @@ def fill_holes(h: np.ndarray, ok: np.ndarray, near: int = _FILL_NEAR, coarse: in
     return out
 
 
-def input_blur_px(scene, grid: HeightGrid) -> float:
-    """``REFINE_DEM_INPUT_BLUR``, or the input DEM's pixel in pixels of ``grid``, at least 2 (docs/sfs.md)."""
-    s = scene.settings
-    if s.refine_dem_input_blur is not None:
-        return float(s.refine_dem_input_blur)
-    return float(max(2.0, max(d.lonlat_res[0] for d in scene.dems) / abs(grid.transform.a)))
+def input_blur_px(scene) -> float | None:
+    """``REFINE_DEM_INPUT_BLUR`` (pixels of the heights grid), or None for ``auto`` (:func:`estimate_input_blur`)."""
+    v = scene.settings.refine_dem_input_blur
+    return None if v in (None, "auto") else float(v)
+
+
+#: Candidate input blurs (sigma, pixels) of the first stage of :func:`estimate_input_blur`: a factor 1.5 apart.
+BLUR_CANDIDATES = (0.67, 1.0, 1.5, 2.25, 3.4, 5.1, 7.6)
+#: Windows the estimate is made on, at most (spread evenly over the window order): its cost does not grow with the box.
+BLUR_WINDOWS = 8
+#: Level of the estimate (blocks of 2**level pixels).
+BLUR_LEVEL = 1
+#: Blurs below this many pixels of the estimate's level are told apart on the fine level (blocks of 2 px
+#: could not: 1.75 px was estimated for a blur of 1.5 px, and the heights came out x0.55 instead of x0.37).
+BLUR_FINE_BELOW = 1.25
+#: An input held pixel by pixel (sigma 0, ASP's form) is taken when its misfit is within this fraction of the best
+#: blur's: more freedom always lowers the misfit a little (it fits the noise), so a sharp input's best blur is the
+#: smallest tried, by 1 % (on the strip: 0.67 px held, heights 7.6 m off the true DEM given; held per pixel 0.6 m).
+SHARP_TOLERANCE = 0.05
+#: L-BFGS iterations of each candidate's height step (None: REFINE_DEM_MAX_ITER): 10 gave 3.12 px on the strip of
+#: docs/sfs.md (30: 3.17 px; the true blur 3 px) at a third of the cost.
+BLUR_MAX_ITER = 10
+
+
+def _vertex(x: np.ndarray, y: np.ndarray) -> float:
+    """The abscissa of the minimum of the parabola through the three points ``(x, y)``, within ``[x[0], x[2]]``."""
+    a = np.polyfit(x, y, 2)
+    if a[0] <= 0:
+        return float(x[int(np.argmin(y))])
+    return float(np.clip(-a[1] / (2 * a[0]), x[0], x[2]))
+
+
+def estimate_input_blur(executor, n_windows: int, levels: int, max_iter: int, **kw) -> dict:
+    """The input DEM's resolution (``REFINE_DEM_INPUT_BLUR auto``): the Gaussian sigma (pixels) at which the heights,
+    held to the input smoothed by it, best explain the images.
+
+    Held at a blur finer than the input's, the heights cannot take the relief the input lost; held at a coarser one,
+    they must invent relief to match the input at that scale: either way the images' misfit (the shading term after
+    the height step, :func:`.sfs_tile.blur_misfits`) grows.  Its sum over up to :data:`BLUR_WINDOWS` windows is taken
+    at :data:`BLUR_CANDIDATES`, then at the two geometric midpoints around the best (on the fine level, with the best
+    itself, when the best is below :data:`BLUR_FINE_BELOW` pixels of the coarse level); the estimate is the vertex of
+    the parabola in ``log sigma`` through the best candidate and its two neighbours.  Returns ``{"sigma_px", "sigmas",
+    "misfits"}``."""
+    from .sfs_tile import blur_misfits
+
+    level = min(BLUR_LEVEL, levels - 1)
+    max_iter = BLUR_MAX_ITER or max_iter
+    chosen = [int(i) for i in np.unique(np.linspace(0, n_windows - 1, min(n_windows, BLUR_WINDOWS)).round())]
+
+    def total(sigmas, lv):
+        rows = executor.map(blur_misfits, chosen, "input DEM's resolution", shared=("scene",), sigmas=list(sigmas),
+                            level=lv, max_iter=max_iter, **kw)
+        return [float(sum(r[i] for r in rows)) for i in range(len(sigmas))]  # window order: any worker count
+
+    sig = list(BLUR_CANDIDATES)
+    mis = total(sig, level)
+    k = int(np.argmin(mis))
+    if sig[k] < BLUR_FINE_BELOW * 2**level:  # too fine for the coarse level to tell apart: three candidates on the fine
+        level, step = 0, 1.5**0.5
+        sig = [sig[k] / step, sig[k], sig[k] * step]
+        mis = total(sig, level)
+        for _ in range(3):  # the fine minimum at an end: one more candidate beyond it
+            j = int(np.argmin(mis))
+            nxt = sig[0] / step if j == 0 else sig[-1] * step
+            if 0 < j < len(sig) - 1 or not BLUR_CANDIDATES[0] / step <= nxt <= BLUR_CANDIDATES[-1]:
+                break
+            sig, mis = ([nxt] + sig, total([nxt], level) + mis) if j == 0 else (sig + [nxt], mis + total([nxt], level))
+    else:
+        extra = [x for x in (sig[k] / 1.5**0.5, sig[k] * 1.5**0.5) if BLUR_CANDIDATES[0] <= x <= BLUR_CANDIDATES[-1]]
+        sig, mis = sig + extra, mis + total(extra, level)
+    order = np.argsort(sig)
+    sig, mis = [sig[i] for i in order], [mis[i] for i in order]
+    k = min(max(int(np.argmin(mis)), 1), len(sig) - 2)
+    best = float(np.exp(_vertex(np.log(sig[k - 1:k + 2]), np.asarray(mis[k - 1:k + 2]))))
+    if level == 0 and int(np.argmin(mis)) == 0:  # the finest blur tried is the best: is the input sharp?
+        sharp = total([0.0], level)[0]
+        sig, mis = [0.0] + sig, [sharp] + mis
+        if sharp <= (1.0 + SHARP_TOLERANCE) * min(mis[1:]):
+            best = 0.0
+    return {"sigma_px": round(best, 3), "sigmas": [round(x, 3) for x in sig], "misfits": mis, "level": level,
+            "windows": len(chosen)}
 
 
 def _with_dem(scene, dem: Path):
@@ -131,6 +206,13 @@ def _read(path: Path) -> np.ndarray:
         return ds.read(1)
 
 
+def _crs(path: Path):
+    import rasterio
+
+    with rasterio.open(path) as ds:
+        return ds.crs
+
+
 def blend(grid: HeightGrid, current: Path, parts: list[dict], tiles_dir: Path, out: Path) -> dict:
     """Mosaic the tiles' refined windows (weighted mean, tile order) over ``current``; write ``out`` and its
     lit counts ``lit.tif``; returns the change's RMS (metres) over the pixels the tiles reached."""
@@ -138,6 +220,7 @@ def blend(grid: HeightGrid, current: Path, parts: list[dict], tiles_dir: Path, o
 
     h = _read(current).astype(np.float64)
     num, den = np.zeros(grid.shape), np.zeros(grid.shape)
+    snum, sden = np.zeros(grid.shape), np.zeros(grid.shape)
     lit = np.zeros(grid.shape, np.int16)
     for t, part in enumerate(parts):  # fixed tile order: the same bytes for any number of workers
         r0, r1, c0, c1 = part["window"]
@@ -145,7 +228,13 @@ def blend(grid: HeightGrid, current: Path, parts: list[dict], tiles_dir: Path, o
             num[r0:r1, c0:c1] += z["w"] * z["h"]
             den[r0:r1, c0:c1] += z["w"]
             lit[r0:r1, c0:c1] = np.maximum(lit[r0:r1, c0:c1], z["lit"])
+            ok = np.isfinite(z["sigma"]) & (z["w"] > 0)
+            snum[r0:r1, c0:c1] += np.where(ok, z["w"] * z["sigma"], 0.0)
+            sden[r0:r1, c0:c1] += np.where(ok, z["w"], 0.0)
     new = np.where(den > 0, num / np.where(den > 0, den, 1.0), h)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        write_geotiff(out.parent / "sigma.tif", np.where(sden > 0, snum / sden, np.nan).astype(np.float32),
+                      grid.transform, _crs(current), nodata=float("nan"))
     change = (new - h)[den > 0]
     with rasterio.open(current) as ds:
         crs = ds.crs
@@ -155,9 +244,12 @@ def blend(grid: HeightGrid, current: Path, parts: list[dict], tiles_dir: Path, o
 
 
 def write_products(scene, grid: HeightGrid, given: Path, final: Path, lit: Path, out: Path) -> dict:
-    """``dem_change/`` (final minus input heights, metres), ``dem_lit/`` (lit images) and ``dem_input/`` (the input
-    heights on the tile grid, holes filled: the web report's hillshade before) tiles; the change's RMS."""
+    """``dem_change/`` (final minus input heights, metres), ``dem_lit/`` (lit images), ``dem_sigma/`` (each height's
+    standard error, metres: :func:`lunaralbedo.model.sfs.height_uncertainty`) and ``dem_input/`` (the input heights
+    on the tile grid, holes filled: the web report's hillshade before) tiles; the change's RMS, the median error."""
     g, f, n = _read(given).astype(np.float64), _read(final).astype(np.float64), _read(lit)
+    sig = _read(lit.parent / "sigma.tif")
+    sigmas = []
     sq, count = 0.0, 0
     for tile in scene.tiles:
         r, c = grid.offset(tile)
@@ -168,9 +260,14 @@ def write_products(scene, grid: HeightGrid, given: Path, final: Path, lit: Path,
         write_geotiff(out / "dem_change" / f"{tile.name}.tif", d.astype(np.float32), tile.transform, scene.crs,
                       nodata=float("nan"))
         write_geotiff(out / "dem_lit" / f"{tile.name}.tif", n[core].astype(np.int16), tile.transform, scene.crs)
+        write_geotiff(out / "dem_sigma" / f"{tile.name}.tif", sig[core].astype(np.float32), tile.transform, scene.crs,
+                      nodata=float("nan"))
+        sigmas.append(sig[core][np.isfinite(sig[core])])
         write_geotiff(out / "dem_input" / f"{tile.name}.tif", g[core].astype(np.float32), tile.transform, scene.crs,
                       nodata=float("nan"))
-    return {"dem_change_rms_m": float(np.sqrt(sq / max(count, 1)))}
+    allsig = np.concatenate(sigmas) if sigmas else np.zeros(0)
+    return {"dem_change_rms_m": float(np.sqrt(sq / max(count, 1))),
+            "dem_sigma_median_m": float(np.median(allsig)) if allsig.size else None}
 
 
 def refine_solve(scene, out: Path, run_solve, executor, resume: bool):
@@ -189,25 +286,35 @@ def refine_solve(scene, out: Path, run_solve, executor, resume: bool):
     given = sfs / "dem_0" / "dem.tif"
     if not given.exists():
         write_given_dem(scene, grid, given)
-    sigma = input_blur_px(scene, grid)
+    sigma, blur_fit = input_blur_px(scene), None
     current, rounds = given, []
     for r in range(s.refine_dem_rounds):
         scene_r = _with_dem(scene, current)
         state = sfs / f"round_{r}.json"
         if not state.exists():
             res = run_solve(scene_r, sfs / f"round_{r}", None)
-            atomic_write_text(state, json.dumps({"exposure": res.exposure.tolist(),
+            atomic_write_text(state, json.dumps({"exposure": res.exposure.tolist(), "haze": res.report.get("haze"),
                                                  "params": list(res.parameters.values())}))
         got = json.loads(state.read_text())
         nxt = sfs / f"dem_{r + 1}" / "dem.tif"
+        fit = sfs / "input_blur.json"
+        if sigma is None and fit.exists():
+            blur_fit = json.loads(fit.read_text())
+            sigma = blur_fit["sigma_px"]
         info = json.loads((nxt.parent / "round.json").read_text()) if nxt.exists() else None
         if info is None:
             albedo = [(p, raster_info(p).lonlat_bounds) for p in sorted((sfs / f"round_{r}" / "albedo").glob("*.tif"))]
             windows = pieces(scene_r, s.refine_dem_window)
+            kw = dict(scene=scene_r, windows=windows, grid=grid, current=current, given=given, albedo=albedo,
+                      exposure=np.asarray(got["exposure"]), params=got["params"],
+                      haze=None if got.get("haze") is None else np.asarray(list(got["haze"].values())))
+            if sigma is None:  # auto: estimated once, from the first round's albedo (kept for --resume)
+                atomic_write_text(fit, json.dumps(estimate_input_blur(executor, len(windows), s.refine_dem_levels,
+                                                                      s.refine_dem_max_iter, **kw)))
+                blur_fit = json.loads(fit.read_text())
+                sigma = blur_fit["sigma_px"]
             parts = executor.map(refine_tile, range(len(windows)), f"refine heights {r + 1}", shared=("scene",),
-                                 scene=scene_r, windows=windows, grid=grid, current=current, given=given, albedo=albedo,
-                                 exposure=np.asarray(got["exposure"]), params=got["params"], sigma_px=sigma,
-                                 out_dir=sfs / f"tiles_{r + 1}")
+                                 sigma_px=sigma, out_dir=sfs / f"tiles_{r + 1}", **kw)
             info = {"tiles": [{k: p[k] for k in ("tile", "reports", "lit_mean")} for p in parts]}
             info.update(blend(grid, current, parts, sfs / f"tiles_{r + 1}", nxt))
             atomic_write_text(nxt.parent / "round.json", json.dumps(info))
@@ -216,11 +323,15 @@ def refine_solve(scene, out: Path, run_solve, executor, resume: bool):
         rounds.append({"round": r + 1, "change_rms_m": info["change_rms_m"],
                        "lbfgs_iterations": [sum(rep["iterations"] for rep in t["reports"]) for t in info["tiles"]],
                        "cpu_s": round(sum(rep["cpu_s"] for rep in reps), 3),
+                       # the finest level's terms at the end, summed over the windows (in window order)
+                       "cost_parts": {k: float(sum(rep["parts"][k] for rep in reps if rep["level"] == 0))
+                                      for k in (reps[0]["parts"] if reps else {})},
                        # CPU time per observation per evaluation of the cost and its gradient (one core)
                        "ns_per_observation_evaluation": round(1e9 * sum(rep["cpu_s"] for rep in reps) / work, 1)
                        if work else None})
         current = nxt
-    report = {"settings": s.to_dict(), "refine_dem": {"rounds": rounds, "input_blur_px": sigma, "fidelity": fidelity_weight(s),
+    report = {"settings": s.to_dict(), "refine_dem": {"rounds": rounds, "input_blur_px": sigma, "input_blur_fit": blur_fit,
+                                                      "fidelity": fidelity_weight(s),
                                                       "pixel_m": grid.pixel_m(),
                                                       # the rounds before the last solve (this process's share, if resumed)
                                                       "seconds": round(time.perf_counter() - t0, 3),

@@ -61,6 +61,9 @@ ORDER = 1
 #: (np.gradient of the pixels missed a third of the slope of the sharp detail that carries the sub-pixel shift).
 DERIVATIVE_PX = 0.01
 M_PER_DEG = math.radians(1.0) * MOON_RADIUS_KM * 1000.0
+#: Passes of outlier rejection at most (``REJECT_OUTLIERS``): each drops the pixels that stand out at the last shifts
+#: (:func:`_drop_outliers`) and finds the shifts again from none.
+OUTLIER_PASSES = 2
 FOLDER = "registration"  # under the solve's checkpoint folder
 
 
@@ -140,15 +143,31 @@ class _Image:
             self._levels[f] = (coef, u, sigma == 0)
         return self._levels[f]
 
+    def rowcol(self, x, y, shift_m) -> tuple[np.ndarray, np.ndarray]:
+        """The (row, column) in the averaged image (pixel centres at integers) of map points ``x, y`` moved back by
+        ``shift_m``."""
+        dx, dy = self.m @ shift_m
+        inv = self.inv
+        return (inv.d * (x - dx) + inv.e * (y - dy) + inv.f - 0.5, inv.a * (x - dx) + inv.b * (y - dy) + inv.c - 0.5)
+
+    def drop(self, rows: np.ndarray, cols: np.ndarray) -> int:
+        """Make the pixels ``(rows, cols)`` unusable (and their neighbours: the bilinear samples they enter); returns
+        how many pixels were usable before."""
+        bad = np.zeros(self.usable.shape, bool)
+        inside = (rows >= 0) & (rows < bad.shape[0]) & (cols >= 0) & (cols < bad.shape[1])
+        bad[rows[inside], cols[inside]] = True
+        bad = ndimage.binary_dilation(bad, np.ones((3, 3), bool))
+        n = int(np.count_nonzero(bad & self.usable))
+        self.usable = self.usable & ~bad
+        self._levels = {}
+        return n
+
     def sample(self, f, x, y, shift_m, derivatives: bool = True):
         """Value, d/d(east), d/d(north) (per metre; None without ``derivatives``) and usable flag at map points
         ``x, y`` moved back by ``shift_m``: the spline of the level's image, its derivatives by central differences
         of the spline itself over :data:`DERIVATIVE_PX` (the derivative of the interpolant the cost sees)."""
         coef, u, _ = self.level(f)
-        dx, dy = self.m @ shift_m
-        inv = self.inv
-        col = inv.a * (x - dx) + inv.b * (y - dy) + inv.c - 0.5
-        row = inv.d * (x - dx) + inv.e * (y - dy) + inv.f - 0.5
+        row, col = self.rowcol(x, y, shift_m)
         at = np.stack([row, col])
         spline = lambda pts: ndimage.map_coordinates(coef, pts, order=ORDER, mode="mirror", prefilter=False)  # noqa: E731
         val = spline(at)
@@ -277,11 +296,25 @@ def estimate(scene: Scene, progress=None) -> Registration:
     images = [_Image(info, factor, thresh) for info in scene.images]
     pixel_m = np.array([pixel_metres(info) for info in scene.images])
     max_m = s.register_max_shift * pixel_m
-    k_n = len(images)
-    shifts, exposure = np.zeros((k_n, 2)), None
-    levels = []
     top = max(0, int(math.floor(math.log2(max(s.register_max_shift / factor, 1.0)))))
-    normal = None
+    shifts, exposure, levels, lv, a = _coarse_to_fine(scene, images, top, factor, res, box, max_m, pixel_m, progress)
+    for _ in range(OUTLIER_PASSES if s.reject_outliers else 0):  # hot spots, dropout rows: left out, shifts found again
+        dropped = _drop_outliers(images, lv, shifts, exposure, a)
+        if not dropped:
+            break
+        shifts, exposure, more, lv, a = _coarse_to_fine(scene, images, top, factor, res, box, max_m, pixel_m, progress)
+        more[0]["outlier_pixels_dropped"] = dropped  # the levels run again without them
+        levels += more
+    obs = lv.observations(images, shifts)
+    normal = reg.normal_equations(obs, exposure, a, lv.n_grid)
+    se = reg.standard_errors(normal, exposure)
+    se[[len(o.value) == 0 for o in obs]] = np.nan
+    return Registration(scene.keys, shifts, se, pixel_m, factor, levels)
+
+
+def _coarse_to_fine(scene, images, top, factor, res, box, max_m, pixel_m, progress):
+    """The levels of :func:`estimate` from no shift: ``(shifts, exposure, levels, last level, albedo)``."""
+    shifts, exposure, levels = np.zeros((len(images), 2)), None, []
     for j in range(top, -1, -1):
         t0 = time.perf_counter()
         lv = _Level(scene, images, 2**j, (res[0] * factor, res[1] * factor), box, max_m, fine=factor if j == 0 else 1)
@@ -299,11 +332,28 @@ def estimate(scene: Scene, progress=None) -> Registration:
                        "iterate_s": round(time.perf_counter() - t1, 4)})
         if progress:
             progress(f"registration level {factor * 2**j}: {it} iterations, mean squared residual {q:.4g}")
-    obs = lv.observations(images, shifts)
-    normal = reg.normal_equations(obs, exposure, a, lv.n_grid)
-    se = reg.standard_errors(normal, exposure)
-    se[[len(o.value) == 0 for o in obs]] = np.nan
-    return Registration(scene.keys, shifts, se, pixel_m, factor, levels)
+    return shifts, exposure, levels, lv, a
+
+
+def _drop_outliers(images, lv, shifts, exposure, a) -> int:
+    r"""Make unusable the image pixels whose log ratio :math:`e = \log(I / (T A R))` at the found shifts lies beyond the
+    threshold of the solve's spatial test (:mod:`lunaralbedo.model.outliers`: :data:`~lunaralbedo.model.outliers.SIGMAS`
+    robust standard deviations of the image's :math:`e`, at least :data:`~lunaralbedo.model.outliers.TAU_MIN`): defects
+    of one image (hot spots, dropout rows) pulled the least-squares shifts by whole pixels.
+    Returns the number of pixels dropped."""
+    from ..model.outliers import standing_out
+
+    dropped = 0
+    for k, (im, win, o) in enumerate(zip(images, lv.windows, lv.observations(images, shifts, derivatives=False))):
+        if win is None or not len(o.value):
+            continue
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bad = standing_out(np.log(o.value / (exposure[k] * np.nan_to_num(a[o.pix]) * o.r)))
+        if bad.any():
+            ok = np.isin(win["pix"], o.pix[bad])
+            rows, cols = im.rowcol(win["x"][ok], win["y"][ok], shifts[k])
+            dropped += im.drop(np.rint(rows).astype(np.int64), np.rint(cols).astype(np.int64))
+    return dropped
 
 
 def _gauss_newton(lv, images, obs, shifts, exposure, max_m, level_px):

@@ -23,7 +23,7 @@ RESPONSE_DIR = f"{CHECKPOINT_DIR}/response"  # camera response files (response/s
 MARKER = ".lunaralbedo"  # written first into every OUTDIR: marks it as ours
 TILE_DIRS = ("albedo", "error", "DEM", "weightsSum", "outliers")
 OUTPUT_DIRS = (*TILE_DIRS, "weight")
-REFINE_DIRS = ("sfs", "dem_change", "dem_lit", "dem_input")  # REFINE_DEM 1 (engine/refine.py)
+REFINE_DIRS = ("sfs", "dem_change", "dem_lit", "dem_input", "dem_sigma")  # REFINE_DEM 1 (engine/refine.py)
 RESULT_FILES = ("report.json", "exposure.csv", "haze.csv", "phase.csv", "exposure.png", "cost.png",
                 "response.csv", "response.png", "loglik.png", "residuals.png", "image_offsets.csv")
 

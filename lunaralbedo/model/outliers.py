@@ -115,6 +115,18 @@ def robust_sigma(x: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(x - np.median(x))))
 
 
+def standing_out(e: np.ndarray) -> np.ndarray:
+    r"""Which of one image's log ratios ``e`` (e.g. :math:`\log(I/(T A R))`, NaN or inf: no model) lie farther than
+    :math:`\tau = \max(` :data:`TAU_MIN`, :data:`SIGMAS` robust standard deviations of ``e``) from its median (the
+    spatial test's threshold); a ratio that is not finite stands out."""
+    e = np.asarray(e, np.float64)
+    ok = np.isfinite(e)
+    if not ok.any():
+        return ~ok
+    tau = max(TAU_MIN, SIGMAS * robust_sigma(e[ok]))
+    return ~(np.abs(e - np.median(e[ok])) <= tau)
+
+
 def spatial_outliers(e: np.ndarray, pixel: np.ndarray, tau: np.ndarray) -> np.ndarray:
     r"""Rejected observations of the spatial test (module docstring).
 

@@ -22,8 +22,11 @@ are dimensionless and do not depend on the camera's gain) and with the fidelity 
 input's resolution.  Nefian et al. (LPSC), the albedo method this package implements, names
 shape from shading to correct the DTM as its future work.
 
-Other terms (a robust loss, haze, registration offsets) join as more named terms: a term is any
-object with ``name``, ``weight`` and ``value_grad(h) -> (value, gradient)``.
+Other terms join as more named terms: a term is any object with ``name``, ``weight`` and
+``value_grad(h) -> (value, gradient)`` (and ``diagonal(shape)``, its Gauss-Newton diagonal, for
+:func:`height_uncertainty`).  Haze, outliers and registration act on the observations (the engine takes each
+image's haze off :math:`I`, leaves rejected observations out with :math:`w = 0`, and reads the images at their
+registered place).
 """
 from __future__ import annotations
 
@@ -140,3 +143,26 @@ def minimise(cost: Cost, h_start: np.ndarray, scale_m: float, max_iter: int = 20
     x, c1, it = lbfgs(f, np.zeros(h0.size), max_iter)
     return h0 + scale_m * x.reshape(shape), {"iterations": it, "evaluations": calls[0], "cost_start": float(c0),
                                              "cost_end": float(c1)}
+
+
+def height_uncertainty(cost: Cost, h: np.ndarray) -> tuple[np.ndarray, float]:
+    r"""Each height's standard error (metres) from the diagonal of the Gauss-Newton matrix at ``h``, and the
+    residuals' variance :math:`s^2`.
+
+    With residuals of variance :math:`s^2` (estimated as the data term's mean square per observation) the cost is
+    :math:`2 s^2` times a negative log posterior, whose Gauss-Newton Hessian is
+    :math:`H = (J^\top J + \mu L^\top L/\Delta^2 + \lambda S^\top S/\Delta^2)/s^2`.  The standard error is taken as
+    :math:`s/\sqrt{H_{pp} s^2}`: the spread of one height with its neighbours held (ASP ``sfs``'s
+    ``--estimate-height-errors`` also perturbs one height at a time).  It is a lower bound of the marginal
+    :math:`\sqrt{(H^{-1})_{pp}}` (the inverse of a diagonal element is never larger than the diagonal element of the
+    inverse): it says where the images pin the heights and where only the priors do, not the error of relief
+    that moves together over many pixels.  The terms are found by name (``shading``, ``smoothness``, ``fidelity``).
+    """
+    terms = {t.name: t for t in cost.terms}
+    diag, misfit, n = terms["shading"].gauss_newton_diagonal(h)
+    s2 = misfit / max(n, 1)
+    for name in ("smoothness", "fidelity"):
+        if name in terms and terms[name].weight:
+            diag = diag + terms[name].weight * terms[name].diagonal(h.shape)
+    with np.errstate(divide="ignore"):
+        return np.sqrt(s2 / diag), s2

@@ -46,3 +46,17 @@ class Fidelity:
         if self.sigma_px > 0:
             g = self._g(g / self._norm)
         return float(np.sum(r * r)), g
+
+    def diagonal(self, shape: tuple[int, int]) -> np.ndarray:
+        """The diagonal of :math:`S^\top S/\Delta^2` (the Gauss-Newton matrix of the term, its weight left out):
+        :math:`\sum_q S_{qp}^2 = (G_2 (1/(G 1)^2))_p` with :math:`G_2` the convolution with the kernel squared."""
+        if self.sigma_px <= 0:
+            return np.full(shape, 1.0 / self.pixel_m**2)
+        from scipy.ndimage import correlate
+
+        norm = self._g(np.ones(shape))
+        r = int(3.0 * self.sigma_px + 0.5)
+        delta = np.zeros((2 * r + 1, 2 * r + 1))
+        delta[r, r] = 1.0
+        k = gaussian_filter(delta, self.sigma_px, mode="constant", cval=0.0, truncate=3.0)
+        return correlate(1.0 / norm**2, k * k, mode="constant", cval=0.0) / self.pixel_m**2

@@ -132,6 +132,30 @@ def _adjoint(gn, n, snorm, a, b, up, gh):
             gh[i + 1, j] -= dbx * up[i + 1, j, 0] + dby * up[i + 1, j, 1] + dbz * up[i + 1, j, 2]
 
 
+@njit(cache=True, nogil=True)
+def _adjoint_squares(gn, n, snorm, a, b, up, diag):
+    """``diag`` += the squares of each height's derivative of one image's residuals, ``gn`` the derivative of each
+    pixel's residual over its unit normal: :func:`_adjoint` with squares summed instead of values (the diagonal of
+    the Gauss-Newton matrix :math:`J^\top J`)."""
+    for i in range(n.shape[0]):
+        for j in range(n.shape[1]):
+            d = gn[i, j, 0] * n[i, j, 0] + gn[i, j, 1] * n[i, j, 1] + gn[i, j, 2] * n[i, j, 2]
+            gx = (gn[i, j, 0] - d * n[i, j, 0]) / snorm[i, j]
+            gy = (gn[i, j, 1] - d * n[i, j, 1]) / snorm[i, j]
+            gz = (gn[i, j, 2] - d * n[i, j, 2]) / snorm[i, j]
+            ax, ay, az, bx, by, bz = a[i, j, 0], a[i, j, 1], a[i, j, 2], b[i, j, 0], b[i, j, 1], b[i, j, 2]
+            dax, day, daz = 5e-4 * (by * gz - bz * gy), 5e-4 * (bz * gx - bx * gz), 5e-4 * (bx * gy - by * gx)
+            dbx, dby, dbz = 5e-4 * (gy * az - gz * ay), 5e-4 * (gz * ax - gx * az), 5e-4 * (gx * ay - gy * ax)
+            v = dax * up[i + 2, j + 1, 0] + day * up[i + 2, j + 1, 1] + daz * up[i + 2, j + 1, 2]
+            diag[i + 2, j + 1] += v * v
+            v = dax * up[i, j + 1, 0] + day * up[i, j + 1, 1] + daz * up[i, j + 1, 2]
+            diag[i, j + 1] += v * v
+            v = dbx * up[i + 1, j + 2, 0] + dby * up[i + 1, j + 2, 1] + dbz * up[i + 1, j + 2, 2]
+            diag[i + 1, j + 2] += v * v
+            v = dbx * up[i + 1, j, 0] + dby * up[i + 1, j, 1] + dbz * up[i + 1, j, 2]
+            diag[i + 1, j] += v * v
+
+
 @dataclass
 class Observation:
     """One image over the window: ``J = I/(T A)`` and weights ``w`` (0: not used), both ``(H-2, W-2)``;
@@ -199,3 +223,25 @@ class Shading:
         gh = np.empty(h.shape)
         _adjoint(gn, n, snorm, a, b, self.up, gh)
         return total, gh
+
+    def gauss_newton_diagonal(self, h: np.ndarray) -> tuple[np.ndarray, float, int]:
+        r"""``(diag, misfit, n)``: the diagonal of :math:`J^\top J` over the heights (per metre squared), with
+        :math:`J` the residuals' derivatives :math:`-a^* \sqrt{w}\,\partial R/\partial h` (the floating albedo's own
+        derivative left out, as in the gradient), the data term's value and its number of observations."""
+        pts = self.points(h)
+        n, snorm, a, b = interior_normals(pts)
+        f = self.reflectance
+        cosines = [_cosines(n, o.l, o.v) for o in self.observations]
+        refl = [f(ci, ce, o.alpha, self.params) for (ci, ce), o in zip(cosines, self.observations)]
+        scale = self.albedo_scale(refl)
+        diag, total, count = np.zeros(h.shape), 0.0, 0
+        for o, (ci, ce), r in zip(self.observations, cosines, refl):
+            res = np.where(o.w > 0, o.j - scale * r, 0.0)
+            total += float(np.sum(o.w * res * res))
+            count += int(np.count_nonzero(o.w))
+            c = np.sqrt(o.w) * scale / _EPS
+            gn = np.zeros_like(n)
+            _accumulate(gn, c * (f(ci + _EPS, ce, o.alpha, self.params) - r), c * (f(ci, ce + _EPS, o.alpha, self.params) - r),
+                        o.l, o.v)
+            _adjoint_squares(gn, n, snorm, a, b, self.up, diag)
+        return diag, total, count
