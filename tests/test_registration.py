@@ -13,7 +13,8 @@ import rasterio
 from bad_input_common import assert_clean_failure, cli
 from lunaralbedo.engine import registration as engine_registration
 from lunaralbedo.engine import solve as engine_solve
-from lunaralbedo.engine.registration import estimate, read_offsets_csv
+from lunaralbedo.engine.offsets import read_offsets_csv
+from lunaralbedo.engine.registration import estimate
 from lunaralbedo.engine.scene import build_scene
 from lunaralbedo.engine.solve import solve
 from lunaralbedo.model import registration as reg

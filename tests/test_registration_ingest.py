@@ -9,7 +9,7 @@ import rasterio
 from rasterio.transform import Affine
 
 from bad_input_common import assert_clean_failure, cli
-from lunaralbedo.engine.registration import metres_to_map, pixel_metres, read_offsets_csv
+from lunaralbedo.engine.offsets import metres_to_map, pixel_metres, read_offsets_csv
 from lunaralbedo.engine.solve import solve
 from lunaralbedo.io.drg_levels import write_moved
 from lunaralbedo.io.rasters import catalog_drgs

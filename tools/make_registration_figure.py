@@ -16,7 +16,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from lunaralbedo.engine.registration import read_offsets_csv  # noqa: E402
+from lunaralbedo.engine.offsets import read_offsets_csv  # noqa: E402
 from lunaralbedo.engine.solve import solve  # noqa: E402
 from lunaralbedo.settings import load_settings, replace  # noqa: E402
 from lunaralbedo.simulate import SceneSpec, read_truth, render_scene, score  # noqa: E402

@@ -11,7 +11,8 @@ from pathlib import Path
 
 from ..io.drg_levels import write_moved
 from ..settings import load_settings, replace
-from .registration import Registration, estimate, shifted_scene, write_offsets_csv
+from .offsets import Registration, shifted_scene, write_offsets_csv
+from .registration import estimate
 from .scene import build_scene
 
 

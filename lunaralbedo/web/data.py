@@ -118,7 +118,7 @@ def image_footprint(info: RasterInfo, centre_lon: float, offset_m: tuple[float, 
     The mask is read at most :data:`FOOTPRINT_SIDE` pixels a side (nearest), so edges are
     exact to one such pixel; longitudes are shifted by a multiple of 360 deg to lie nearest ``centre_lon``.
     ``offset_m`` (metres east, north; ``image_offsets.csv`` of ``REGISTER_IMAGES 1``) moves the
-    georeference as the solver moved the image (:func:`lunaralbedo.engine.registration.shifted_scene`).
+    georeference as the solver moved the image (:func:`lunaralbedo.engine.offsets.shifted_scene`).
     """
     scale = max(1.0, max(info.width, info.height) / FOOTPRINT_SIDE)
     shape = (max(1, math.ceil(info.height / scale)), max(1, math.ceil(info.width / scale)))
@@ -128,7 +128,7 @@ def image_footprint(info: RasterInfo, centre_lon: float, offset_m: tuple[float, 
         return None
     transform = info.transform
     if offset_m is not None:
-        from ..engine.registration import metres_to_map
+        from ..engine.offsets import metres_to_map
 
         dx, dy = metres_to_map(info) @ np.asarray(offset_m, float)
         transform = Affine.translation(dx, dy) @ transform
