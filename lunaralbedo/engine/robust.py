@@ -20,7 +20,7 @@ from ..io.atomic import atomic_path
 from ..io.cache import load_meta
 from ..model import exposure_init, outliers
 from ..parallel.progress import ROWS
-from . import runs
+from . import robust_kernels, runs
 from .scene import Scene
 from .tilework import SolveState, cache_dir, effective_weights, pixel_stack, tile_model
 
@@ -83,11 +83,10 @@ def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, 
 
 def _kept_pairs(arrays: dict, value, r, keep, width: int) -> dict:
     """Overlap log-ratio sums ``{(j, k): (n, sum d)}`` of a block's kept observations (``value``: haze-subtracted)."""
-    img, pix = runs.observation_images(arrays), runs.observation_pixels(arrays)
-    sel = np.flatnonzero(keep & (value > 0))
-    sel = sel[np.argsort(img[sel], kind="stable")]  # image-major; each image's pixels ascend in the runs' order
-    start = np.searchsorted(img[sel], np.arange(len(arrays["index"]) + 1))
-    return exposure_init.pair_sums(pix[sel], start, value[sel].astype(np.float32), r[sel], np.asarray(arrays["index"]), width)
+    # image-major; each image's pixels ascend in the runs' order
+    sel, pix, start = robust_kernels.image_major(arrays["run_start"], arrays["run_pixel"], arrays["run_image"],
+                                                 len(arrays["index"]), keep & (value > 0))
+    return exposure_init.pair_sums(pix, start, value[sel].astype(np.float32), r[sel], np.asarray(arrays["index"]), width)
 
 
 def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndarray, width: int):
@@ -96,55 +95,38 @@ def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndar
     s = scene.settings
     base = np.asarray(arrays["weight"], np.float32)
     r, w_lit, texp = tile_model(scene, arrays, state)
-    img = runs.observation_images(arrays)
-    pix = runs.observation_pixels(arrays)
-    haze = state.haze_of(arrays["index"])[img] if state.haze is not None else 0.0
-    signal = np.asarray(arrays["image"], np.float64) - haze
-    tr = texp[img].astype(np.float64) * r
+    n_obs, n_img = len(base), len(arrays["index"])
+    signal, tr, loga = np.empty(n_obs), np.empty(n_obs), np.empty(n_obs)
+    robust_kernels.log_albedo(arrays["run_start"], arrays["run_image"], arrays["image"], state.haze_of(arrays["index"]),
+                              texp, r, np.asarray(w_lit, np.float32), signal, tr, loga)
     used = (np.asarray(w_lit) > 0) & (tr > 0)
-    n_img = len(arrays["index"])
-    flag = np.zeros(len(base), bool)
+    flag = np.zeros(n_obs, bool)
     if s.reject_outliers and state.robust:  # the spatial test ran in the first pass: its rejections stay
         flag = used & (np.asarray(w_prev) == 0) & (base > 0)
     elif s.reject_outliers:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            loga = np.where(used, np.log(np.maximum(signal, 1e-6) / tr), np.nan)
-        e = np.full(len(base), np.nan)
-        tau = np.zeros(len(base))
-        order = np.argsort(img, kind="stable")  # image by image
-        bounds = np.searchsorted(img[order], np.arange(n_img + 1))
-        for k in range(n_img):
-            sel = order[bounds[k]:bounds[k + 1]]
-            sel = sel[used[sel]]
-            if not len(sel):
-                continue
-            row, col = pix[sel] // width, pix[sel] % width
-            r0, c0 = row.min(), col.min()
-            raster = np.full((row.max() - r0 + 1, col.max() - c0 + 1), np.nan)
-            raster[row - r0, col - c0] = loga[sel]
-            e[sel], tau[sel] = outliers.neighbourhood_deviation(raster, row - r0, col - c0)
-        flag = outliers.spatial_outliers(e, pix, tau)
+        flag = robust_kernels.spatial_test(arrays, loga, width)
     keep = used & ~flag
     m, n_loss = np.ones(len(base)), 0
     if s.robust_loss != "none":
-        m, n_loss = _loss_factors(arrays, signal, tr, keep, base, w_prev, pix, img, n_img, s)
-    w_new = np.where(flag, 0.0, base * m).astype(np.float32)
-    counts = np.stack([np.bincount(img, used, n_img), np.bincount(img, used & flag, n_img),
-                       np.bincount(img, np.where(keep, 1.0 - m, 0.0), n_img)])
+        m, n_loss = _loss_factors(arrays, signal, tr, keep, base, w_prev, n_img, s)
+    w_new, counts = np.empty(n_obs, np.float32), np.zeros((3, n_img))
+    robust_kernels.finish(arrays["run_start"], arrays["run_image"], base, used, flag, keep, m, w_new, counts)
     return w_new, counts, n_loss, (signal, r, keep)
 
 
-def _loss_factors(arrays, signal, tr, keep, base, w_prev, pix, img, n_img, s) -> np.ndarray:
+def _loss_factors(arrays, signal, tr, keep, base, w_prev, n_img, s) -> np.ndarray:
     """The robust loss's IRLS factors m (1 where fewer than three images remain on a pixel) and how many observations
     it applies to."""
+    m = np.ones(len(base))
+    on_pixel = np.empty(len(base), np.int32)
+    robust_kernels.kept_on_pixel(arrays["run_start"], arrays["run_pixel"], keep, runs.pixel_extent(arrays), on_pixel)
+    many = keep & (on_pixel >= outliers.MIN_IMAGES_FOR_LOSS)
+    if np.count_nonzero(many) < outliers.MIN_SCALE_OBS:
+        return m, 0
+    img, inv = runs.observation_images(arrays), runs.observation_pixels(arrays)
     with np.errstate(divide="ignore", invalid="ignore"):
         m_prev = np.where(base > 0, np.asarray(w_prev, np.float64) / base, 0.0)
     w = np.where(keep, base * m_prev, 0.0)
-    m = np.ones(len(base))
-    inv = pix
-    many = keep & (np.bincount(inv, keep.astype(np.float64))[inv] >= outliers.MIN_IMAGES_FOR_LOSS)
-    if np.count_nonzero(many) < outliers.MIN_SCALE_OBS:
-        return m, 0
     albedo = np.bincount(inv, signal * tr * w) / np.maximum(np.bincount(inv, tr * tr * w), 1e-300)
     res = signal - albedo[inv] * tr
     pooled = outliers.robust_sigma(res[many])

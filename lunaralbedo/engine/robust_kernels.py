@@ -1,0 +1,232 @@
+r"""The reweight pass's spatial consistency test (:mod:`lunaralbedo.model.outliers`) in numba, over a block's runs.
+
+:func:`spatial_flags` does for one block of chunk-major runs (:mod:`.runs`) what
+:func:`lunaralbedo.model.outliers.neighbourhood_deviation` and
+:func:`~lunaralbedo.model.outliers.spatial_outliers` do for NumPy rasters, without sorting the
+observations by image: each image's observations are written into a raster of its own
+bounding box straight from its runs, the mean of every :data:`~lunaralbedo.model.outliers.WINDOW`
+× WINDOW window of valid values comes from two summed-area tables (O(1) a pixel; the box
+filters of the NumPy form), the image's threshold :math:`\tau_k` from the median absolute
+deviation of :math:`d = \log a - \operatorname{mean}_N \log a` (numba's ``np.median``), and the
+window median only where :math:`|d| > \tau_k / 2`.  Then each observation is compared with
+the mean :math:`e` of the other images at its pixel.  Float64 throughout, every sum in the
+order of the runs (fixed by the data: the same for any number of workers); ``cache=True``,
+no fastmath.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..model import outliers
+
+
+@njit(cache=True, error_model="numpy")
+def log_albedo(run_start, run_image, image, haze, texp, r, w, signal, tr, loga):
+    r"""Per observation the signal :math:`I - H_k`, :math:`T_k R` (float64) and the single-image
+    :math:`\log a = \log(\max(I - H, 10^{-6}) / (T R))`, NaN where unused (eq. 1's weight ``w`` 0 or :math:`TR \le 0`)."""
+    for q in range(run_start.shape[0] - 1):
+        k = run_image[q]
+        h, t = np.float64(haze[k]), np.float64(texp[k])
+        for o in range(run_start[q], run_start[q + 1]):
+            s = np.float64(image[o]) - h
+            x = t * np.float64(r[o])
+            signal[o] = s
+            tr[o] = x
+            loga[o] = np.log(max(s, 1e-6) / x) if (w[o] > 0 and x > 0) else np.nan
+
+
+#: Most values the spread of an image's :math:`d` is taken from (evenly spaced in the runs' order; the median's
+#: relative standard error is then below 1 %): two medians of every observation were a third of the pass.
+SCALE_SAMPLE = 1 << 15
+
+
+@njit(cache=True)
+def _mad_sigma(x, n):
+    """1.4826 × the median absolute deviation of ``x[:n]`` (NaN for none): :func:`lunaralbedo.model.outliers.robust_sigma`,
+    of at most :data:`SCALE_SAMPLE` of them."""
+    if n == 0:
+        return np.nan
+    step = (n + SCALE_SAMPLE - 1) // SCALE_SAMPLE
+    v = x[:n:step].copy()
+    n = v.shape[0]
+    med = np.median(v)
+    dev = np.empty(n)
+    for i in range(n):
+        dev[i] = abs(v[i] - med)
+    return 1.4826 * np.median(dev)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def spatial_flags(run_start, run_pixel, run_image, n_img, width, loga, size, sigmas, tau_min, flag):
+    r"""Set ``flag`` (bool per observation) where the spatial test rejects it (:mod:`lunaralbedo.model.outliers`).
+
+    ``loga``: :math:`\log a` per observation (NaN: unused); ``width``: the block's width in pixels
+    (observation pixels are numbered row by row); ``size``: the window's side.  The window's mean
+    and median take the valid values of the window, NaN (no test) with fewer than half of it valid.
+    """
+    n_obs = loga.shape[0]
+    rmin = np.full(n_img, 1 << 62)
+    rmax = np.full(n_img, -1)
+    cmin = np.full(n_img, 1 << 62)
+    cmax = np.full(n_img, -1)
+    cnt = np.zeros(n_img, np.int64)
+    npix = 0
+    for q in range(run_start.shape[0] - 1):  # each image's bounding box and used observations
+        k = run_image[q]
+        row, col = run_pixel[q] // width, run_pixel[q] % width  # a run's pixels in order: one division a run
+        npix = max(npix, run_pixel[q] + run_start[q + 1] - run_start[q])
+        for o in range(run_start[q], run_start[q + 1]):
+            if loga[o] == loga[o]:
+                rmin[k], rmax[k] = min(rmin[k], row), max(rmax[k], row)
+                cmin[k], cmax[k] = min(cmin[k], col), max(cmax[k], col)
+                cnt[k] += 1
+            col += 1
+            if col == width:
+                row, col = row + 1, 0
+    off = np.zeros(n_img + 1, np.int64)
+    for k in range(n_img):
+        area = (rmax[k] - rmin[k] + 1) * (cmax[k] - cmin[k] + 1) if cnt[k] else 0
+        off[k + 1] = off[k] + area
+    raster = np.full(off[n_img], np.nan)
+    for q in range(run_start.shape[0] - 1):
+        k = run_image[q]
+        wk = cmax[k] - cmin[k] + 1
+        row, col = run_pixel[q] // width, run_pixel[q] % width
+        for o in range(run_start[q], run_start[q + 1]):
+            if loga[o] == loga[o]:
+                raster[off[k] + (row - rmin[k]) * wk + col - cmin[k]] = loga[o]
+            col += 1
+            if col == width:
+                row, col = row + 1, 0
+    h = size // 2
+    half = (size * size + 1) // 2
+    e = np.full(n_obs, np.nan)
+    tau = np.full(n_img, tau_min)
+    win = np.empty(size * size)
+    for k in range(n_img):
+        if not cnt[k]:
+            continue
+        hk, wk = rmax[k] - rmin[k] + 1, cmax[k] - cmin[k] + 1
+        ras = raster[off[k]:off[k + 1]]
+        sv, sc = np.zeros((hk + 1, wk + 1)), np.zeros((hk + 1, wk + 1))  # summed-area tables of values, valid counts
+        for i in range(hk):
+            rv, rc = 0.0, 0.0
+            for j in range(wk):
+                x = ras[i * wk + j]
+                if x == x:
+                    rv += x
+                    rc += 1.0
+                sv[i + 1, j + 1] = sv[i, j + 1] + rv
+                sc[i + 1, j + 1] = sc[i, j + 1] + rc
+        d = np.empty(cnt[k])
+        m = 0
+        for q in range(run_start.shape[0] - 1):  # d = log a - the window's mean, the image's observations in run order
+            if run_image[q] != k:
+                continue
+            i, j = run_pixel[q] // width - rmin[k], run_pixel[q] % width - cmin[k]
+            for o in range(run_start[q], run_start[q + 1]):
+                if o > run_start[q]:
+                    j += 1
+                    if j + cmin[k] == width:
+                        i, j = i + 1, -cmin[k]
+                if loga[o] != loga[o]:
+                    continue
+                i0, i1, j0, j1 = max(i - h, 0), min(i + h + 1, hk), max(j - h, 0), min(j + h + 1, wk)
+                c = sc[i1, j1] - sc[i0, j1] - sc[i1, j0] + sc[i0, j0]
+                if c >= half:
+                    e[o] = loga[o] - (sv[i1, j1] - sv[i0, j1] - sv[i1, j0] + sv[i0, j0]) / c
+                    d[m] = e[o]
+                    m += 1
+        s = _mad_sigma(d, m)
+        tau[k] = max(tau_min, sigmas * s) if m else tau_min
+        for q in range(run_start.shape[0] - 1):  # the window's median where the mean says it may matter
+            if run_image[q] != k:
+                continue
+            for o in range(run_start[q], run_start[q + 1]):
+                if not abs(e[o]) > tau[k] / 2:
+                    continue
+                p = run_pixel[q] + o - run_start[q]  # few candidates: a division each
+                i, j = p // width - rmin[k], p % width - cmin[k]
+                c = 0
+                for ii in range(max(i - h, 0), min(i + h + 1, hk)):
+                    for jj in range(max(j - h, 0), min(j + h + 1, wk)):
+                        x = ras[ii * wk + jj]
+                        if x == x:
+                            win[c] = x
+                            c += 1
+                e[o] = loga[o] - np.median(win[:c]) if 2 * c > size * size else np.nan
+    ps, pm = np.zeros(npix), np.zeros(npix)  # per pixel: the sum of e and how many images have one
+    for q in range(run_start.shape[0] - 1):
+        for o in range(run_start[q], run_start[q + 1]):
+            if e[o] == e[o]:
+                p = run_pixel[q] + o - run_start[q]
+                ps[p] += e[o]
+                pm[p] += 1.0
+    for q in range(run_start.shape[0] - 1):
+        t = tau[run_image[q]]
+        for o in range(run_start[q], run_start[q + 1]):
+            ev = e[o]
+            flag[o] = False
+            if ev == ev and abs(ev) > t:
+                p = run_pixel[q] + o - run_start[q]
+                others = pm[p] - 1.0
+                flag[o] = others < 1 or abs(ev - (ps[p] - ev) / others) > t
+
+
+@njit(cache=True, nogil=True)
+def kept_on_pixel(run_start, run_pixel, keep, npix, out):
+    """``out``: per observation how many kept observations (``keep``) its pixel has (pixels ``0..npix-1``)."""
+    n = np.zeros(npix, np.int32)
+    for q in range(run_start.shape[0] - 1):
+        p0 = run_pixel[q] - run_start[q]
+        for o in range(run_start[q], run_start[q + 1]):
+            n[p0 + o] += keep[o]
+    for q in range(run_start.shape[0] - 1):
+        p0 = run_pixel[q] - run_start[q]
+        for o in range(run_start[q], run_start[q + 1]):
+            out[o] = n[p0 + o]
+
+
+@njit(cache=True, nogil=True)
+def finish(run_start, run_image, base, used, flag, keep, m, w_new, counts):
+    """The effective weights ``w_new = 0`` (rejected) or ``m w`` (float32), and per local image (``counts``, 3 rows)
+    the used, rejected and down-weighted (sum of 1 - m) observations, summed in run order."""
+    for q in range(run_start.shape[0] - 1):
+        k = run_image[q]
+        for o in range(run_start[q], run_start[q + 1]):
+            w_new[o] = np.float32(0.0) if flag[o] else np.float32(base[o] * m[o])
+            counts[0, k] += used[o]
+            counts[1, k] += used[o] and flag[o]
+            counts[2, k] += 1.0 - m[o] if keep[o] else 0.0
+
+
+@njit(cache=True, nogil=True)
+def image_major(run_start, run_pixel, run_image, n_img, sel):
+    """The observations with ``sel`` image by image (a stable sort by image, from the runs: no sort), their pixels
+    and each image's first position (``n_img + 1``)."""
+    start = np.zeros(n_img + 1, np.int64)
+    for q in range(run_start.shape[0] - 1):
+        for o in range(run_start[q], run_start[q + 1]):
+            start[run_image[q] + 1] += sel[o]
+    for k in range(n_img):
+        start[k + 1] += start[k]
+    at = start[:-1].copy()
+    order, pix = np.empty(start[n_img], np.int64), np.empty(start[n_img], np.int64)
+    for q in range(run_start.shape[0] - 1):
+        k = run_image[q]
+        for o in range(run_start[q], run_start[q + 1]):
+            if sel[o]:
+                order[at[k]] = o
+                pix[at[k]] = run_pixel[q] + o - run_start[q]
+                at[k] += 1
+    return order, pix, start
+
+
+def spatial_test(arrays: dict, loga: np.ndarray, width: int) -> np.ndarray:
+    """The observations of a block (chunk-major runs) the spatial test rejects (bool), from their :math:`\\log a`."""
+    flag = np.zeros(len(loga), bool)
+    spatial_flags(np.asarray(arrays["run_start"], np.int64), np.asarray(arrays["run_pixel"], np.int64),
+                  np.asarray(arrays["run_image"], np.int64), len(arrays["index"]), width, loga, outliers.WINDOW,
+                  outliers.SIGMAS, outliers.TAU_MIN, flag)
+    return flag
