@@ -49,18 +49,16 @@ def weights_path(block: Path, gen: int) -> Path:
     return block.parent / f"robust_{gen}" / f"{block.name}.npy"
 
 
-def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, gen: int, pairs: bool = False) -> dict:
+def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, gen: int) -> dict:
     """Write generation ``gen`` of the effective weights of tile ``t``'s blocks; return per local image the
-    counts of used, rejected and down-weighted (sum of 1 - m) observations, and with ``pairs`` the overlap
-    log-ratio sums of the observations kept (:func:`lunaralbedo.model.exposure_init.pair_sums`), for the
-    exposures to be initialised again without the outliers."""
+    counts of used, rejected and down-weighted (sum of 1 - m) observations."""
     folder = cache_dir(cache_root, scene, t)
     meta = load_meta(folder)
     idx = np.asarray(meta["index"], np.int32)
     width = scene.tiles[t].width
     counts = np.zeros((3, len(idx)))
-    pair_totals: dict = {}
     loss_obs = 0
+    pos = {k: j for j, k in enumerate(idx.tolist())}
     for i, (b0, b1) in enumerate(meta["blocks"]):
         block = folder / f"block_{i:04d}"
         arrays = pixel_stack(block, cache_root, scene)
@@ -68,17 +66,43 @@ def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, 
         if not len(arrays["index"]):
             continue
         w_prev = effective_weights(block, arrays, state.robust)
-        w_new, c, n_loss, kept = block_weights(arrays, scene, state, w_prev, width)
+        w_new, c, n_loss = block_weights(arrays, scene, state, w_prev, width)
         loss_obs += n_loss
-        if pairs:
-            exposure_init.merge_pair_sums(pair_totals, _kept_pairs(arrays, *kept, width))
-        pos = {k: j for j, k in enumerate(idx.tolist())}
         counts[:, [pos[k] for k in np.asarray(arrays["index"]).tolist()]] += c
         path = weights_path(block, gen)
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as f:
                 np.save(f, w_new, allow_pickle=False)
-    return {"index": idx, "counts": counts, "pairs": sorted(pair_totals.items()), "loss_observations": loss_obs}
+    return {"index": idx, "counts": counts, "loss_observations": loss_obs}
+
+
+def kept_pairs_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, gen: int) -> list:
+    """The overlap log-ratio sums (:func:`lunaralbedo.model.exposure_init.pair_sums`) of tile ``t``'s observations kept
+    by generation ``gen`` of the robust weights (computed with ``state``), for the exposures to be initialised again
+    without the outliers."""
+    folder = cache_dir(cache_root, scene, t)
+    meta = load_meta(folder)
+    totals: dict = {}
+    for i, (b0, b1) in enumerate(meta["blocks"]):
+        block = folder / f"block_{i:04d}"
+        arrays = pixel_stack(block, cache_root, scene)
+        ROWS.advance(b1 - b0)
+        if not len(arrays["index"]):
+            continue
+        r, w_lit, texp = tile_model(scene, arrays, state)
+        signal, tr, _ = _signal(arrays, state, r, w_lit, texp)
+        keep = (np.asarray(w_lit) > 0) & (tr > 0) & (effective_weights(block, arrays, gen) > 0)
+        exposure_init.merge_pair_sums(totals, _kept_pairs(arrays, signal, r, keep, scene.tiles[t].width))
+    return sorted(totals.items())
+
+
+def _signal(arrays: dict, state: SolveState, r, w_lit, texp):
+    """Per observation ``I - H``, ``T R`` (float64) and the single-image ``log a`` (NaN: unused)."""
+    n = len(r)
+    signal, tr, loga = np.empty(n), np.empty(n), np.empty(n)
+    robust_kernels.log_albedo(arrays["run_start"], arrays["run_image"], arrays["image"], state.haze_of(arrays["index"]),
+                              texp, r, np.asarray(w_lit, np.float32), signal, tr, loga)
+    return signal, tr, loga
 
 
 def _kept_pairs(arrays: dict, value, r, keep, width: int) -> dict:
@@ -90,15 +114,13 @@ def _kept_pairs(arrays: dict, value, r, keep, width: int) -> dict:
 
 
 def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndarray, width: int):
-    """The effective weights of one block (float32), its ``(3, local images)`` counts (used, rejected, down-weighted),
-    the observations the robust loss applies to, and ``(values less haze, R, kept)`` per observation."""
+    """The effective weights of one block (float32), its ``(3, local images)`` counts (used, rejected, down-weighted)
+    and the observations the robust loss applies to."""
     s = scene.settings
     base = np.asarray(arrays["weight"], np.float32)
     r, w_lit, texp = tile_model(scene, arrays, state)
     n_obs, n_img = len(base), len(arrays["index"])
-    signal, tr, loga = np.empty(n_obs), np.empty(n_obs), np.empty(n_obs)
-    robust_kernels.log_albedo(arrays["run_start"], arrays["run_image"], arrays["image"], state.haze_of(arrays["index"]),
-                              texp, r, np.asarray(w_lit, np.float32), signal, tr, loga)
+    signal, tr, loga = _signal(arrays, state, r, w_lit, texp)
     used = (np.asarray(w_lit) > 0) & (tr > 0)
     flag = np.zeros(n_obs, bool)
     if s.reject_outliers and state.robust:  # the spatial test ran in the first pass: its rejections stay
@@ -111,7 +133,7 @@ def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndar
         m, n_loss = _loss_factors(arrays, signal, tr, keep, base, w_prev, n_img, s)
     w_new, counts = np.empty(n_obs, np.float32), np.zeros((3, n_img))
     robust_kernels.finish(arrays["run_start"], arrays["run_image"], base, used, flag, keep, m, w_new, counts)
-    return w_new, counts, n_loss, (signal, r, keep)
+    return w_new, counts, n_loss
 
 
 def _loss_factors(arrays, signal, tr, keep, base, w_prev, n_img, s) -> np.ndarray:
@@ -143,16 +165,19 @@ def _loss_factors(arrays, signal, tr, keep, base, w_prev, n_img, s) -> np.ndarra
 def reweight_pass(on_tiles, threads: int, scene: Scene, state: SolveState, ck: dict, reinit: bool) -> SolveState:
     """A reweight pass over the tiles (``on_tiles``: the solve's map over them): the next generation of robust
     weights, their per-image counts into the checkpoint ``ck``; with ``reinit`` (after the first pass) the
-    exposures initialised again from the overlaps of the observations kept."""
+    exposures initialised again from the overlaps of the observations kept, in a second pass over the tiles when
+    the first rejected any (else the observations kept are those the exposures were initialised with)."""
     gen = ck["robust"] + 1
-    init = gen == 1 and reinit  # the overlaps' exposures again, without the rejected observations
-    parts = on_tiles(reweight_tile, f"outliers {gen}", state=state, gen=gen, pairs=init, threads=threads)
+    parts = on_tiles(reweight_tile, f"outliers {gen}", state=state, gen=gen, threads=threads)
     counts = np.zeros((3, len(scene.images)))
-    pairs: dict = {}
     for p in parts:  # fixed tile order
         np.add.at(counts.T, p["index"], p["counts"].T)
-        exposure_init.merge_pair_sums(pairs, {tuple(k): tuple(v) for k, v in p["pairs"]})
-    t = exposure_init.overlap_exposure(pairs, np.log(state.exposure)) if init else state.exposure
+    t = state.exposure
+    if gen == 1 and reinit and counts[1].sum() > 0:  # the overlaps' exposures again, without the rejected observations
+        pairs: dict = {}
+        for p in on_tiles(kept_pairs_tile, f"outliers {gen}: overlaps", state=state, gen=gen, threads=threads):
+            exposure_init.merge_pair_sums(pairs, {tuple(k): tuple(v) for k, v in p})
+        t = exposure_init.overlap_exposure(pairs, np.log(state.exposure))
     ck.update(robust=gen, reweight_now=False, outliers=counts.tolist(), exposure=np.asarray(t).tolist(),
               loss_observations=sum(int(p["loss_observations"]) for p in parts))
     return SolveState(np.asarray(t, np.float64), state.params, robust=gen, haze=state.haze)
