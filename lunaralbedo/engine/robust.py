@@ -90,19 +90,17 @@ def kept_pairs_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState
         if not len(arrays["index"]):
             continue
         r, w_lit, texp = tile_model(scene, arrays, state)
-        signal, tr, _ = _signal(arrays, state, r, w_lit, texp)
+        signal, tr = _signal(arrays, state, r, texp)
         keep = (np.asarray(w_lit) > 0) & (tr > 0) & (effective_weights(block, arrays, gen) > 0)
         exposure_init.merge_pair_sums(totals, _kept_pairs(arrays, signal, r, keep, scene.tiles[t].width))
     return sorted(totals.items())
 
 
-def _signal(arrays: dict, state: SolveState, r, w_lit, texp):
-    """Per observation ``I - H``, ``T R`` (float64) and the single-image ``log a`` (NaN: unused)."""
-    n = len(r)
-    signal, tr, loga = np.empty(n), np.empty(n), np.empty(n)
-    robust_kernels.log_albedo(arrays["run_start"], arrays["run_image"], arrays["image"], state.haze_of(arrays["index"]),
-                              texp, r, np.asarray(w_lit, np.float32), signal, tr, loga)
-    return signal, tr, loga
+def _signal(arrays: dict, state: SolveState, r, texp):
+    """Per observation ``I - H`` and ``T R`` (float64)."""
+    img = runs.observation_images(arrays)
+    signal = np.asarray(arrays["image"], np.float64) - state.haze_of(arrays["index"])[img]
+    return signal, texp[img].astype(np.float64) * r
 
 
 def _kept_pairs(arrays: dict, value, r, keep, width: int) -> dict:
@@ -120,31 +118,32 @@ def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndar
     base = np.asarray(arrays["weight"], np.float32)
     r, w_lit, texp = tile_model(scene, arrays, state)
     n_obs, n_img = len(base), len(arrays["index"])
-    signal, tr, loga = _signal(arrays, state, r, w_lit, texp)
-    used = (np.asarray(w_lit) > 0) & (tr > 0)
+    loga, used = robust_kernels.workspace("loga", n_obs)[:n_obs], np.empty(n_obs, bool)
+    robust_kernels.log_albedo(arrays["run_start"], arrays["run_image"], arrays["image"], state.haze_of(arrays["index"]),
+                              texp, r, np.asarray(w_lit, np.float32), loga, used)
     flag = np.zeros(n_obs, bool)
     if s.reject_outliers and state.robust:  # the spatial test ran in the first pass: its rejections stay
         flag = used & (np.asarray(w_prev) == 0) & (base > 0)
     elif s.reject_outliers:
         flag = robust_kernels.spatial_test(arrays, loga, width)
     keep = used & ~flag
-    m, n_loss = np.ones(len(base)), 0
+    m, n_loss = np.ones(0), 0  # m: the robust loss's factors (none: 1)
     if s.robust_loss != "none":
-        m, n_loss = _loss_factors(arrays, signal, tr, keep, base, w_prev, n_img, s)
+        m, n_loss = _loss_factors(arrays, state, r, texp, keep, base, w_prev, n_img, s)
     w_new, counts = np.empty(n_obs, np.float32), np.zeros((3, n_img))
     robust_kernels.finish(arrays["run_start"], arrays["run_image"], base, used, flag, keep, m, w_new, counts)
     return w_new, counts, n_loss
 
 
-def _loss_factors(arrays, signal, tr, keep, base, w_prev, n_img, s) -> np.ndarray:
-    """The robust loss's IRLS factors m (1 where fewer than three images remain on a pixel) and how many observations
-    it applies to."""
+def _loss_factors(arrays, state, r, texp, keep, base, w_prev, n_img, s) -> np.ndarray:
+    """The robust loss's IRLS factors m (none: 1 everywhere, fewer than three images remain on every pixel; else 1
+    where they do) and how many observations it applies to."""
+    many = np.empty(len(base), bool)
+    if robust_kernels.kept_on_pixel(arrays["run_start"], arrays["run_pixel"], keep, runs.pixel_extent(arrays),
+                                    outliers.MIN_IMAGES_FOR_LOSS, many) < outliers.MIN_SCALE_OBS:
+        return np.ones(0), 0
     m = np.ones(len(base))
-    on_pixel = np.empty(len(base), np.int32)
-    robust_kernels.kept_on_pixel(arrays["run_start"], arrays["run_pixel"], keep, runs.pixel_extent(arrays), on_pixel)
-    many = keep & (on_pixel >= outliers.MIN_IMAGES_FOR_LOSS)
-    if np.count_nonzero(many) < outliers.MIN_SCALE_OBS:
-        return m, 0
+    signal, tr = _signal(arrays, state, r, texp)
     img, inv = runs.observation_images(arrays), runs.observation_pixels(arrays)
     with np.errstate(divide="ignore", invalid="ignore"):
         m_prev = np.where(base > 0, np.asarray(w_prev, np.float64) / base, 0.0)
@@ -178,6 +177,7 @@ def reweight_pass(on_tiles, threads: int, scene: Scene, state: SolveState, ck: d
         for p in on_tiles(kept_pairs_tile, f"outliers {gen}: overlaps", state=state, gen=gen, threads=threads):
             exposure_init.merge_pair_sums(pairs, {tuple(k): tuple(v) for k, v in p})
         t = exposure_init.overlap_exposure(pairs, np.log(state.exposure))
+    robust_kernels.release()
     ck.update(robust=gen, reweight_now=False, outliers=counts.tolist(), exposure=np.asarray(t).tolist(),
               loss_observations=sum(int(p["loss_observations"]) for p in parts))
     return SolveState(np.asarray(t, np.float64), state.params, robust=gen, haze=state.haze)

@@ -15,25 +15,27 @@ no fastmath.
 """
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 from numba import njit
 
 from ..model import outliers
 
 
-@njit(cache=True, error_model="numpy")
-def log_albedo(run_start, run_image, image, haze, texp, r, w, signal, tr, loga):
-    r"""Per observation the signal :math:`I - H_k`, :math:`T_k R` (float64) and the single-image
-    :math:`\log a = \log(\max(I - H, 10^{-6}) / (T R))`, NaN where unused (eq. 1's weight ``w`` 0 or :math:`TR \le 0`)."""
+@njit(cache=True, nogil=True, error_model="numpy")
+def log_albedo(run_start, run_image, image, haze, texp, r, w, loga, used):
+    r"""Per observation the single-image :math:`\log a = \log(\max(I - H_k, 10^{-6}) / (T_k R))` (float64) and
+    whether it is used (eq. 1's weight ``w`` above 0 and :math:`TR > 0`; ``loga`` NaN where not)."""
     for q in range(run_start.shape[0] - 1):
         k = run_image[q]
         h, t = np.float64(haze[k]), np.float64(texp[k])
         for o in range(run_start[q], run_start[q + 1]):
             s = np.float64(image[o]) - h
             x = t * np.float64(r[o])
-            signal[o] = s
-            tr[o] = x
-            loga[o] = np.log(max(s, 1e-6) / x) if (w[o] > 0 and x > 0) else np.nan
+            u = w[o] > 0 and x > 0
+            used[o] = u
+            loga[o] = np.log(max(s, 1e-6) / x) if u else np.nan
 
 
 #: Most values the spread of an image's :math:`d` is taken from (evenly spaced in the runs' order; the median's
@@ -57,13 +59,36 @@ def _mad_sigma(x, n):
     return 1.4826 * np.median(dev)
 
 
+@njit(cache=True)
+def _summed_areas(ras, hk, wk, sv, sc):
+    """Summed-area tables (``(hk + 1) x (wk + 1)``, flat, into ``sv``, ``sc``) of the valid values of an ``hk x wk``
+    raster (NaN: none) and of their count: the sum over rows ``< i`` and columns ``< j`` at ``i (wk + 1) + j``."""
+    w1 = wk + 1
+    for j in range(w1):
+        sv[j] = 0.0
+        sc[j] = 0.0
+    for i in range(hk):
+        up, at, row = i * w1, (i + 1) * w1, i * wk
+        sv[at] = 0.0
+        sc[at] = 0.0
+        rv, rc = 0.0, 0.0
+        for j in range(wk):
+            x = ras[row + j]
+            ok = x == x
+            rv += x if ok else 0.0
+            rc += 1.0 if ok else 0.0
+            sv[at + j + 1] = sv[up + j + 1] + rv
+            sc[at + j + 1] = sc[up + j + 1] + rc
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
-def spatial_flags(run_start, run_pixel, run_image, n_img, width, loga, size, sigmas, tau_min, flag):
+def spatial_flags(run_start, run_pixel, run_image, n_img, width, loga, size, sigmas, tau_min, flag, work):
     r"""Set ``flag`` (bool per observation) where the spatial test rejects it (:mod:`lunaralbedo.model.outliers`).
 
     ``loga``: :math:`\log a` per observation (NaN: unused); ``width``: the block's width in pixels
     (observation pixels are numbered row by row); ``size``: the window's side.  The window's mean
     and median take the valid values of the window, NaN (no test) with fewer than half of it valid.
+    ``work``: float64 scratch; returns 0, or the size it needs (then nothing is done).
     """
     n_obs = loga.shape[0]
     rmin = np.full(n_img, 1 << 62)
@@ -85,10 +110,21 @@ def spatial_flags(run_start, run_pixel, run_image, n_img, width, loga, size, sig
             if col == width:
                 row, col = row + 1, 0
     off = np.zeros(n_img + 1, np.int64)
+    most_sat, most_cnt = 0, 0
     for k in range(n_img):
         area = (rmax[k] - rmin[k] + 1) * (cmax[k] - cmin[k] + 1) if cnt[k] else 0
         off[k + 1] = off[k] + area
-    raster = np.full(off[n_img], np.nan)
+        most_sat = max(most_sat, (rmax[k] - rmin[k] + 2) * (cmax[k] - cmin[k] + 2) if cnt[k] else 0)
+        most_cnt = max(most_cnt, cnt[k])
+    a0, a1, a2, a3, a4 = off[n_img], off[n_img] + n_obs, off[n_img] + n_obs + 2 * npix, 0, 0
+    a3 = a2 + 2 * most_sat
+    a4 = a3 + most_cnt
+    if work.shape[0] < a4:
+        return a4
+    raster, e, ps, pm = work[:a0], work[a0:a1], work[a1:a1 + npix], work[a1 + npix:a2]
+    sv, sc, d = work[a2:a2 + most_sat], work[a2 + most_sat:a3], work[a3:a4]
+    for i in range(a0):
+        raster[i] = np.nan
     for q in range(run_start.shape[0] - 1):
         k = run_image[q]
         wk = cmax[k] - cmin[k] + 1
@@ -101,7 +137,8 @@ def spatial_flags(run_start, run_pixel, run_image, n_img, width, loga, size, sig
                 row, col = row + 1, 0
     h = size // 2
     half = (size * size + 1) // 2
-    e = np.full(n_obs, np.nan)
+    for o in range(n_obs):
+        e[o] = np.nan
     tau = np.full(n_img, tau_min)
     win = np.empty(size * size)
     for k in range(n_img):
@@ -109,17 +146,8 @@ def spatial_flags(run_start, run_pixel, run_image, n_img, width, loga, size, sig
             continue
         hk, wk = rmax[k] - rmin[k] + 1, cmax[k] - cmin[k] + 1
         ras = raster[off[k]:off[k + 1]]
-        sv, sc = np.zeros((hk + 1, wk + 1)), np.zeros((hk + 1, wk + 1))  # summed-area tables of values, valid counts
-        for i in range(hk):
-            rv, rc = 0.0, 0.0
-            for j in range(wk):
-                x = ras[i * wk + j]
-                if x == x:
-                    rv += x
-                    rc += 1.0
-                sv[i + 1, j + 1] = sv[i, j + 1] + rv
-                sc[i + 1, j + 1] = sc[i, j + 1] + rc
-        d = np.empty(cnt[k])
+        _summed_areas(ras, hk, wk, sv, sc)
+        w1 = wk + 1
         m = 0
         for q in range(run_start.shape[0] - 1):  # d = log a - the window's mean, the image's observations in run order
             if run_image[q] != k:
@@ -133,9 +161,10 @@ def spatial_flags(run_start, run_pixel, run_image, n_img, width, loga, size, sig
                 if loga[o] != loga[o]:
                     continue
                 i0, i1, j0, j1 = max(i - h, 0), min(i + h + 1, hk), max(j - h, 0), min(j + h + 1, wk)
-                c = sc[i1, j1] - sc[i0, j1] - sc[i1, j0] + sc[i0, j0]
+                a, b, c_, d_ = i1 * w1 + j1, i0 * w1 + j1, i1 * w1 + j0, i0 * w1 + j0
+                c = sc[a] - sc[b] - sc[c_] + sc[d_]
                 if c >= half:
-                    e[o] = loga[o] - (sv[i1, j1] - sv[i0, j1] - sv[i1, j0] + sv[i0, j0]) / c
+                    e[o] = loga[o] - (sv[a] - sv[b] - sv[c_] + sv[d_]) / c
                     d[m] = e[o]
                     m += 1
         s = _mad_sigma(d, m)
@@ -156,7 +185,9 @@ def spatial_flags(run_start, run_pixel, run_image, n_img, width, loga, size, sig
                             win[c] = x
                             c += 1
                 e[o] = loga[o] - np.median(win[:c]) if 2 * c > size * size else np.nan
-    ps, pm = np.zeros(npix), np.zeros(npix)  # per pixel: the sum of e and how many images have one
+    for p in range(npix):  # per pixel: the sum of e and how many images have one
+        ps[p] = 0.0
+        pm[p] = 0.0
     for q in range(run_start.shape[0] - 1):
         for o in range(run_start[q], run_start[q + 1]):
             if e[o] == e[o]:
@@ -172,33 +203,40 @@ def spatial_flags(run_start, run_pixel, run_image, n_img, width, loga, size, sig
                 p = run_pixel[q] + o - run_start[q]
                 others = pm[p] - 1.0
                 flag[o] = others < 1 or abs(ev - (ps[p] - ev) / others) > t
+    return 0
 
 
 @njit(cache=True, nogil=True)
-def kept_on_pixel(run_start, run_pixel, keep, npix, out):
-    """``out``: per observation how many kept observations (``keep``) its pixel has (pixels ``0..npix-1``)."""
+def kept_on_pixel(run_start, run_pixel, keep, npix, least, many):
+    """``many``: the kept observations (``keep``) whose pixel has at least ``least`` kept ones (pixels
+    ``0..npix-1``); returns how many."""
     n = np.zeros(npix, np.int32)
     for q in range(run_start.shape[0] - 1):
         p0 = run_pixel[q] - run_start[q]
         for o in range(run_start[q], run_start[q + 1]):
             n[p0 + o] += keep[o]
+    total = 0
     for q in range(run_start.shape[0] - 1):
         p0 = run_pixel[q] - run_start[q]
         for o in range(run_start[q], run_start[q + 1]):
-            out[o] = n[p0 + o]
+            many[o] = keep[o] and n[p0 + o] >= least
+            total += many[o]
+    return total
 
 
 @njit(cache=True, nogil=True)
 def finish(run_start, run_image, base, used, flag, keep, m, w_new, counts):
-    """The effective weights ``w_new = 0`` (rejected) or ``m w`` (float32), and per local image (``counts``, 3 rows)
-    the used, rejected and down-weighted (sum of 1 - m) observations, summed in run order."""
+    """The effective weights ``w_new = 0`` (rejected) or ``m w`` (float32; ``m`` empty: 1), and per local image
+    (``counts``, 3 rows) the used, rejected and down-weighted (sum of 1 - m) observations, summed in run order."""
+    ones = m.shape[0] == 0
     for q in range(run_start.shape[0] - 1):
         k = run_image[q]
         for o in range(run_start[q], run_start[q + 1]):
-            w_new[o] = np.float32(0.0) if flag[o] else np.float32(base[o] * m[o])
+            mo = 1.0 if ones else m[o]
+            w_new[o] = np.float32(0.0) if flag[o] else np.float32(base[o] * mo)
             counts[0, k] += used[o]
             counts[1, k] += used[o] and flag[o]
-            counts[2, k] += 1.0 - m[o] if keep[o] else 0.0
+            counts[2, k] += 1.0 - mo if keep[o] else 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -223,10 +261,37 @@ def image_major(run_start, run_pixel, run_image, n_img, sel):
     return order, pix, start
 
 
+#: Float64 scratch of the reweight kernels per thread, kept between blocks for one reweight pass (:func:`release`):
+#: memory fresh from the system costs a page fault per 4 kB, which made this pass's arrays cost more than its work.
+_WORK: dict = {}
+_LOCK = threading.Lock()
+
+
+def workspace(name: str, n: int) -> np.ndarray:
+    """This thread's float64 scratch ``name``: at least ``n`` values."""
+    key = (threading.get_ident(), name)
+    with _LOCK:
+        buf = _WORK.get(key)
+    if buf is None or len(buf) < n:
+        buf = np.empty(n + n // 4 + 1024)
+        with _LOCK:
+            _WORK[key] = buf
+    return buf
+
+
+def release() -> None:
+    """Drop every thread's scratch (the end of a reweight pass)."""
+    with _LOCK:
+        _WORK.clear()
+
+
 def spatial_test(arrays: dict, loga: np.ndarray, width: int) -> np.ndarray:
-    """The observations of a block (chunk-major runs) the spatial test rejects (bool), from their :math:`\\log a`."""
+    """The observations of a block (chunk-major runs) the spatial test rejects (bool), from their :math:`\log a`."""
     flag = np.zeros(len(loga), bool)
-    spatial_flags(np.asarray(arrays["run_start"], np.int64), np.asarray(arrays["run_pixel"], np.int64),
-                  np.asarray(arrays["run_image"], np.int64), len(arrays["index"]), width, loga, outliers.WINDOW,
-                  outliers.SIGMAS, outliers.TAU_MIN, flag)
+    args = (np.asarray(arrays["run_start"], np.int64), np.asarray(arrays["run_pixel"], np.int64),
+            np.asarray(arrays["run_image"], np.int64), len(arrays["index"]), width, loga, outliers.WINDOW,
+            outliers.SIGMAS, outliers.TAU_MIN, flag)
+    need = spatial_flags(*args, workspace("spatial", 3 * len(loga)))
+    if need:
+        spatial_flags(*args, workspace("spatial", need))
     return flag
