@@ -60,9 +60,28 @@ def _mad_sigma(x, n):
 
 
 @njit(cache=True)
-def _summed_areas(ras, hk, wk, sv, sc):
+def _value_areas(ras, hk, wk, sv):
+    """:func:`_summed_areas` of the values of a raster without NaN."""
+    w1 = wk + 1
+    for j in range(w1):
+        sv[j] = 0.0
+    for i in range(hk):
+        up, at, row = i * w1, (i + 1) * w1, i * wk
+        sv[at] = 0.0
+        rv = 0.0
+        for j in range(wk):
+            rv += ras[row + j]
+            sv[at + j + 1] = sv[up + j + 1] + rv
+
+
+@njit(cache=True)
+def _summed_areas(ras, hk, wk, sv, sc, counts):
     """Summed-area tables (``(hk + 1) x (wk + 1)``, flat, into ``sv``, ``sc``) of the valid values of an ``hk x wk``
-    raster (NaN: none) and of their count: the sum over rows ``< i`` and columns ``< j`` at ``i (wk + 1) + j``."""
+    raster (NaN: none) and (with ``counts``) of their count: the sum over rows ``< i`` and columns ``< j`` at
+    ``i (wk + 1) + j``."""
+    if not counts:
+        _value_areas(ras, hk, wk, sv)
+        return
     w1 = wk + 1
     for j in range(w1):
         sv[j] = 0.0
@@ -82,8 +101,8 @@ def _summed_areas(ras, hk, wk, sv, sc):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def spatial_flags(run_start, run_pixel, run_image, n_img, width, loga, size, sigmas, tau_min, flag, work):
-    r"""Set ``flag`` (bool per observation) where the spatial test rejects it (:mod:`lunaralbedo.model.outliers`).
+def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, loga, size, sigmas, tau_min, flag, work):
+    r"""Set ``flag`` (bool per observation, False on entry) where the spatial test rejects it (:mod:`lunaralbedo.model.outliers`).
 
     ``loga``: :math:`\log a` per observation (NaN: unused); ``width``: the block's width in pixels
     (observation pixels are numbered row by row); ``size``: the window's side.  The window's mean
@@ -96,11 +115,9 @@ def spatial_flags(run_start, run_pixel, run_image, n_img, width, loga, size, sig
     cmin = np.full(n_img, 1 << 62)
     cmax = np.full(n_img, -1)
     cnt = np.zeros(n_img, np.int64)
-    npix = 0
     for q in range(run_start.shape[0] - 1):  # each image's bounding box and used observations
         k = run_image[q]
         row, col = run_pixel[q] // width, run_pixel[q] % width  # a run's pixels in order: one division a run
-        npix = max(npix, run_pixel[q] + run_start[q + 1] - run_start[q])
         for o in range(run_start[q], run_start[q + 1]):
             if loga[o] == loga[o]:
                 rmin[k], rmax[k] = min(rmin[k], row), max(rmax[k], row)
@@ -116,13 +133,13 @@ def spatial_flags(run_start, run_pixel, run_image, n_img, width, loga, size, sig
         off[k + 1] = off[k] + area
         most_sat = max(most_sat, (rmax[k] - rmin[k] + 2) * (cmax[k] - cmin[k] + 2) if cnt[k] else 0)
         most_cnt = max(most_cnt, cnt[k])
-    a0, a1, a2, a3, a4 = off[n_img], off[n_img] + n_obs, off[n_img] + n_obs + 2 * npix, 0, 0
-    a3 = a2 + 2 * most_sat
-    a4 = a3 + most_cnt
-    if work.shape[0] < a4:
-        return a4
-    raster, e, ps, pm = work[:a0], work[a0:a1], work[a1:a1 + npix], work[a1 + npix:a2]
-    sv, sc, d = work[a2:a2 + most_sat], work[a2 + most_sat:a3], work[a3:a4]
+    a0, a1 = off[n_img], off[n_img] + n_obs
+    a2 = a1 + 2 * most_sat
+    a3 = a2 + most_cnt
+    if work.shape[0] < a3:
+        return a3
+    raster, e = work[:a0], work[a0:a1]
+    sv, sc, d = work[a1:a1 + most_sat], work[a1 + most_sat:a2], work[a2:a3]
     for i in range(a0):
         raster[i] = np.nan
     for q in range(run_start.shape[0] - 1):
@@ -137,16 +154,14 @@ def spatial_flags(run_start, run_pixel, run_image, n_img, width, loga, size, sig
                 row, col = row + 1, 0
     h = size // 2
     half = (size * size + 1) // 2
-    for o in range(n_obs):
-        e[o] = np.nan
     tau = np.full(n_img, tau_min)
     win = np.empty(size * size)
     for k in range(n_img):
-        if not cnt[k]:
-            continue
         hk, wk = rmax[k] - rmin[k] + 1, cmax[k] - cmin[k] + 1
+        full = cnt[k] == hk * wk  # no hole: a window's count is its area within the raster
         ras = raster[off[k]:off[k + 1]]
-        _summed_areas(ras, hk, wk, sv, sc)
+        if cnt[k]:
+            _summed_areas(ras, hk, wk, sv, sc, not full)
         w1 = wk + 1
         m = 0
         for q in range(run_start.shape[0] - 1):  # d = log a - the window's mean, the image's observations in run order
@@ -158,15 +173,18 @@ def spatial_flags(run_start, run_pixel, run_image, n_img, width, loga, size, sig
                     j += 1
                     if j + cmin[k] == width:
                         i, j = i + 1, -cmin[k]
+                e[o] = np.nan
                 if loga[o] != loga[o]:
                     continue
                 i0, i1, j0, j1 = max(i - h, 0), min(i + h + 1, hk), max(j - h, 0), min(j + h + 1, wk)
                 a, b, c_, d_ = i1 * w1 + j1, i0 * w1 + j1, i1 * w1 + j0, i0 * w1 + j0
-                c = sc[a] - sc[b] - sc[c_] + sc[d_]
+                c = np.float64((i1 - i0) * (j1 - j0)) if full else sc[a] - sc[b] - sc[c_] + sc[d_]
                 if c >= half:
                     e[o] = loga[o] - (sv[a] - sv[b] - sv[c_] + sv[d_]) / c
                     d[m] = e[o]
                     m += 1
+        if not cnt[k]:
+            continue
         s = _mad_sigma(d, m)
         tau[k] = max(tau_min, sigmas * s) if m else tau_min
         for q in range(run_start.shape[0] - 1):  # the window's median where the mean says it may matter
@@ -185,24 +203,22 @@ def spatial_flags(run_start, run_pixel, run_image, n_img, width, loga, size, sig
                             win[c] = x
                             c += 1
                 e[o] = loga[o] - np.median(win[:c]) if 2 * c > size * size else np.nan
-    for p in range(npix):  # per pixel: the sum of e and how many images have one
-        ps[p] = 0.0
-        pm[p] = 0.0
-    for q in range(run_start.shape[0] - 1):
-        for o in range(run_start[q], run_start[q + 1]):
-            if e[o] == e[o]:
+    for ch in range(chunks.shape[0] - 1):  # the few observations far out: against the other images' mean e
+        for q in range(chunks[ch], chunks[ch + 1]):
+            t = tau[run_image[q]]
+            for o in range(run_start[q], run_start[q + 1]):
+                ev = e[o]
+                if not abs(ev) > t:
+                    continue
                 p = run_pixel[q] + o - run_start[q]
-                ps[p] += e[o]
-                pm[p] += 1.0
-    for q in range(run_start.shape[0] - 1):
-        t = tau[run_image[q]]
-        for o in range(run_start[q], run_start[q + 1]):
-            ev = e[o]
-            flag[o] = False
-            if ev == ev and abs(ev) > t:
-                p = run_pixel[q] + o - run_start[q]
-                others = pm[p] - 1.0
-                flag[o] = others < 1 or abs(ev - (ps[p] - ev) / others) > t
+                se, others = 0.0, 0.0
+                for r in range(chunks[ch], chunks[ch + 1]):  # a pixel's observations are in its chunk's runs
+                    if r != q and run_pixel[r] <= p < run_pixel[r] + run_start[r + 1] - run_start[r]:
+                        x = e[run_start[r] + p - run_pixel[r]]
+                        if x == x:
+                            se += x
+                            others += 1.0
+                flag[o] = others < 1 or abs(ev - se / others) > t
     return 0
 
 
@@ -286,9 +302,9 @@ def release() -> None:
 
 
 def spatial_test(arrays: dict, loga: np.ndarray, width: int) -> np.ndarray:
-    """The observations of a block (chunk-major runs) the spatial test rejects (bool), from their :math:`\log a`."""
+    r"""The observations of a block (chunk-major runs) the spatial test rejects (bool), from their :math:`\log a`."""
     flag = np.zeros(len(loga), bool)
-    args = (np.asarray(arrays["run_start"], np.int64), np.asarray(arrays["run_pixel"], np.int64),
+    args = (np.asarray(arrays["chunks"], np.int64), np.asarray(arrays["run_start"], np.int64), np.asarray(arrays["run_pixel"], np.int64),
             np.asarray(arrays["run_image"], np.int64), len(arrays["index"]), width, loga, outliers.WINDOW,
             outliers.SIGMAS, outliers.TAU_MIN, flag)
     need = spatial_flags(*args, workspace("spatial", 3 * len(loga)))
