@@ -171,7 +171,8 @@ def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, loga, s
         if cnt[k]:
             _summed_areas(ras, hk, wk, sv, sc, not full)
         w1 = wk + 1
-        m = 0
+        m, nc = 0, 0
+        cand = np.empty((cnt[k], 3), np.int64)  # observations whose d may exceed tau / 2 (tau >= tau_min): few
         for q in range(run_start.shape[0] - 1):  # d = log a - the window's mean, the image's observations in run order
             if run_image[q] != k:
                 continue
@@ -188,29 +189,29 @@ def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, loga, s
                 a, b, c_, d_ = i1 * w1 + j1, i0 * w1 + j1, i1 * w1 + j0, i0 * w1 + j0
                 c = np.float64((i1 - i0) * (j1 - j0)) if full else sc[a] - sc[b] - sc[c_] + sc[d_]
                 if c >= half:
-                    e[o] = loga[o] - (sv[a] - sv[b] - sv[c_] + sv[d_]) / c
-                    d[m] = e[o]
+                    ev = loga[o] - (sv[a] - sv[b] - sv[c_] + sv[d_]) / c
+                    e[o] = ev
+                    d[m] = ev
                     m += 1
+                    if abs(ev) > tau_min / 2:
+                        cand[nc, 0], cand[nc, 1], cand[nc, 2] = o, i, j
+                        nc += 1
         if not cnt[k]:
             continue
         s = _mad_sigma(d, m)
         tau[k] = max(tau_min, sigmas * s) if m else tau_min
-        for q in range(run_start.shape[0] - 1):  # the window's median where the mean says it may matter
-            if run_image[q] != k:
+        for x_ in range(nc):  # the window's median where the mean says it may matter
+            o, i, j = cand[x_, 0], cand[x_, 1], cand[x_, 2]
+            if not abs(e[o]) > tau[k] / 2:
                 continue
-            for o in range(run_start[q], run_start[q + 1]):
-                if not abs(e[o]) > tau[k] / 2:
-                    continue
-                p = run_pixel[q] + o - run_start[q]  # few candidates: a division each
-                i, j = p // width - rmin[k], p % width - cmin[k]
-                c = 0
-                for ii in range(max(i - h, 0), min(i + h + 1, hk)):
-                    for jj in range(max(j - h, 0), min(j + h + 1, wk)):
-                        x = ras[ii * wk + jj]
-                        if x == x:
-                            win[c] = x
-                            c += 1
-                e[o] = loga[o] - np.median(win[:c]) if 2 * c > size * size else np.nan
+            c = 0
+            for ii in range(max(i - h, 0), min(i + h + 1, hk)):
+                for jj in range(max(j - h, 0), min(j + h + 1, wk)):
+                    x = ras[ii * wk + jj]
+                    if x == x:
+                        win[c] = x
+                        c += 1
+            e[o] = loga[o] - np.median(win[:c]) if 2 * c > size * size else np.nan
     for ch in range(chunks.shape[0] - 1):  # the few observations far out: against the other images' mean e
         for q in range(chunks[ch], chunks[ch + 1]):
             t = tau[run_image[q]]
