@@ -130,7 +130,7 @@ def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndar
     m, n_loss = np.ones(0), 0  # m: the robust loss's factors (none: 1)
     if s.robust_loss != "none":
         m, n_loss = _loss_factors(arrays, state, r, texp, keep, base, w_prev, n_img, s)
-    w_new, counts = np.empty(n_obs, np.float32), np.zeros((3, n_img))
+    w_new, counts = robust_kernels.workspace("weights", n_obs).view(np.float32)[:n_obs], np.zeros((3, n_img))
     robust_kernels.finish(arrays["run_start"], arrays["run_image"], base, used, flag, keep, m, w_new, counts)
     return w_new, counts, n_loss
 
@@ -138,6 +138,9 @@ def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndar
 def _loss_factors(arrays, state, r, texp, keep, base, w_prev, n_img, s) -> np.ndarray:
     """The robust loss's IRLS factors m (none: 1 everywhere, fewer than three images remain on every pixel; else 1
     where they do) and how many observations it applies to."""
+    if robust_kernels.most_runs_on_a_pixel(arrays["chunks"], arrays["run_start"], arrays["run_pixel"]) < \
+            outliers.MIN_IMAGES_FOR_LOSS:  # no pixel of the block has three images
+        return np.ones(0), 0
     many = np.empty(len(base), bool)
     if robust_kernels.kept_on_pixel(arrays["run_start"], arrays["run_pixel"], keep, runs.pixel_extent(arrays),
                                     outliers.MIN_IMAGES_FOR_LOSS, many) < outliers.MIN_SCALE_OBS:

@@ -232,6 +232,20 @@ def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, loga, s
 
 
 @njit(cache=True, nogil=True)
+def most_runs_on_a_pixel(chunks, run_start, run_pixel):
+    """The most runs (hence images) that meet at one pixel of a block: a bound of the images on a pixel, from the
+    runs alone (each chunk's runs: the most at any run's first pixel)."""
+    most = 0
+    for ch in range(chunks.shape[0] - 1):
+        for a in range(chunks[ch], chunks[ch + 1]):
+            n = 0
+            for b in range(chunks[ch], chunks[ch + 1]):
+                n += run_pixel[b] <= run_pixel[a] < run_pixel[b] + run_start[b + 1] - run_start[b]
+            most = max(most, n)
+    return most
+
+
+@njit(cache=True, nogil=True)
 def kept_on_pixel(run_start, run_pixel, keep, npix, least, many):
     """``many``: the kept observations (``keep``) whose pixel has at least ``least`` kept ones (pixels
     ``0..npix-1``); returns how many."""
