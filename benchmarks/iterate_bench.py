@@ -1,11 +1,14 @@
 """The iterate step alone on the strip scene of item 6, in CPU time (docs/performance-history.md, section 1b).
 
-    .venv/bin/python benchmarks/iterate_bench.py [--out bench_out] [--before OTHER_CHECKOUT] [--budget-mb N]
+    .venv/bin/python benchmarks/iterate_bench.py [--out bench_out] [--before OTHER_CHECKOUT] [--budget-mb N] [--real-images]
 
 Renders (or reuses) the strip scene of item 6, prepares its tiles once, then times
 ``iterate_tile`` over every tile after one warm-up pass (steady: 3 passes) and the kernel
 alone on the biggest tile, each checkout in a fresh process on its own prepared cache.
 ``--budget-mb`` sets LUNARALBEDO_STACK_MEMORY_MB (0: stacks re-read every pass).
+``--real-images``: also the passes with the default robust weights and with FLOAT_HAZE 1 and one
+reweight pass, and the ratio of a 10-pass iterate stage with them to one with the features off
+(docs/solver.md, "Cost of outliers and haze").
 """
 from __future__ import annotations
 

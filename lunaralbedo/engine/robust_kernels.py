@@ -5,11 +5,13 @@ r"""The reweight pass's spatial consistency test (:mod:`lunaralbedo.model.outlie
 :func:`~lunaralbedo.model.outliers.spatial_outliers` do for NumPy rasters, without sorting the
 observations by image: each image's observations are written into a raster of its own
 bounding box straight from its runs, the mean of every :data:`~lunaralbedo.model.outliers.WINDOW`
-× WINDOW window of valid values comes from two summed-area tables (O(1) a pixel; the box
+× WINDOW window of valid values comes from summed-area tables (O(1) a pixel; the box
 filters of the NumPy form), the image's threshold :math:`\tau_k` from the median absolute
-deviation of :math:`d = \log a - \operatorname{mean}_N \log a` (numba's ``np.median``), and the
-window median only where :math:`|d| > \tau_k / 2`.  Then each observation is compared with
-the mean :math:`e` of the other images at its pixel.  Float64 throughout, every sum in the
+deviation of :math:`d = \log a - \operatorname{mean}_N \log a` (numba's ``np.median``, of at most
+:data:`SCALE_SAMPLE` values), and the window median only where :math:`|d| > \tau_k / 2`.  Then each
+observation far out is compared with the mean :math:`e` of the other images at its pixel.  The
+other kernels give the pass's log albedo, counts and weights, and the image-major order of the
+kept observations, all from the runs.  Float64 throughout, every sum in the
 order of the runs (fixed by the data: the same for any number of workers); ``cache=True``,
 no fastmath.
 """
