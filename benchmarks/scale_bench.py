@@ -76,7 +76,41 @@ def narrow_strip(root: Path, q: bool, figures: dict, before: Path | None) -> Non
     print(f"6. strip, per core (one CPU): prepare {one['prepare_ns_per_obs']:.0f} ns/obs (target 50), "
           f"iterate {one['iterate_ns_per_obs_iter']:.2f} ns/obs/iter (target 5)", flush=True)
     out.update({k: v for k, v in runs.items() if v})
+    out["real_images_cost"] = real_images_cost(d, root, n_obs, before)
     figures["strip"] = out
+
+
+#: The settings of the cost of outliers and haze (docs/solver.md): features off, the defaults, the defaults with haze.
+COST_VARIANTS = {"off": {"REJECT_OUTLIERS": "0", "ROBUST_LOSS": "none", "FLOAT_HAZE": "0"},
+                 "default": {}, "haze": {"FLOAT_HAZE": "1"}}
+
+
+def real_images_cost(d: Path, root: Path, n_obs: int, before: Path | None) -> dict:
+    """Item 6, the cost of outliers and haze: the strip solved (10 passes, one CPU) with the features off, with the
+    default rejection of outliers, and with FLOAT_HAZE 1 too; the whole iterate stage (its reweight passes
+    included) per observation and pass, the reweight passes per observation, and the ratio to the features off."""
+    out = {}
+    base = (d / "settings.txt").read_text().splitlines()
+    for src_name, src in (("before", before), ("after", None)):
+        if src_name == "before" and src is None:
+            continue
+        for name, keys in COST_VARIANTS.items():
+            lines = [ln for ln in base if ln.split()[:1] not in ([k] for k in keys)] + [f"{k} {v}" for k, v in keys.items()]
+            (d / f"settings_{name}.txt").write_text("\n".join(lines) + "\n")
+            r = solve_child(d, root / f"out_strip_cost_{name}", src=src, tolerance=0.0, one_cpu=True,
+                            settings_name=f"settings_{name}.txt")
+            tm = r["timings"]
+            row = {"passes": r["iterations"], "iterate_s": tm["iterate"], "reweight_s": tm.get("reweight"),
+                   "iterate_ns_per_obs_pass": 1e9 * tm["iterate"] / (n_obs * max(r["iterations"], 1)),
+                   "reweight_ns_per_obs": 1e9 * tm["reweight"] / n_obs if tm.get("reweight") else None}
+            row["ratio_to_off"] = row["iterate_ns_per_obs_pass"] / out[f"{src_name}_off"]["iterate_ns_per_obs_pass"] \
+                if name != "off" else 1.0
+            out[f"{src_name}_{name}"] = row
+            rw = f", of which reweight passes {row['reweight_ns_per_obs']:.1f} ns/obs" if row["reweight_ns_per_obs"] else ""
+            print(f"6. strip, outliers and haze ({src_name}, {name}, one CPU): iterate stage "
+                  f"{row['iterate_ns_per_obs_pass']:.2f} ns/obs/pass over {r['iterations']} passes{rw}; "
+                  f"{row['ratio_to_off']:.3f} x the features off (target <= 1.15)", flush=True)
+    return out
 
 
 def catalogue(n: int, rng):

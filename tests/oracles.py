@@ -67,3 +67,44 @@ def error_map(image, a, tr, w_shadow, w_blend):
     with np.errstate(divide="ignore", invalid="ignore"):
         e = np.where(den > 0, num / den, np.nan)
     return e.astype(np.float32)
+
+
+def haze_sums(value, t, r, w):
+    r"""Gradient, reduced normal matrix and residual sums of the joint exposure-haze step (FLOAT_HAZE), dense.
+
+    ``value`` is :math:`I - H_k` (image, row, column), ``t`` the exposures, ``r`` the reflectance and
+    ``w`` the noise weights.  With the albedo of these weights :math:`A = \sum w\,TR\,v / c`,
+    :math:`c = \sum_k w (TR)^2`, the residual :math:`\rho = v - A T R` and :math:`b_k = w T R\,(A R, 1)`:
+
+    .. math:: g_k = \sum_p w \rho (A R, 1), \quad
+              S_{kl} = \delta_{kl} \sum_p w \begin{pmatrix} (AR)^2 & AR \\ AR & 1 \end{pmatrix} - \sum_p b_k b_l^T / c.
+
+    Returns ``g`` (2K: T then H per image), ``S`` (2K x 2K) and ``(sum w rho^2, observations, pixels)``.
+    """
+    v, r, w = (np.asarray(x, np.float64) for x in (value, r, w))
+    t = np.asarray(t, np.float64)[:, None, None]
+    used = w > 0
+    tr = np.where(used, t * r, 0.0)
+    c = np.sum(w * tr * tr, axis=0)
+    ok = c > 0
+    a = np.where(ok, np.sum(w * tr * np.where(used, v, 0.0), axis=0) / np.where(ok, c, 1.0), 0.0)
+    use = used & ok[None]
+    ar = np.where(use, a[None] * np.where(used, r, 0.0), 0.0)
+    wu = np.where(use, w, 0.0)
+    res = np.where(use, v - ar * t, 0.0)
+    k = v.shape[0]
+    g = np.zeros(2 * k)
+    g[0::2], g[1::2] = np.sum(wu * ar * res, axis=(1, 2)), np.sum(wu * res, axis=(1, 2))
+    s = np.zeros((2 * k, 2 * k))
+    idx = np.arange(k)
+    s[2 * idx, 2 * idx] = np.sum(wu * ar * ar, axis=(1, 2))
+    s[2 * idx, 2 * idx + 1] = s[2 * idx + 1, 2 * idx] = np.sum(wu * ar, axis=(1, 2))
+    s[2 * idx + 1, 2 * idx + 1] = np.sum(wu, axis=(1, 2))
+    bh = (wu * tr).reshape(k, -1)
+    bt = bh * ar.reshape(k, -1)
+    inv_c = np.where(ok, 1.0 / np.where(ok, c, 1.0), 0.0).ravel()
+    for m, x in ((0, bt), (1, bh)):
+        for n, y in ((0, bt), (1, bh)):
+            s[m::2, n::2] -= (x * inv_c) @ y.T
+    rss = (float(np.sum(wu * res * res)), float(np.count_nonzero(use)), float(np.count_nonzero(ok)))
+    return g, s, rss

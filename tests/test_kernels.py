@@ -45,17 +45,21 @@ def _compact(wt, **arrays):
     return obs
 
 
-def _run(pm, kind, layers, params, t, n_par, shadow=kernels.NO_SHADOW_TEST, ratio=None, thresh=0.0, alpha=None):
+def _run(pm, kind, layers, params, t, n_par, shadow=kernels.NO_SHADOW_TEST, ratio=None, thresh=0.0, alpha=None,
+         haze=None, base=None):
     k = len(t)
     n_cols = n_par + 1 if n_par else 0
     en, ed, jtj, jtr = np.zeros(k), np.zeros(k), np.zeros((n_cols, n_cols)), np.zeros(n_cols)
     alb = np.full(pm["npix"], np.nan, np.float32)
     empty = pm["image"][:0]
+    n_h = k if haze is not None else 0
+    hg, hs, hrss = np.zeros(2 * n_h), np.zeros((2 * n_h, 2 * n_h)), np.zeros(3)
     q, n_obs, amin, amax = kernels.iterate_runs(
         kind, pm["chunks"], pm["run_start"], pm["run_pixel"], pm["run_image"], pm["image"], pm["weight"], *layers,
         np.asarray(params, np.float32), t, n_par, n_cols, shadow, empty if ratio is None else ratio, np.float32(thresh),
-        empty if alpha is None else alpha, en, ed, jtj, jtr, alb)
-    return dict(alb=alb, q=q, n_obs=n_obs, en=en, ed=ed, jtj=jtj, jtr=jtr, amin=amin, amax=amax)
+        empty if alpha is None else alpha, en, ed, jtj, jtr, alb, empty if haze is None else haze,
+        empty if base is None else base, hg, hs, hrss)
+    return dict(alb=alb, q=q, n_obs=n_obs, en=en, ed=ed, jtj=jtj, jtr=jtr, amin=amin, amax=amax, hg=hg, hs=hs, hrss=hrss)
 
 
 @pytest.mark.parametrize("chunk_px", [None, 64, 100])
@@ -143,6 +147,38 @@ def test_fused_kernel_equals_the_numpy_formulas(chunk_px):
     jtj1, jtr1 = updates.phase_sums(res, alb, t, [dr[0]], r, wt)
     np.testing.assert_allclose(one["jtj"], jtj1, rtol=1e-11)
     np.testing.assert_allclose(one["jtr"], jtr1, rtol=1e-9, atol=1e-9 * np.abs(jtr1).max())
+
+
+@pytest.mark.parametrize("chunk_px", [None, 16])
+def test_fused_haze_sums_equal_the_numpy_formulas(chunk_px):
+    """FLOAT_HAZE 1 with robust weights: the kernel takes each image's haze off inside its sweep (albedo, Q and
+    exposure sums of I - H with the effective weights) and adds the joint (T, H) step's sums with noise weights
+    (the robust factor where eq. 1's weight is not 0): the dense NumPy formulas of tests/oracles.py."""
+    image, r, _, wt, t = _stacks(seed=9)
+    k, h, w = image.shape
+    rng = np.random.default_rng(4)
+    haze = rng.uniform(-3, 12, k).astype(np.float32)
+    m = np.where(rng.uniform(size=image.shape) < 0.1, 0.0, rng.uniform(0.3, 1.0, image.shape)).astype(np.float32)
+    eff = (wt * m).astype(np.float32)  # robust weights: some observations rejected (0), others down-weighted
+    obs = _compact(wt, image=image, weight=eff, base=wt, r=r)
+    pm = {**runs.chunk_runs(obs, h * w, ["image", "weight", "base", "r"], chunk_px), "npix": h * w}
+    got = _run(pm, 0, (pm["r"], pm["r"], pm["r"]), (), t, 0, haze=haze, base=pm["base"])
+    value = image - haze[:, None, None]
+    tr = t[:, None, None] * r
+    alb = oracles.albedo(value, tr, eff)
+    np.testing.assert_array_equal(got["alb"].reshape(h, w), alb)
+    np.testing.assert_allclose(got["q"], oracles.cost(oracles.residuals(value, alb, tr, eff), eff), rtol=1e-12)
+    en, ed = oracles.exposure_sums(value, alb, r, eff)
+    np.testing.assert_allclose(got["en"], en, rtol=1e-12)
+    np.testing.assert_allclose(got["ed"], ed, rtol=1e-12)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        noise = np.where(eff > 0, eff / wt, 0).astype(np.float32)
+    g, s, rss = oracles.haze_sums(value, t, r, noise)
+    assert rss[1] < np.count_nonzero(wt) and np.count_nonzero(s[0::2, 2::2]) > 0  # rejections; images coupled
+    np.testing.assert_allclose(got["hg"], g, rtol=1e-10, atol=1e-12 * np.abs(g).max())
+    np.testing.assert_allclose(got["hs"], s, rtol=1e-10, atol=1e-12 * np.abs(s).max())
+    np.testing.assert_array_equal(got["hs"], got["hs"].T)
+    np.testing.assert_allclose(got["hrss"], rss, rtol=1e-12)
 
 
 def test_dynamic_shadow_test_is_dynamic_lit():
@@ -343,7 +379,8 @@ def test_the_fused_kernel_is_vectorised():
     fresh(1, pm["chunks"], pm["run_start"], pm["run_pixel"], pm["run_image"], pm["image"], pm["weight"], pm["geometric"],
           pm["alpha"], pm["geometric"],
           np.array([1.4, 0.5], np.float32), t, 2, 3, kernels.NO_SHADOW_TEST, pm["image"][:0], np.float32(0), pm["alpha"],
-          np.zeros(k), np.zeros(k), np.zeros((3, 3)), np.zeros(3), np.empty(0, np.float32))
+          np.zeros(k), np.zeros(k), np.zeros((3, 3)), np.zeros(3), np.empty(0, np.float32), np.empty(0, np.float32),
+          pm["weight"][:0], np.zeros(0), np.zeros((0, 0)), np.zeros(3))
     asm = fresh.inspect_asm(fresh.signatures[0])
     count = lambda ins: len(re.findall(r"\bv?" + ins + r"\b", asm))
     assert count("mulps") >= 10 and count("cvtps2pd") >= 10 and count("addpd") >= 10

@@ -98,6 +98,46 @@ def test_spatial_test_rejects_the_deviant_image_and_keeps_a_feature_both_see():
     assert outliers.spatial_outliers(e, pixel, tau).tolist() == [True, False, False, False, True]
 
 
+def test_the_reweight_kernel_flags_what_the_numpy_test_flags():
+    """The reweight pass's numba spatial test over a block's runs (engine/robust_kernels.py) rejects exactly the
+    observations the NumPy form of model/outliers.py rejects (each image's raster, box means, window medians, the
+    other images' mean), here with hot spots, a dropout row, a bright feature every image sees and holes."""
+    from lunaralbedo.engine import robust_kernels, runs
+
+    rng = np.random.default_rng(3)
+    k, h, w = 4, 40, 50
+    yy, xx = np.mgrid[:h, :w]
+    texture = 0.3 * np.sin(xx / 5.0) * np.cos(yy / 7.0)
+    loga = texture[None] + rng.normal(0, 0.02, (k, h, w))
+    loga[:, 20:22, 30:32] += 0.8  # a small bright crater in every image: kept
+    hot = rng.random((k, h, w)) < 0.01
+    loga[hot] += rng.uniform(0.5, 1.1, np.count_nonzero(hot))  # hot spots of one image
+    loga[2, 11, 10:40] -= 1.2  # a dropout row
+    used = np.zeros((k, h, w), bool)
+    for i in range(k):  # each image a band of columns (overlaps of two images), images 1-3 with holes
+        used[i, :, 12 * i:12 * i + 20] = True
+    used[1:] &= rng.random(used[1:].shape) > 0.03
+    sel = [np.flatnonzero(used[i]) for i in range(k)]
+    obs = {"pix": np.concatenate(sel).astype(np.int32), "index": np.arange(k, dtype=np.int32),
+           "start": np.concatenate([[0], np.cumsum([len(x) for x in sel])]).astype(np.int64),
+           "loga": np.concatenate([loga[i].ravel()[sel[i]] for i in range(k)])}
+    block = runs.chunk_runs(obs, h * w, ["loga"], 64)
+    got = robust_kernels.spatial_test(block, block["loga"].astype(np.float64), w)
+
+    img, pix = runs.observation_images(block), runs.observation_pixels(block)
+    e, tau = np.full(len(pix), np.nan), np.zeros(len(pix))
+    for i in range(k):  # the NumPy form: each image's raster over its bounding box
+        at = np.flatnonzero(img == i)
+        row, col = pix[at] // w, pix[at] % w
+        raster = np.full((row.max() - row.min() + 1, col.max() - col.min() + 1), np.nan)
+        raster[row - row.min(), col - col.min()] = block["loga"][at]
+        e[at], tau[at] = outliers.neighbourhood_deviation(raster, row - row.min(), col - col.min())
+    want = outliers.spatial_outliers(e, pix, tau)
+    assert 20 < np.count_nonzero(want) < 0.05 * len(pix)
+    assert not want[(pix // w >= 20) & (pix // w < 22) & (pix % w >= 30) & (pix % w < 32)].any()  # the crater stays
+    np.testing.assert_array_equal(got, want)
+
+
 def test_loss_weights():
     u = np.array([0.0, 1.0, 3.0, -6.0])
     assert outliers.loss_weights(u, "cauchy", 3.0) == pytest.approx([1.0, 0.9, 0.5, 0.2])

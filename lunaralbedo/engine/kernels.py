@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit
 
 from ..model.photometry import lunar_lambert
+from . import haze_kernels as hk
 
 
 #: Dynamic shadow test of :func:`iterate_runs` (eq. 1's mask of shadow types 2 and 3,
@@ -51,7 +52,7 @@ N_SUMS = 10
 #: Lanes of each image's exposure sums (eq. 4): observation ``i`` of a run goes to lane ``i % EXP_LANES``.
 EXP_LANES = 32
 #: Float32 work rows of a chunk in :func:`iterate_runs`.
-_R, _D0, _D1, _T, _W, _A, _PN, _PD, _ROWS = range(9)
+_R, _D0, _D1, _T, _W, _A, _PN, _PD, _V, _N, _ROWS = range(11)
 # int32 keys of float32 bits for the phase-angle range (positive floats keep their bits, negative
 # ones get their magnitude bits flipped: the keys order as the floats do; NaN keys exceed +inf's)
 _MAG, _MAX32, _MIN32 = np.int32(0x7FFFFFFF), np.int32(0x7FFFFFFF), np.int32(-0x80000000)
@@ -245,7 +246,7 @@ def _run_lanes(PN, PD, lanes, n):
 
 @njit(cache=True, nogil=True, error_model="numpy")  # IEEE division: I / 0 is inf (lit), 0 / 0 NaN (shadow)
 def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1, l2, params, texp, n_par, n_cols,
-                 shadow, ratio, thresh, alpha, exp_num, exp_den, jtj, jtr, alb):
+                 shadow, ratio, thresh, alpha, exp_num, exp_den, jtj, jtr, alb, haze, base, hg, hs, hrss):
     r"""One iteration over a block's observations in chunk-major runs (:mod:`.runs`): albedo
     (eq. 3), then Q (eq. 1), the exposure sums (eq. 4) and the parameters' normal equations
     (eq. 5), chunk by chunk.
@@ -260,6 +261,12 @@ def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1
     ``exp_den`` (float64) are added to, ``jtj``, ``jtr`` (float64) filled; ``alb`` (float32 per
     pixel of the block, or size 0) gets the albedo where the block has observations.  Returns
     ``(Q, n_obs, alpha_min, alpha_max)``.
+
+    ``haze`` (float32 per local image; size 0: no haze, FLOAT_HAZE 0): every sum is of the values
+    less their image's haze, and the joint exposure-haze step's gradient, reduced normal matrix and
+    residual sums (:mod:`.haze_kernels`) are added to ``hg`` (2 per image), ``hs`` (square) and
+    ``hrss`` (3) in the same sweep, with noise weights: the robust factor ``w / base`` (``base``:
+    the cached weights when ``w`` are robust ones, else size 0) where eq. 1's weight is not 0.
 
     A chunk's loops are flat over its observations where they need no pixel (R and dR/dp, whose
     ``exp`` is :mod:`~lunaralbedo.model.photometry.vexp`; the weights after the shadow test;
@@ -292,6 +299,13 @@ def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1
     acc = np.zeros(N_SUMS * LANES)
     expl = np.zeros(2 * nimg * EXP_LANES)
     want_alb = alb.shape[0] > 0
+    with_haze, robust = haze.shape[0] > 0, base.shape[0] > 0
+    V, N = buf[_V * stride:(_V + 1) * stride], buf[_N * stride:(_N + 1) * stride]
+    hpx, hobs = (most_px, stride) if with_haze else (0, 0)
+    CP, CN, AH, IC = np.empty(hpx), np.empty(hpx), np.empty(hpx), np.empty(hpx)  # the haze step's per-pixel sums
+    HH, HE = np.empty(hobs), np.empty(hobs)  # each observation's entries of b_p
+    hlanes = np.zeros((nimg if with_haze else 0, hk.N_HAZE_SUMS * hk.HAZE_LANES))
+    pacc = np.empty(4 + 4 * hk.PAIR_LANES)
     want_alpha = alpha.shape[0] > 0
     shadow_on = shadow != NO_SHADOW_TEST
     n_obs = 0
@@ -305,6 +319,11 @@ def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1
         for r in range(r0, r1):
             lo = min(lo, run_pixel[r])
         img, wgt = image[s0:s1], w[s0:s1]
+        if with_haze:  # the values less their image's haze, in a work row
+            for r in range(r0, r1):
+                a, b = run_start[r] - s0, run_start[r + 1] - s0
+                hk.values_less_haze(img[a:b], haze[run_image[r]], V[a:b], b - a)
+            img = V[:n]
         _model_rows(kind, l0[s0:s1], l1[s0:s1], l2[s0:s1], params, R, D0, D1, n)
         for r in range(r0, r1):
             _fill(T[run_start[r] - s0:], texp[run_image[r]], run_start[r + 1] - run_start[r])
@@ -337,6 +356,9 @@ def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1
             _normal_lanes(A, T, R, Wc, D0, D1, img, acc, n, n_par)
         else:
             _cost_lanes(A, T, R, Wc, img, acc, n)
+        if with_haze:
+            hk.haze_chunk(run_start, run_pixel, run_image, r0, r1, s0, lo, nsp, spans, img, R, Wc, wgt, base[s0:s1] if robust else base,
+                        robust, texp, N, CP, CN, AH, IC, HH, HE, hlanes, hs, pacc, hrss, n)
     sums = np.zeros(N_SUMS)
     for m in range(N_SUMS):
         for lane in range(LANES):
@@ -354,6 +376,8 @@ def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1
             jtr[m] = sums[1 + m]
             for i in range(n_cols):
                 jtj[m, i] = nrm[m, i]
+    if with_haze:
+        hk.add_lanes(hlanes, hg, hs, hrss)
     amin, amax = _key_range(kmin, kmax)
     return sums[0], n_obs, amin, amax
 

@@ -20,7 +20,7 @@ from ..io.atomic import atomic_path
 from ..io.cache import load_meta
 from ..model import exposure_init, outliers
 from ..parallel.progress import ROWS
-from . import runs
+from . import robust_kernels, runs
 from .scene import Scene
 from .tilework import SolveState, cache_dir, effective_weights, pixel_stack, tile_model
 
@@ -49,18 +49,16 @@ def weights_path(block: Path, gen: int) -> Path:
     return block.parent / f"robust_{gen}" / f"{block.name}.npy"
 
 
-def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, gen: int, pairs: bool = False) -> dict:
+def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, gen: int) -> dict:
     """Write generation ``gen`` of the effective weights of tile ``t``'s blocks; return per local image the
-    counts of used, rejected and down-weighted (sum of 1 - m) observations, and with ``pairs`` the overlap
-    log-ratio sums of the observations kept (:func:`lunaralbedo.model.exposure_init.pair_sums`), for the
-    exposures to be initialised again without the outliers."""
+    counts of used, rejected and down-weighted (sum of 1 - m) observations."""
     folder = cache_dir(cache_root, scene, t)
     meta = load_meta(folder)
     idx = np.asarray(meta["index"], np.int32)
     width = scene.tiles[t].width
     counts = np.zeros((3, len(idx)))
-    pair_totals: dict = {}
     loss_obs = 0
+    pos = {k: j for j, k in enumerate(idx.tolist())}
     for i, (b0, b1) in enumerate(meta["blocks"]):
         block = folder / f"block_{i:04d}"
         arrays = pixel_stack(block, cache_root, scene)
@@ -68,83 +66,91 @@ def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, 
         if not len(arrays["index"]):
             continue
         w_prev = effective_weights(block, arrays, state.robust)
-        w_new, c, n_loss, kept = block_weights(arrays, scene, state, w_prev, width)
+        w_new, c, n_loss = block_weights(arrays, scene, state, w_prev, width)
         loss_obs += n_loss
-        if pairs:
-            exposure_init.merge_pair_sums(pair_totals, _kept_pairs(arrays, *kept, width))
-        pos = {k: j for j, k in enumerate(idx.tolist())}
         counts[:, [pos[k] for k in np.asarray(arrays["index"]).tolist()]] += c
         path = weights_path(block, gen)
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as f:
                 np.save(f, w_new, allow_pickle=False)
-    return {"index": idx, "counts": counts, "pairs": sorted(pair_totals.items()), "loss_observations": loss_obs}
+    return {"index": idx, "counts": counts, "loss_observations": loss_obs}
+
+
+def kept_pairs_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, gen: int) -> list:
+    """The overlap log-ratio sums (:func:`lunaralbedo.model.exposure_init.pair_sums`) of tile ``t``'s observations kept
+    by generation ``gen`` of the robust weights (computed with ``state``), for the exposures to be initialised again
+    without the outliers."""
+    folder = cache_dir(cache_root, scene, t)
+    meta = load_meta(folder)
+    totals: dict = {}
+    for i, (b0, b1) in enumerate(meta["blocks"]):
+        block = folder / f"block_{i:04d}"
+        arrays = pixel_stack(block, cache_root, scene)
+        ROWS.advance(b1 - b0)
+        if not len(arrays["index"]):
+            continue
+        r, w_lit, texp = tile_model(scene, arrays, state)
+        signal, tr = _signal(arrays, state, r, texp)
+        keep = (np.asarray(w_lit) > 0) & (tr > 0) & (effective_weights(block, arrays, gen) > 0)
+        exposure_init.merge_pair_sums(totals, _kept_pairs(arrays, signal, r, keep, scene.tiles[t].width))
+    return sorted(totals.items())
+
+
+def _signal(arrays: dict, state: SolveState, r, texp):
+    """Per observation ``I - H`` and ``T R`` (float64)."""
+    img = runs.observation_images(arrays)
+    signal = np.asarray(arrays["image"], np.float64) - state.haze_of(arrays["index"])[img]
+    return signal, texp[img].astype(np.float64) * r
 
 
 def _kept_pairs(arrays: dict, value, r, keep, width: int) -> dict:
     """Overlap log-ratio sums ``{(j, k): (n, sum d)}`` of a block's kept observations (``value``: haze-subtracted)."""
-    img, pix = runs.observation_images(arrays), runs.observation_pixels(arrays)
-    sel = np.flatnonzero(keep & (value > 0))
-    sel = sel[np.argsort(img[sel], kind="stable")]  # image-major; each image's pixels ascend in the runs' order
-    start = np.searchsorted(img[sel], np.arange(len(arrays["index"]) + 1))
-    return exposure_init.pair_sums(pix[sel], start, value[sel].astype(np.float32), r[sel], np.asarray(arrays["index"]), width)
+    # image-major; each image's pixels ascend in the runs' order
+    sel, pix, start = robust_kernels.image_major(arrays["run_start"], arrays["run_pixel"], arrays["run_image"],
+                                                 len(arrays["index"]), keep & (value > 0))
+    return exposure_init.pair_sums(pix, start, value[sel].astype(np.float32), r[sel], np.asarray(arrays["index"]), width)
 
 
 def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndarray, width: int):
-    """The effective weights of one block (float32), its ``(3, local images)`` counts (used, rejected, down-weighted),
-    the observations the robust loss applies to, and ``(values less haze, R, kept)`` per observation."""
+    """The effective weights of one block (float32), its ``(3, local images)`` counts (used, rejected, down-weighted)
+    and the observations the robust loss applies to."""
     s = scene.settings
     base = np.asarray(arrays["weight"], np.float32)
     r, w_lit, texp = tile_model(scene, arrays, state)
-    img = runs.observation_images(arrays)
-    pix = runs.observation_pixels(arrays)
-    haze = state.haze_of(arrays["index"])[img] if state.haze is not None else 0.0
-    signal = np.asarray(arrays["image"], np.float64) - haze
-    tr = texp[img].astype(np.float64) * r
-    used = (np.asarray(w_lit) > 0) & (tr > 0)
-    n_img = len(arrays["index"])
-    flag = np.zeros(len(base), bool)
+    n_obs, n_img = len(base), len(arrays["index"])
+    loga, used = robust_kernels.workspace("loga", n_obs)[:n_obs], np.empty(n_obs, bool)
+    robust_kernels.log_albedo(arrays["run_start"], arrays["run_image"], arrays["image"], state.haze_of(arrays["index"]),
+                              texp, r, np.asarray(w_lit, np.float32), loga, used)
+    flag = np.zeros(n_obs, bool)
     if s.reject_outliers and state.robust:  # the spatial test ran in the first pass: its rejections stay
         flag = used & (np.asarray(w_prev) == 0) & (base > 0)
     elif s.reject_outliers:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            loga = np.where(used, np.log(np.maximum(signal, 1e-6) / tr), np.nan)
-        e = np.full(len(base), np.nan)
-        tau = np.zeros(len(base))
-        order = np.argsort(img, kind="stable")  # image by image
-        bounds = np.searchsorted(img[order], np.arange(n_img + 1))
-        for k in range(n_img):
-            sel = order[bounds[k]:bounds[k + 1]]
-            sel = sel[used[sel]]
-            if not len(sel):
-                continue
-            row, col = pix[sel] // width, pix[sel] % width
-            r0, c0 = row.min(), col.min()
-            raster = np.full((row.max() - r0 + 1, col.max() - c0 + 1), np.nan)
-            raster[row - r0, col - c0] = loga[sel]
-            e[sel], tau[sel] = outliers.neighbourhood_deviation(raster, row - r0, col - c0)
-        flag = outliers.spatial_outliers(e, pix, tau)
+        flag = robust_kernels.spatial_test(arrays, loga, width)
     keep = used & ~flag
-    m, n_loss = np.ones(len(base)), 0
+    m, n_loss = np.ones(0), 0  # m: the robust loss's factors (none: 1)
     if s.robust_loss != "none":
-        m, n_loss = _loss_factors(arrays, signal, tr, keep, base, w_prev, pix, img, n_img, s)
-    w_new = np.where(flag, 0.0, base * m).astype(np.float32)
-    counts = np.stack([np.bincount(img, used, n_img), np.bincount(img, used & flag, n_img),
-                       np.bincount(img, np.where(keep, 1.0 - m, 0.0), n_img)])
-    return w_new, counts, n_loss, (signal, r, keep)
+        m, n_loss = _loss_factors(arrays, state, r, texp, keep, base, w_prev, n_img, s)
+    w_new, counts = robust_kernels.workspace("weights", n_obs).view(np.float32)[:n_obs], np.zeros((3, n_img))
+    robust_kernels.finish(arrays["run_start"], arrays["run_image"], base, used, flag, keep, m, w_new, counts)
+    return w_new, counts, n_loss
 
 
-def _loss_factors(arrays, signal, tr, keep, base, w_prev, pix, img, n_img, s) -> np.ndarray:
-    """The robust loss's IRLS factors m (1 where fewer than three images remain on a pixel) and how many observations
-    it applies to."""
+def _loss_factors(arrays, state, r, texp, keep, base, w_prev, n_img, s) -> np.ndarray:
+    """The robust loss's IRLS factors m (none: 1 everywhere, fewer than three images remain on every pixel; else 1
+    where they do) and how many observations it applies to."""
+    if robust_kernels.most_runs_on_a_pixel(arrays["chunks"], arrays["run_start"], arrays["run_pixel"]) < \
+            outliers.MIN_IMAGES_FOR_LOSS:  # no pixel of the block has three images
+        return np.ones(0), 0
+    many = np.empty(len(base), bool)
+    if robust_kernels.kept_on_pixel(arrays["run_start"], arrays["run_pixel"], keep, runs.pixel_extent(arrays),
+                                    outliers.MIN_IMAGES_FOR_LOSS, many) < outliers.MIN_SCALE_OBS:
+        return np.ones(0), 0
+    m = np.ones(len(base))
+    signal, tr = _signal(arrays, state, r, texp)
+    img, inv = runs.observation_images(arrays), runs.observation_pixels(arrays)
     with np.errstate(divide="ignore", invalid="ignore"):
         m_prev = np.where(base > 0, np.asarray(w_prev, np.float64) / base, 0.0)
     w = np.where(keep, base * m_prev, 0.0)
-    m = np.ones(len(base))
-    inv = pix
-    many = keep & (np.bincount(inv, keep.astype(np.float64))[inv] >= outliers.MIN_IMAGES_FOR_LOSS)
-    if np.count_nonzero(many) < outliers.MIN_SCALE_OBS:
-        return m, 0
     albedo = np.bincount(inv, signal * tr * w) / np.maximum(np.bincount(inv, tr * tr * w), 1e-300)
     res = signal - albedo[inv] * tr
     pooled = outliers.robust_sigma(res[many])
@@ -161,16 +167,20 @@ def _loss_factors(arrays, signal, tr, keep, base, w_prev, pix, img, n_img, s) ->
 def reweight_pass(on_tiles, threads: int, scene: Scene, state: SolveState, ck: dict, reinit: bool) -> SolveState:
     """A reweight pass over the tiles (``on_tiles``: the solve's map over them): the next generation of robust
     weights, their per-image counts into the checkpoint ``ck``; with ``reinit`` (after the first pass) the
-    exposures initialised again from the overlaps of the observations kept."""
+    exposures initialised again from the overlaps of the observations kept, in a second pass over the tiles when
+    the first rejected any (else the observations kept are those the exposures were initialised with)."""
     gen = ck["robust"] + 1
-    init = gen == 1 and reinit  # the overlaps' exposures again, without the rejected observations
-    parts = on_tiles(reweight_tile, f"outliers {gen}", state=state, gen=gen, pairs=init, threads=threads)
+    parts = on_tiles(reweight_tile, f"outliers {gen}", state=state, gen=gen, threads=threads)
     counts = np.zeros((3, len(scene.images)))
-    pairs: dict = {}
     for p in parts:  # fixed tile order
         np.add.at(counts.T, p["index"], p["counts"].T)
-        exposure_init.merge_pair_sums(pairs, {tuple(k): tuple(v) for k, v in p["pairs"]})
-    t = exposure_init.overlap_exposure(pairs, np.log(state.exposure)) if init else state.exposure
+    t = state.exposure
+    if gen == 1 and reinit and counts[1].sum() > 0:  # the overlaps' exposures again, without the rejected observations
+        pairs: dict = {}
+        for p in on_tiles(kept_pairs_tile, f"outliers {gen}: overlaps", state=state, gen=gen, threads=threads):
+            exposure_init.merge_pair_sums(pairs, {tuple(k): tuple(v) for k, v in p})
+        t = exposure_init.overlap_exposure(pairs, np.log(state.exposure))
+    robust_kernels.release()
     ck.update(robust=gen, reweight_now=False, outliers=counts.tolist(), exposure=np.asarray(t).tolist(),
               loss_observations=sum(int(p["loss_observations"]) for p in parts))
     return SolveState(np.asarray(t, np.float64), state.params, robust=gen, haze=state.haze)

@@ -348,7 +348,9 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
         reweights = robust.passes(s, ck)
         gen = ck["robust"]
         if gen < len(reweights) and (ck["iteration"] >= reweights[gen] or ck.get("reweight_now")):
+            t_rw = time.perf_counter()  # part of the iterate stage; also reported on its own
             state = robust.reweight_pass(on_tiles, _threads(executor), scene, state, ck, method == "overlap" and t_given is None)
+            timings["reweight"] = timings.get("reweight", 0.0) + time.perf_counter() - t_rw
             outputs.write_json(out / STATE_FILE, ck)
             robust.drop_generation(cache, gen)
         parts = on_tiles(iterate_tile, f"iteration {ck['iteration'] + 1}", state=state, want_phase=want_phase,

@@ -34,7 +34,7 @@ from ..io.geotiff import GeoTiffRows
 from ..io.rasters import count_finite
 from ..model import outliers, shadows, updates
 from ..parallel.progress import ROWS
-from . import haze_kernels, kernels, runs
+from . import kernels, runs
 from .finalise_kernels import finalise_runs
 from ..runtime import STACK_MEMORY_MB
 from .scene import Scene
@@ -162,15 +162,19 @@ def hazed(arrays: dict, state: "SolveState") -> dict:
 
 
 def _weighted(block: Path, arrays: dict, state: "SolveState") -> dict:
-    """A block's observations with the state's effective weights."""
+    """A block's observations with the state's effective weights (``cached_weight``: the weights they replace).
+
+    A block held by :data:`STACKS` keeps the mapping of its weights of the current generation with it: mapping the
+    file again in every pass cost ~1 ns per observation and pass in page faults."""
     if not state.robust:
         return arrays
-    w = effective_weights(block, arrays, state.robust)
-    if state.haze is None:
-        return {**arrays, "weight": w}
-    with np.errstate(invalid="ignore", divide="ignore"):  # the robust factor m, for the haze step's noise weights
-        m = np.where(arrays["weight"] > 0, w / arrays["weight"], 0).astype(np.float32)
-    return {**arrays, "weight": w, "robust_factor": m}
+    held = arrays.get("robust_weights")
+    if held is not None and held[0] == state.robust:
+        w = held[1]
+    else:
+        w = effective_weights(block, arrays, state.robust)
+        arrays["robust_weights"] = (state.robust, w)
+    return {**arrays, "weight": w, "cached_weight": arrays["weight"]}
 
 
 def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, want_phase: bool) -> updates.PassSums:
@@ -192,7 +196,7 @@ def iterate_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, w
         ROWS.advance(b1 - b0)
         if not len(arrays["index"]):
             continue
-        arrays = hazed(_weighted(folder / f"block_{i:04d}", arrays, state), state)
+        arrays = _weighted(folder / f"block_{i:04d}", arrays, state)  # the haze is taken off inside the kernel
         part = updates.PassSums(len(arrays["index"]), out.n_params, index=arrays["index"])
         iterate_block(arrays, scene.settings, model, state, phase, part)
         out.add(part)  # blocks in order; without the phase step the normal equations stay zero
@@ -229,25 +233,21 @@ def iterate_block(arrays: dict, s, model, state: SolveState, phase: bool, out: u
     # those of the cache (no dynamic shadow test), else the kernel's (0.2-0.3 ns per observation and pass)
     known_range = shadow == kernels.NO_SHADOW_TEST and "alpha_range" in arrays
     alpha = arrays["alpha"] if (n_par and "alpha" in arrays and not known_range) else arrays["image"][:0]
-    with_haze = state.haze is not None
     alb = np.full(runs.pixel_extent(arrays) if n_par > 2 else 0, np.nan, np.float32)
     jtj, jtr = np.zeros((n_cols, n_cols)), np.zeros(n_cols)
+    # FLOAT_HAZE 1: the kernel takes each image's haze off and adds the joint (T, H) step's sums in the same sweep
+    n_h = len(arrays["index"]) if state.haze is not None else 0
+    haze = state.haze_of(arrays["index"]) if n_h else np.empty(0, np.float32)
+    base = arrays.get("cached_weight", arrays["weight"][:0]) if n_h else arrays["weight"][:0]  # for the robust factor
+    hg, hs, hrss = np.zeros(2 * n_h), np.zeros((2 * n_h, 2 * n_h)), np.zeros(3)
     q, n_obs, amin, amax = kernels.iterate_runs(
         kind, arrays["chunks"], arrays["run_start"], arrays["run_pixel"], arrays["run_image"], arrays["image"],
-        arrays["weight"], *layers, params, texp,
-        n_par, n_cols, shadow, ratio, np.float32(s.shadow_thresh), alpha, out.exp_num, out.exp_den, jtj, jtr, alb)
-    if with_haze:  # the joint (T, H) step's sums (the values are haze-subtracted: :func:`hazed`)
-        if shadow == kernels.NO_SHADOW_TEST:  # R from the model's point kernel, the weights as cached
-            r_h, w_h, t_h = _reflectance(kind, layers, params, arrays["image"]), arrays["weight"], texp
-        else:
-            r_h, w_h, t_h = block_model(s, model, arrays, state)
-        w_n = np.where(w_h > 0, arrays.get("robust_factor", np.float32(1.0)), np.float32(0)).astype(np.float32)  # noise weights
-        n_loc = len(arrays["index"])
-        out.haze_g, out.haze_s, out.haze_rss = np.zeros(2 * n_loc), np.zeros((2 * n_loc, 2 * n_loc)), np.zeros(3)
-        haze_kernels.haze_runs(arrays["chunks"], arrays["run_start"], arrays["run_pixel"], arrays["run_image"],
-                               arrays["image"], r_h, w_n, t_h, out.haze_g, out.haze_s, out.haze_rss)
+        arrays["weight"], *layers, params, texp, n_par, n_cols, shadow, ratio, np.float32(s.shadow_thresh), alpha,
+        out.exp_num, out.exp_den, jtj, jtr, alb, haze, base, hg, hs, hrss)
+    if n_h:
+        out.haze_g, out.haze_s, out.haze_rss = hg, hs, hrss
     if n_par > 2:  # no such model yet: the normal equations in NumPy
-        jtj, jtr = _normal_equations(arrays, alb, texp, layers[0], dr, ratio if shadow == kernels.SHADOW_ON_LAYER else None,
+        jtj, jtr = _normal_equations(hazed(arrays, state), alb, texp, layers[0], dr, ratio if shadow == kernels.SHADOW_ON_LAYER else None,
                                      s.shadow_thresh if shadow != kernels.NO_SHADOW_TEST else None)
     if n_par:
         if known_range:
@@ -257,16 +257,6 @@ def iterate_block(arrays: dict, s, model, state: SolveState, phase: bool, out: u
         out.alpha_min, out.alpha_max = min(out.alpha_min, amin), max(out.alpha_max, amax)
     out.q += float(q)
     out.n_obs += int(n_obs)
-
-
-def _reflectance(kind, layers, params, like):
-    """R of every observation of a block: the model's inlined ``point`` (:data:`.kernels.POINT_KINDS`), or its layer."""
-    if kind == 0:
-        return layers[0]
-    n = len(like)
-    r, d0, d1 = np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.float32)
-    kernels._model_rows(kind, layers[0], layers[1], layers[2], params, r, d0, d1, n)
-    return r
 
 
 def _normal_equations(arrays, alb, texp, r, dr, ratio, thresh):
