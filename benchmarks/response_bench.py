@@ -105,7 +105,7 @@ def apollo(photk: Path, figures: Path | None, work: Path = Path("/tmp/response_a
     """Response of the settings-1 DRGs: fit figures, then the albedo solved with and without it."""
     import shutil
 
-    from lunaralbedo.engine.observations import response_observations
+    from lunaralbedo.engine.response_pass import response_observations
     from lunaralbedo.engine.scene import build_scene
     from lunaralbedo.engine.solve import solve
     from lunaralbedo.parallel import make_executor

@@ -55,7 +55,8 @@ def kappa_log_likelihood(x: np.ndarray, mu: np.ndarray, kap: np.ndarray) -> floa
 
 def level_log_likelihood(g, kappa, cnt, sum_log_mu, sum_mu) -> float:
     """:func:`kappa_log_likelihood` from per-level sums (g, kappa per level; count, sum of ln mu, sum of mu over the
-    level's observations): every term but ln mu depends on the level only, so this costs O(levels)."""
+    level's observations): every term but ln mu depends on the level only, so this costs O(levels) (for the
+    count scale's 1-D search; less precise than the per-observation sum, whose terms cancel one by one)."""
     kg = kappa * g
     have = cnt > 0
     lk = np.log(kappa)
@@ -120,7 +121,9 @@ class Profile:
         mu = r[obs.pixel] * ct
         slm = np.bincount(self.lev_idx, np.log(mu), self.n_lev)
         sm = np.bincount(self.lev_idx, mu, self.n_lev)
-        val = level_log_likelihood(g, self.kappa, self.cnt, slm, sm)
+        # per observation, not from the level sums: those cancel terms of ~x ln mu per level and lose the precision
+        # the trust region's ratio of actual to predicted decrease needs near the optimum
+        val = kappa_log_likelihood(x, mu, kap)
         kg = self.kappa * g
         d_lg = kg * (slm + self.cnt * (np.log(self.kappa) - digamma(kg + 1.0)))
         grad = [self.jac.T @ (self.lev.matrix.T @ d_lg)]  # to ln g over the range, then to the knots, then to S
