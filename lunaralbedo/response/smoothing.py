@@ -27,6 +27,8 @@ from .model import Observations
 GRID_PER_OBS = (0.0, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1e3, 3e3, 1e4, 3e4, 1e5)
 #: Pixel groups of the cross-validation.
 FOLDS = 2
+#: Observations the cross-validation uses at most (a fixed subset of pixels beyond).
+CV_MAX_OBS = 150_000
 #: Periods (in ln exposure) searched by the diagnosis.
 PERIODS = np.linspace(0.05, 3.0, 600)
 #: Observations the diagnosis uses at most (a fixed subset of pixels beyond: it is a mean over pixels).
@@ -92,7 +94,13 @@ def heldout_error(fit: ResponseFit, obs: Observations) -> np.ndarray:
 
 def choose_smoothing(obs: Observations, exposure, grid_per_obs=GRID_PER_OBS, folds: int = FOLDS, seed: int = 0,
                      **fit_kw) -> dict:
-    """Cross-validated weight (module doc): the grid, the held-out scores and the weight chosen."""
+    """Cross-validated weight (module doc): the grid, the held-out scores and the weight chosen.
+
+    Beyond ``CV_MAX_OBS`` observations the cross-validation runs on a fixed subset of pixels (every k-th): the
+    weight is per observation, so it carries over to the fit on all of them (a slight over-smoothing at most)."""
+    step = max(1, -(-len(obs) // CV_MAX_OBS))
+    if step > 1:
+        obs = obs.take(obs.pixel % step == 0)[0]
     group = np.random.default_rng(seed).integers(0, folds, obs.n_pixels)[obs.pixel]
     splits = [(obs.take(group != f)[0], obs.take(group == f)[0]) for f in range(folds)]
     errors, excess = [], []  # per held-out pixel, per weight; excess over the best: mean and paired s.e.
@@ -108,8 +116,8 @@ def choose_smoothing(obs: Observations, exposure, grid_per_obs=GRID_PER_OBS, fol
         if excess[-1][0] > excess[-1][1]:  # significantly worse than the best: past it
             break
     pick = int(np.argmin(scores))
-    return {"weight_per_observation": float(grid_per_obs[pick]), "weight": float(grid_per_obs[pick] * len(obs)),
-            "rule": f"{folds}-fold cross-validation over pixels: the weight with the least held-out DN error",
+    return {"weight_per_observation": float(grid_per_obs[pick]), "rule": f"{folds}-fold cross-validation over pixels: the weight with the least held-out DN error",
+            "cv_observations": len(obs),
             "grid_per_observation": [float(v) for v in grid_per_obs[:len(errors)]], "heldout_dn_mse": scores,
             "excess_over_best": [d for d, _ in excess], "excess_se": [se for _, se in excess]}
 
@@ -122,7 +130,8 @@ def fit_regularised(obs: Observations, exposure=None, smoothing="auto", bins: bo
     if smoothing == "auto":
         info = choose_smoothing(obs, exposure, **fit_kw)
     else:
-        info = {"weight_per_observation": float(smoothing), "weight": float(smoothing) * len(obs), "rule": "given"}
+        info = {"weight_per_observation": float(smoothing), "rule": "given"}
+    info["weight"] = info["weight_per_observation"] * len(obs)
     fit = fit_response(obs, exposure, smoothing=info["weight"], **fit_kw)
     info["exposure_ratios"] = exposure_diagnosis(obs, fit.exposure)
     fit.smoothing = info
