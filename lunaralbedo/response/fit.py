@@ -228,8 +228,9 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
         Weight :math:`\lambda` of the roughness penalty on :math:`\ln g` (second differences with
         Debevec-Malik hat weights; the module docstring); 0: none (Kim et al.'s plain fit).
     bins : bool, default False
-        Model each DN's 8-bit quantisation in the likelihood (density times bin width) and fit the
-        count scale that eq. 8 leaves free.
+        Model each DN's 8-bit quantisation in the likelihood (density times bin width, with the
+        quantisation weights of :func:`.profile.quantisation_weights`) and fit the count scale that
+        eq. 8 leaves free.
 
     Returns
     -------
@@ -238,7 +239,8 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
         ``g(z_ref) = 1`` (``lut()``: over 0..255, NaN outside); ``g_initial``;
         ``exposure`` (geometric mean 1 when estimated); ``radiance`` (per pixel of ``obs``,
         NaN where left out); ``loglik`` (eq. 8 per iteration); ``z_ref``; ``n_juggle``;
-        ``gamma`` (the gauge and why); ``residuals`` (per-DN ``count``, ``bias_log``,
+        ``gamma`` (the gauge and why; with ``bins`` also ``count_scale`` and ``quantisation_weight``:
+        the smallest weight, its DN and how many DN weigh less than 1/2); ``residuals`` (per-DN ``count``, ``bias_log``,
         ``std_log``, ``se_log_g``; ``chi2_per_dof``, ``rms_log``, ``n_obs``,
         ``n_params``); ``converged``, ``message``, ``passes``, ``newton``.
 
