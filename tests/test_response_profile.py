@@ -77,3 +77,15 @@ def test_steep_curve_with_clipped_ends_beats_opencv():
     assert err < 0.01, err
     for method in ("debevec", "robertson"):
         assert err < curve_error(opencv_response(s["dn"], s["exposure"], method), s["curve"])[0], method
+
+
+def test_stirling_remainder_is_the_log_gamma_remainder():
+    from scipy.special import gammaln
+
+    from lunaralbedo.response.profile import stirling_remainder
+
+    y = np.array([0.0, 0.3, 1.0, 9.9, 10.1, 50.0, 3e4])
+    # long double reference: lnGamma(y+1) - y ln y + y, whose terms cancel for large y
+    ref = np.array([float(np.longdouble(gammaln(v + 1.0)) - np.longdouble(v) * np.log(np.longdouble(v if v else 1.0))
+                          + np.longdouble(v)) for v in y])
+    assert np.allclose(stirling_remainder(y), ref, rtol=1e-9, atol=1e-9)

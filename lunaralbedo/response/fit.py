@@ -144,7 +144,13 @@ def _solve(prof: Profile, p0: np.ndarray, a_s: np.ndarray | None, record, max_it
             if np.all(q[:nv] >= 0):  # the history shows feasible points only (eq. 7 holds)
                 record(q)
 
-        res = minimize(fun, y0, jac=True, hess=lambda y: e.T @ prof.hess(base + e @ y) @ e, method="trust-exact",
+        ident = e.shape[0] == e.shape[1] and np.array_equal(e, np.eye(len(e)))  # nothing pooled, no gauge
+
+        def hess(y):
+            h = prof.hess(base + e @ y)
+            return h if ident else e.T @ h @ e
+
+        res = minimize(fun, y0, jac=True, hess=hess, method="trust-exact",
                        callback=record_y, options=dict(maxiter=max(max_iter - its, 1), gtol=1e-10))
         its += res.nit
         p_new = base + e @ res.x

@@ -47,6 +47,18 @@ def quantisation_weights(g_counts: np.ndarray, width_log: np.ndarray) -> np.ndar
     return 1.0 / (1.0 + np.asarray(g_counts) * np.asarray(width_log) ** 2 / 12.0)
 
 
+def stirling_remainder(y: np.ndarray) -> np.ndarray:
+    r""":math:`\ln\Gamma(y+1) - y\ln y + y` without the cancellation of its terms for large :math:`y` (Stirling's
+    series above 10, to ~1e-13; directly below, where the terms are small)."""
+    y = np.asarray(y, np.float64)
+    big = y > 10.0
+    yb = np.where(big, y, 10.0)
+    series = 0.5 * np.log(2 * np.pi * yb) + 1 / (12 * yb) - 1 / (360 * yb**3) + 1 / (1260 * yb**5)
+    ys = np.where(big, 1.0, y)
+    direct = gammaln(ys + 1.0) - np.where(ys > 0, ys * np.log(np.where(ys > 0, ys, 1.0)), 0.0) + ys
+    return np.where(big, series, direct)
+
+
 def kappa_log_likelihood(x: np.ndarray, mu: np.ndarray, kap: np.ndarray) -> float:
     r""":math:`\sum_n \kappa x\ln(\kappa\mu) - \kappa\mu - \ln\Gamma(\kappa x+1) + \ln\kappa` (eq. 8 when :math:`\kappa = 1`)."""
     kx = kap * x
@@ -73,12 +85,17 @@ class Profile:
         self.nv = nk - 1
         n = len(obs)
         self.b = sp.csr_matrix((np.ones(n), (obs.pixel, lev_idx)), shape=(obs.n_pixels, self.n_lev))
+        self.bt = self.b.T.tocsr()
         self.cnt = np.bincount(lev_idx, minlength=self.n_lev).astype(float)
         self.w_mean = lev.matrix.T @ self.cnt / n  # mean of ln x over the observations = w_mean @ lg_knots
         m = np.arange(nk - 1)[None, :]
         k = np.arange(nk)[:, None]
         tail = np.cumsum(self.w_mean[::-1])[::-1][1:]  # sum of w_mean over knots above increment m
         self.jac = (m < k).astype(float) - tail[None, :]  # d lg_k / d S_m
+        self.tail = tail
+        identity = self.n_lev == nk  # every level a knot: the interpolation is the identity
+        self.m_sp = None if identity else sp.csr_matrix(lev.matrix)
+        self.bw_sp = sp.csr_matrix(bin_widths(self.n_lev))
         self.scale = float(n)
         d2 = second_differences(self.n_lev) @ lev.matrix @ self.jac
         d2 *= roughness_weights(lev.dn[1:-1])[:, None]
@@ -119,12 +136,15 @@ class Profile:
         big_c = np.bincount(obs.pixel, kap * ct, obs.n_pixels)
         r = big_x / big_c
         mu = r[obs.pixel] * ct
-        slm = np.bincount(self.lev_idx, np.log(mu), self.n_lev)
-        sm = np.bincount(self.lev_idx, mu, self.n_lev)
-        # per observation, not from the level sums: those cancel terms of ~x ln mu per level and lose the precision
-        # the trust region's ratio of actual to predicted decrease needs near the optimum
-        val = kappa_log_likelihood(x, mu, kap)
+        # kappa x ln(kappa mu) - kappa mu - lnGamma(kappa x + 1) + ln kappa, written as the small per-observation
+        # kappa (x ln(mu/x) - (mu - x)) plus per level -stirling_remainder(kappa g) + ln kappa: summing terms of
+        # ~x ln mu first would cancel them and lose the precision the trust region's decrease ratio needs
+        lmu = np.log(mu)
+        dev = kap * (x * (lmu - np.log(g)[self.lev_idx]) - (mu - x))
         kg = self.kappa * g
+        val = float(np.sum(dev)) + float(self.cnt @ (np.log(self.kappa) - stirling_remainder(kg)))
+        slm = np.bincount(self.lev_idx, lmu, self.n_lev)
+        sm = np.bincount(self.lev_idx, mu, self.n_lev)
         d_lg = kg * (slm + self.cnt * (np.log(self.kappa) - digamma(kg + 1.0)))
         grad = [self.jac.T @ (self.lev.matrix.T @ d_lg)]  # to ln g over the range, then to the knots, then to S
         if self.t_fixed is None:
@@ -147,20 +167,32 @@ class Profile:
         self._parts = (d_lg, ct, big_x, big_c)
         self._sums = (slm, sm)
 
+    def _right_jac(self, a: np.ndarray) -> np.ndarray:
+        """``a @ jac`` in O(size of a): jac is "ones below the diagonal" minus the rank one ``1 tail^T``."""
+        c = np.cumsum(a, axis=1)  # sum over knots k <= m; the sum over k > m is the total minus it
+        total = c[:, -1:]
+        return total * (1.0 - self.tail[None, :]) - c[:, :-1]
+
+    def _to_knots(self, h: np.ndarray) -> np.ndarray:
+        """``M^T h M`` for the levels' interpolation M (sparse; the identity when every level is a knot)."""
+        if self.m_sp is None:
+            return h
+        return (self.m_sp.T @ (self.m_sp.T @ h).T).T
+
     def _hessian(self):
         g, t, r, x, mu = self.state
         d_lg, ct, big_x, big_c = self._parts
-        mt, kap = self.lev.matrix.T, self.kappa
-        h_g = kap[:, None] * (self.b.T @ sp.diags(1.0 / big_x) @ self.b).toarray() * kap[None, :]
+        kap = self.kappa
+        h_g = kap[:, None] * (self.bt @ sp.diags(1.0 / big_x) @ self.b).toarray() * kap[None, :]
         h_g -= np.diag(self.cnt * kap**2 * polygamma(1, kap * g + 1.0))
-        h_k = mt @ (g[:, None] * h_g * g[None, :] + np.diag(d_lg)) @ self.lev.matrix
-        ej = self.jac
-        blocks = [[ej.T @ h_k @ ej - self.pen]]
-        if self.bins is not None:
-            blocks[0][0] = blocks[0][0] - self.bins.T @ (self._bin_h[:, None] * self.bins)
+        h_lg = g[:, None] * h_g * g[None, :] + np.diag(d_lg)  # in ln g over the levels
+        if self.bins is not None:  # the bins' term, in ln g over the levels too (banded)
+            h_lg -= (self.bw_sp.T @ sp.diags(self._bin_h) @ self.bw_sp).toarray()
+        h_k = self._to_knots(h_lg)
+        blocks = [[self._right_jac(self._right_jac(h_k).T) - self.pen]]  # jac^T h_k jac (h_k symmetric)
         if self.t_fixed is None:
             h_uu, h_lgu = self._exposure_blocks(ct, big_x, big_c, g)
-            cross = ej.T @ (mt @ h_lgu)  # (nv, n_img-1)
+            cross = self._right_jac((h_lgu if self.m_sp is None else self.m_sp.T @ h_lgu).T).T  # (nv, n_img-1)
             blocks[0].append(cross)
             blocks.append([cross.T, h_uu])
         return -np.block(blocks) / self.scale
@@ -172,7 +204,7 @@ class Profile:
         q = sp.csr_matrix((kct / big_c[obs.pixel], (obs.pixel, obs.image)), shape=(obs.n_pixels, obs.n_images))
         xq = sp.diags(big_x) @ q
         h_uu = (q.T @ xq).toarray() - np.diag(np.asarray(xq.sum(axis=0)).ravel())
-        h_gu = self.kappa[:, None] * (self._n_kj - (self.b.T @ q).toarray())  # d2 L / dg_k du_j
+        h_gu = self.kappa[:, None] * (self._n_kj - (self.bt @ q).toarray())  # d2 L / dg_k du_j
         return h_uu[1:, 1:], (g[:, None] * h_gu)[:, 1:]
 
     def fun(self, p):
