@@ -89,3 +89,26 @@ def test_stirling_remainder_is_the_log_gamma_remainder():
     ref = np.array([float(np.longdouble(gammaln(v + 1.0)) - np.longdouble(v) * np.log(np.longdouble(v if v else 1.0))
                           + np.longdouble(v)) for v in y])
     assert np.allclose(stirling_remainder(y), ref, rtol=1e-9, atol=1e-9)
+
+
+def test_one_blas_thread_inside_the_fit_only(monkeypatch):
+    """The fit limits BLAS to one thread while it runs (its matrices are small; threads only spin on a shared
+    machine) and leaves the process's setting as it was."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from lunaralbedo.response import fit as F
+
+    seen = []
+    solve = F._solve
+
+    def spy(*a, **k):
+        seen.append(max(i["num_threads"] for i in threadpool_info()))
+        return solve(*a, **k)
+
+    monkeypatch.setattr(F, "_solve", spy)
+    s = render_stack(n_images=4, shape=(30, 30))
+    with threadpool_limits(limits=2):
+        before = [i["num_threads"] for i in threadpool_info()]
+        F.fit_response(R.observations_from_stack(s["dn"], np.ones(s["dn"].shape, bool)), s["exposure"])
+        assert seen and max(seen) == 1
+        assert [i["num_threads"] for i in threadpool_info()] == before
