@@ -10,6 +10,8 @@ With --figures, writes the comparison plot of the first stack to FOLDER/response
 With --apollo PHOTK_TESTS (and --figures), the real Apollo 15/16 DRGs of settings 1: the response
 pass and fit (CPU time, convergence, residuals), then ``solve`` with that response.csv and with a
 linear response, and the figures response_apollo15_{curve,residuals,loglik,albedo}.png.
+With --apollo PHOTK_TESTS --halves NAME=response.csv ...: the albedo solved on the even and on the odd DRGs
+with each curve (and linear), and how well the two independent halves agree.
 """
 from __future__ import annotations
 
@@ -39,21 +41,31 @@ STACKS = {
     "6 exp. 40-600 ms, contrast 2.0": dict(exposures=(40, 70, 120, 200, 350, 600), curve=FilmCurve(k=2.0), seed=5),
     "6 exp. 40-600 ms, contrast 2.5, radiance x200": dict(exposures=(40, 70, 120, 200, 350, 600),
                                                           curve=FilmCurve(k=2.5), radiance_ratio=200, seed=5),
+    # added after the quantisation weights were built, to check them on curves they were not developed on
+    "contrast 3.0, 30-520 ms, radiance x100": dict(exposures=(30, 55, 95, 170, 300, 520), curve=FilmCurve(k=3.0),
+                                                   radiance_ratio=100, seed=21),
+    "contrast 1.0, 7 exp. x64": dict(n_images=7, exposure_ratio=64, curve=FilmCurve(k=1.0), seed=22),
+    "contrast 2.0, 1000 ph, ratio 2 (10-160 ms)": dict(exposures=(10, 20, 40, 80, 160), curve=FilmCurve(k=2.0),
+                                                      photons=1000, seed=23),
+    "fog 8 %, contrast 1.8, 6 exp. x20": dict(n_images=6, exposure_ratio=20, curve=FilmCurve(a=0.08, b=0.9, k=1.8),
+                                             seed=24),
 }
 
 
 def accuracy(figures: Path | None) -> None:
-    print(f"{'stack':46s} {'unpenalised':>11s} {'ours':>8s} {'Debevec':>8s} {'Robertson':>9s}  weight/obs")
+    print(f"{'stack':46s} {'unpenalised':>11s} {'ours':>8s} {'Debevec':>8s} {'Robertson':>9s}  weight/obs  fit CPU s")
     for i, (name, kw) in enumerate(STACKS.items()):
         s = render_stack(**kw)
         obs = observations_from_stack(s["dn"], np.ones(s["dn"].shape, bool))
         plain = fit_response(obs, s["exposure"])
+        c0 = time.process_time()
         fit = fit_regularised(obs, s["exposure"])
+        cpu = time.process_time() - c0
         cv = {m: opencv_response(s["dn"], s["exposure"], m) for m in ("debevec", "robertson")}
         errs = [curve_error(plain.lut(), s["curve"])[0], curve_error(fit.lut(), s["curve"])[0]]
         errs += [curve_error(cv[m], s["curve"])[0] for m in cv]
         print(f"{name:46s} " + " ".join(f"{100 * e:7.2f}%" for e in errs)
-              + f"  {fit.smoothing['weight_per_observation']:g}", flush=True)
+              + f"  {fit.smoothing['weight_per_observation']:10g}  {cpu:6.1f}", flush=True)
         if figures and i == 0:
             plot(figures / "response_vs_opencv.png", s, fit, cv)
             from lunaralbedo.response.io import plot_loglik
@@ -105,7 +117,7 @@ def apollo(photk: Path, figures: Path | None, work: Path = Path("/tmp/response_a
     """Response of the settings-1 DRGs: fit figures, then the albedo solved with and without it."""
     import shutil
 
-    from lunaralbedo.engine.observations import response_observations
+    from lunaralbedo.engine.response_pass import response_observations
     from lunaralbedo.engine.scene import build_scene
     from lunaralbedo.engine.solve import solve
     from lunaralbedo.parallel import make_executor
@@ -149,6 +161,42 @@ def apollo(photk: Path, figures: Path | None, work: Path = Path("/tmp/response_a
         shutil.copyfile(work / "fit" / "loglik.png", figures / "response_apollo15_loglik.png")
         _plot_before_after(figures / "response_apollo15_before_after.png", before, fit)
     return row
+
+
+def apollo_halves(photk: Path, curves: dict, work: Path = Path("/tmp/response_apollo_halves")) -> dict:
+    """Albedo consistency without a truth: settings 1 solved on the even and on the odd DRGs (no image in both),
+    each with every curve of ``curves`` (name -> response.csv, None = linear), compared where both cover."""
+    import os
+    import shutil
+
+    from lunaralbedo.engine.solve import solve
+
+    tifs = sorted((photk / "DIM_input_1280mpp_masked").glob("*.tif"))
+    maps, rows = {}, {}
+    for half in (0, 1):
+        d = work / f"half{half}"
+        shutil.rmtree(d, ignore_errors=True)
+        (d / "DIM_input_1280mpp_masked").mkdir(parents=True)
+        for k, t in enumerate(tifs):
+            if k % 2 == half:
+                os.symlink(t, d / "DIM_input_1280mpp_masked" / t.name)
+        for x in ("DEM_tiles_sub64", "meta"):
+            os.symlink(photk / x, d / x)
+        shutil.copyfile(photk / "photometry_settings_1.txt", d / "settings.txt")
+        for name, resp in curves.items():
+            solve(d / "settings.txt", out=d / name, workers=1, plots=False, **({} if resp is None else {"response": resp}))
+            maps[name, half] = _mosaic(d / name / "albedo")
+    for name in curves:
+        a, b = maps[name, 0], maps[name, 1]
+        ok = np.isfinite(a) & np.isfinite(b) & (a > 0) & (b > 0)
+        la, lb = np.log(a[ok]), np.log(b[ok])
+        dif = la - lb
+        rms = float(np.sqrt(np.mean((dif - dif.mean()) ** 2)))
+        spread = float(np.sqrt(0.5 * (np.var(la) + np.var(lb))))
+        rows[name] = {"pixels": int(ok.sum()), "std_log_albedo": spread, "rms_log_ratio": rms,
+                      "rms_over_spread": rms / spread, "correlation": float(np.corrcoef(la, lb)[0, 1])}
+        print(name, rows[name], flush=True)
+    return rows
 
 
 def _plot_before_after(path: Path, before, after) -> None:
@@ -249,8 +297,12 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser()
     ap.add_argument("--figures", type=Path, default=None)
     ap.add_argument("--apollo", type=Path, default=None, help="../shared/photk_tests: the real-data figures only")
+    ap.add_argument("--halves", nargs="*", metavar="NAME=RESPONSE.csv",
+                    help="with --apollo: only the even/odd-DRG albedo consistency, linear and with these curves")
     a = ap.parse_args()
-    if a.apollo:
+    if a.apollo and a.halves is not None:
+        apollo_halves(a.apollo.resolve(), {"linear": None, **{n: Path(f).resolve() for n, f in (h.split("=", 1) for h in a.halves)}})
+    elif a.apollo:
         apollo(a.apollo.resolve(), a.figures)
     else:
         accuracy(a.figures)

@@ -46,8 +46,8 @@ def test_the_real_fit_converges_to_a_smooth_monotone_curve(apollo_fit):
 
 def test_the_real_fit_predicts_held_out_pixels_better(apollo_fit):
     """The independent check on real data: fitted on half of the pixels, each curve predicts every DN of the
-    other half from that pixel's other observations; ours errs less than Kim et al.'s fit alone (in the
-    cross-validation of the fit, on another split: mean squared DN error 486 against 588)."""
+    other half from that pixel's other observations; ours errs less than Kim et al.'s fit alone (measured on
+    this split: mean squared DN error 476 against 573; a linear response 574)."""
     obs, fit, _ = apollo_fit
     half = np.random.default_rng(1).integers(0, 2, obs.n_pixels)[obs.pixel] == 0
     train, _ = obs.take(half)

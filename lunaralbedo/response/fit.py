@@ -1,24 +1,8 @@
 r"""Maximum of the profile likelihood of Kim et al. (eq. 8 under eq. 7): trust-region Newton in an active set.
 
-With :math:`r` at its closed form (eq. 10) the log-likelihood of eq. 8 becomes, per pixel
-:math:`i` with :math:`X_i = \sum_{n\in i} x_n` and :math:`C_i = \sum_{n\in i} t_{j(n)} c_n`,
-
-.. math:: L_p = \sum_i X_i(\ln X_i - \ln C_i - 1) + \sum_n x_n \ln(t_{j(n)}c_n) - \ln\Gamma(x_n+1)
-
-whose gradient in :math:`x_n = g(z_n)` is eq. 9's :math:`\ln(r_i t_j c_n) - \Psi(x_n+1)`
-(envelope theorem) and whose Hessian is
-:math:`\delta_{i(n)i(m)}/X_i - \delta_{nm}\Psi'(x_n+1)` (concave: Cauchy-Schwarz).
-Summed per DN level this is a small dense matrix (levels x levels), built with
-scipy.sparse.  The unknowns are the increments :math:`S_m \ge 0` of :math:`\ln g` between
-free levels (eq. 7 is :math:`S \ge 0`), with the mean of :math:`\ln x_n` over the
-observations pinned to ``ln FIT_SCALE``.  That pin is the
-one that does not bend the curve: eq. 8 pulls the scale of :math:`g` down (Stirling:
-:math:`L \approx -\tfrac12\sum_n \ln x_n - \sum_n x_n\varepsilon_n^2/2` with
-:math:`\varepsilon_n` the relative misfit), and that pull, :math:`-n_k/2` on
-:math:`\ln g(k)`, is exactly normal to the constraint, so it only sets the multiplier.  (A pin
-at one level instead pushes every other level down: a visible step in g.) and, for unknown exposure
-times, :math:`u_j = \ln t_j` for :math:`j \ge 1` (:math:`u_0 = 0`: :math:`r t` is all the
-data see).  The start is the paper's alternation of eqs. 10, 11 and 13 (ten passes).
+The objective, Kim et al.'s profile likelihood with :math:`r` at eq. 10, its gradient and exact Hessian in the
+increments :math:`S \ge 0` of :math:`\ln g` (and :math:`\ln t` when the exposures are unknown), is
+:class:`.profile.Profile`.  The start is the paper's alternation of eqs. 10, 11 and 13 (ten passes).
 
 Eq. 7 by an active set (:func:`_solve`, Lawson-Hanson style): scipy's ``trust-exact``
 maximises over the increments that are not pooled, unconstrained.  When some come out
@@ -40,9 +24,12 @@ Two additions to Kim et al. (both off by default here; :func:`.smoothing.fit_reg
   (:func:`.model.bin_widths`).  This adds :math:`\sum_n \ln w_{z_n} + N \ln s` to eq. 8, where
   :math:`s` is the count scale (the mean of :math:`g(z_n)` in counts, in logs): the likelihood
   becomes a proper distribution of the DN, so an observed DN cannot have an empty (flat) bin and
-  the scale, which eq. 8 alone leaves free, is the noise level the data show.  The fit alternates
-  the shape at a fixed scale (the Newton/active-set solve) with the scale at a fixed shape (a 1-D
-  bounded maximum, scipy's ``minimize_scalar``), at most ``MAX_SCALE_ROUNDS`` times.
+  the scale, which eq. 8 alone leaves free, is the noise level the data show.  Each DN also gets its
+  quantisation weight :math:`\kappa_z` (:func:`.profile.quantisation_weights`: the noise convolved with the
+  bin's uniform distribution, Sheppard's correction), so a toe or shoulder DN whose bin spans many photon
+  standard deviations weighs what it is worth.  The fit alternates the shape at fixed scale and weights
+  (the Newton/active-set solve) with the scale at a fixed shape (a 1-D bounded maximum, scipy's
+  ``minimize_scalar``) and the weights it implies, at most ``MAX_SCALE_ROUNDS`` times.
 
 Unknown exposure times: the gauge of the exponential ambiguity, g linear over DN 64-192
 (:func:`.model.gauge_prior`, a linear equality in :math:`S`), is eliminated through its null space;
@@ -56,14 +43,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 from scipy.linalg import null_space
 from scipy.optimize import minimize
-from scipy.special import digamma, gammaln, polygamma
+from threadpoolctl import threadpool_limits
 
-from .model import (FIT_SCALE, GEOMETRY_STRONG, MID_RANGE, Z_REF, GeometricSlope, Levels, Observations, alternation,
-                    bin_widths, choose_gauge, choose_levels, gauge_prior, known_factor, log_likelihood, radiance_update,
-                    residual_analysis, roughness_weights, second_differences)
+from .model import (GEOMETRY_STRONG, MID_RANGE, Z_REF, GeometricSlope, Levels, Observations, alternation, choose_gauge,
+                    choose_levels, gauge_prior, known_factor, radiance_update, residual_analysis)
+from .profile import Profile
 
 #: Convergence: largest violation of the first-order (KKT) conditions of -L/N (per observation).
 GTOL_ACCEPT = 1e-6
@@ -71,8 +57,11 @@ GTOL_ACCEPT = 1e-6
 MAX_ITER = 500
 #: Active-set passes before the fit is reported as not converged.
 MAX_PASSES = 200
-#: Rounds of (count scale, shape) when the DN bins are modelled.
+#: Rounds of (count scale and quantisation weights, shape) when the DN bins are modelled.
 MAX_SCALE_ROUNDS = 10
+#: BLAS threads during a fit: its matrices are a few hundred wide, where threads only cost (on a loaded 2-core
+#: machine one fit took 8x the CPU time with OpenBLAS's 2 threads); limited inside the call only.
+BLAS_THREADS = 1
 
 
 @dataclass
@@ -102,131 +91,6 @@ class ResponseFit:
         return out
 
 
-class _Profile:
-    """-L_p / N, its gradient and Hessian in the parameters ``(S, u)``; caches the last point."""
-
-    def __init__(self, obs: Observations, lev_idx, lev: Levels, t_fixed, smoothing: float = 0.0, bins: bool = False):
-        self.obs, self.lev_idx, self.lev, self.t_fixed = obs, lev_idx, lev, t_fixed
-        nk, self.n_lev = len(lev.knots), lev.hi - lev.lo + 1
-        self.nv = nk - 1
-        n = len(obs)
-        self.b = sp.csr_matrix((np.ones(n), (obs.pixel, lev_idx)), shape=(obs.n_pixels, self.n_lev))
-        self.cnt = np.bincount(lev_idx, minlength=self.n_lev).astype(float)
-        self.w_mean = lev.matrix.T @ self.cnt / n  # mean of ln x over the observations = w_mean @ lg_knots
-        m = np.arange(nk - 1)[None, :]
-        k = np.arange(nk)[:, None]
-        tail = np.cumsum(self.w_mean[::-1])[::-1][1:]  # sum of w_mean over knots above increment m
-        self.jac = (m < k).astype(float) - tail[None, :]  # d lg_k / d S_m
-        self.scale = float(n)
-        # the roughness penalty (smoothing/2) |D2 ln g|^2 over the DN range, a quadratic form in S
-        d2 = second_differences(self.n_lev) @ lev.matrix @ self.jac
-        d2 *= roughness_weights(lev.dn[1:-1])[:, None]
-        self.pen = smoothing * (d2.T @ d2)
-        self.bins = bin_widths(self.n_lev) @ lev.matrix @ self.jac if bins else None
-        self.log_scale = np.log(FIT_SCALE)
-        self._key = None
-
-    def unpack(self, p):
-        s = np.concatenate([[0.0], np.cumsum(p[:self.nv])])
-        lg = self.log_scale + s - self.w_mean @ s
-        t = self.t_fixed if self.t_fixed is not None else np.exp(np.concatenate([[0.0], p[self.nv:]]))
-        return lg, t
-
-    def _eval(self, p):
-        """Value and gradient at ``p`` (kept, with what the Hessian needs)."""
-        if self._key is not None and np.array_equal(p, self._key):
-            return
-        obs, lev = self.obs, self.lev
-        lg_k, t = self.unpack(p)
-        g = np.exp(lev.matrix @ lg_k)
-        x = g[self.lev_idx]
-        if not (np.all(np.isfinite(g)) and np.all(g > 0) and np.all(np.isfinite(t))):
-            # a trial step beyond floating point (exp over/underflow): reject it (trust-region shrinks)
-            self._key, self._val, self._grad = p.copy(), np.inf, np.zeros_like(p)
-            return
-        ct = t[obs.image] if obs.factor is None else t[obs.image] * obs.factor
-        big_x = np.bincount(obs.pixel, x, obs.n_pixels)
-        big_c = np.bincount(obs.pixel, ct, obs.n_pixels)
-        r = big_x / big_c
-        mu = r[obs.pixel] * ct
-        val = log_likelihood(x, mu)
-        d_lg = g * (np.bincount(self.lev_idx, np.log(mu), self.n_lev) - self.cnt * digamma(g + 1.0))
-        d_k = self.lev.matrix.T @ d_lg  # to ln g over the range, then to the knots, then to S
-        grad = [self.jac.T @ d_k]
-        if self.t_fixed is None:
-            grad.append(np.bincount(obs.image, x - mu, obs.n_images)[1:])
-        self._key, self._hess = p.copy(), None
-        ps = self.pen @ p[:self.nv]
-        if self.bins is not None:
-            w = self.bins @ p[:self.nv]
-            have = self.cnt > 0
-            if np.any(w[have] <= 0):  # an observed DN with an empty bin: probability 0
-                self._key, self._val, self._grad = p.copy(), np.inf, np.zeros_like(p)
-                return
-            wh = np.where(have, w, 1.0)
-            val += float(self.cnt[have] @ np.log(w[have]))
-            grad[0] = grad[0] + self.bins.T @ np.where(have, self.cnt / wh, 0.0)
-            self._bin_h = np.where(have, self.cnt / wh**2, 0.0)
-        self._val = (-val + 0.5 * float(p[:self.nv] @ ps)) / self.scale
-        self._grad = -np.concatenate(grad) / self.scale
-        self._grad[:self.nv] += ps / self.scale
-        self.state = (g, t, r, x, mu)
-        self._parts = (d_lg, ct, big_x, big_c)
-
-    def _hessian(self):
-        g, t, r, x, mu = self.state
-        d_lg, ct, big_x, big_c = self._parts
-        mt = self.lev.matrix.T
-        h_g = (self.b.T @ sp.diags(1.0 / big_x) @ self.b).toarray() - np.diag(self.cnt * polygamma(1, g + 1.0))
-        h_k = mt @ (g[:, None] * h_g * g[None, :] + np.diag(d_lg)) @ self.lev.matrix
-        ej = self.jac
-        blocks = [[ej.T @ h_k @ ej - self.pen]]
-        if self.bins is not None:
-            blocks[0][0] = blocks[0][0] - self.bins.T @ (self._bin_h[:, None] * self.bins)
-        if self.t_fixed is None:
-            h_uu, h_lgu = self._exposure_blocks(x, ct, big_x, big_c, g)
-            cross = ej.T @ (mt @ h_lgu)  # (nv, n_img-1)
-            blocks[0].append(cross)
-            blocks.append([cross.T, h_uu])
-        return -np.block(blocks) / self.scale
-
-    def _exposure_blocks(self, x, ct, big_x, big_c, g):
-        """Hessian block of u_j = ln t_j (j >= 1) and its cross block with ln g."""
-        obs = self.obs
-        q = sp.csr_matrix((ct / big_c[obs.pixel], (obs.pixel, obs.image)), shape=(obs.n_pixels, obs.n_images))
-        xq = sp.diags(big_x) @ q
-        h_uu = (q.T @ xq).toarray() - np.diag(np.asarray(xq.sum(axis=0)).ravel())
-        n_kj = sp.csr_matrix((np.ones(len(x)), (self.lev_idx, obs.image)), shape=(self.n_lev, obs.n_images)).toarray()
-        h_gu = n_kj - (self.b.T @ q).toarray()  # d2 L / dg_k du_j
-        h_lgu = g[:, None] * h_gu
-        return h_uu[1:, 1:], h_lgu[:, 1:]
-
-    def fun(self, p):
-        self._eval(p)
-        return self._val, self._grad
-
-    def hess(self, p):
-        self._eval(p)
-        if self._hess is None:
-            self._hess = self._hessian()
-        return self._hess
-
-
-def _best_log_scale(prof: "_Profile", p) -> float:
-    """ln s maximising the proper log-likelihood of the DN (eq. 8 plus N ln s, the bins' Jacobian) with the shape fixed."""
-    from scipy.optimize import minimize_scalar
-
-    prof._eval(p)
-    _, _, _, x, mu = prof.state
-    xt, mt = x / np.exp(prof.log_scale), mu / np.exp(prof.log_scale)
-
-    def neg(ls):
-        sc = np.exp(ls)
-        return -(float(np.sum(sc * xt * np.log(sc * mt) - sc * mt - gammaln(sc * xt + 1.0))) + len(x) * ls)
-
-    return float(minimize_scalar(neg, bounds=(0.0, 20.0), method="bounded", options={"xatol": 1e-4}).x)
-
-
 def _kkt(p, grad, nv, pooled, a_s):
     """Largest violation of the first-order conditions (bounds S >= 0 on pooled increments, gauge a_s @ S = 1)."""
     free = np.ones(len(p), bool)
@@ -243,7 +107,7 @@ def _kkt(p, grad, nv, pooled, a_s):
     return float(viol.max()) if len(viol) else 0.0, lg
 
 
-def _solve(prof: "_Profile", p0: np.ndarray, a_s: np.ndarray | None, record, max_iter: int):
+def _solve(prof: Profile, p0: np.ndarray, a_s: np.ndarray | None, record, max_iter: int):
     """Minimise -L/N over (S >= 0, u) with ``a_s @ S = 1`` (if given): active set around trust-exact.
 
     Returns ``(p, converged, passes, newton_iterations, message)``.
@@ -280,7 +144,13 @@ def _solve(prof: "_Profile", p0: np.ndarray, a_s: np.ndarray | None, record, max
             if np.all(q[:nv] >= 0):  # the history shows feasible points only (eq. 7 holds)
                 record(q)
 
-        res = minimize(fun, y0, jac=True, hess=lambda y: e.T @ prof.hess(base + e @ y) @ e, method="trust-exact",
+        ident = e.shape[0] == e.shape[1] and np.array_equal(e, np.eye(len(e)))  # nothing pooled, no gauge
+
+        def hess(y):
+            h = prof.hess(base + e @ y)
+            return h if ident else e.T @ h @ e
+
+        res = minimize(fun, y0, jac=True, hess=hess, method="trust-exact",
                        callback=record_y, options=dict(maxiter=max(max_iter - its, 1), gtol=1e-10))
         its += res.nit
         p_new = base + e @ res.x
@@ -325,6 +195,7 @@ def _fitted_levels(obs: Observations, min_count: int, exclude) -> tuple:
     return lev, keep
 
 
+@threadpool_limits.wrap(limits=BLAS_THREADS, user_api="blas")
 def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_count: int = 20, exclude=(0, 255),
                  juggle_passes: int = 10, max_iter: int = MAX_ITER, z_ref: int = Z_REF,
                  gauge: str = "auto", smoothing: float = 0.0, bins: bool = False) -> ResponseFit:
@@ -363,8 +234,9 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
         Weight :math:`\lambda` of the roughness penalty on :math:`\ln g` (second differences with
         Debevec-Malik hat weights; the module docstring); 0: none (Kim et al.'s plain fit).
     bins : bool, default False
-        Model each DN's 8-bit quantisation in the likelihood (density times bin width) and fit the
-        count scale that eq. 8 leaves free.
+        Model each DN's 8-bit quantisation in the likelihood (density times bin width, with the
+        quantisation weights of :func:`.profile.quantisation_weights`) and fit the count scale that
+        eq. 8 leaves free.
 
     Returns
     -------
@@ -373,7 +245,8 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
         ``g(z_ref) = 1`` (``lut()``: over 0..255, NaN outside); ``g_initial``;
         ``exposure`` (geometric mean 1 when estimated); ``radiance`` (per pixel of ``obs``,
         NaN where left out); ``loglik`` (eq. 8 per iteration); ``z_ref``; ``n_juggle``;
-        ``gamma`` (the gauge and why); ``residuals`` (per-DN ``count``, ``bias_log``,
+        ``gamma`` (the gauge and why; with ``bins`` also ``count_scale`` and ``quantisation_weight``:
+        the smallest weight, its DN and how many DN weigh less than 1/2); ``residuals`` (per-DN ``count``, ``bias_log``,
         ``std_log``, ``se_log_g``; ``chi2_per_dof``, ``rms_log``, ``n_obs``,
         ``n_params``); ``converged``, ``message``, ``passes``, ``newton``.
 
@@ -395,20 +268,26 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
     p0 = np.maximum(p0, 1e-2 * max(float(np.mean(p0)), 1e-6) if bins else 0.0)
     if t_free:
         p0 = np.concatenate([p0, np.log(t_j[1:] / t_j[0])])
-    prof = _Profile(sub, lev_idx, lev, None if t_free else t0, smoothing, bins)
+    prof = Profile(sub, lev_idx, lev, None if t_free else t0, smoothing, bins)
 
     def record(p):
         hist.append(-prof.fun(p)[0] * prof.scale)
 
     info = {"exposures_known": not t_free, "gamma": 1.0}
     def solve_with_scale(p, a_s):
-        """_solve, and with ``bins`` the count scale (noise level) by its own 1-D maximum, then the shape again."""
+        """_solve, and with ``bins`` the count scale (noise level) and the quantisation weights from the shape, then
+        the shape again (the first ones from the start: at the pinned scale and weights 1 the toe of a steep curve
+        is badly conditioned)."""
+        if bins:
+            prof.log_scale, kappa = prof.best_noise(p)
+            prof.set_kappa(kappa)
         p, converged, passes, its, message = _solve(prof, p, a_s, record, max_iter)
         for _ in range(MAX_SCALE_ROUNDS if bins else 0):
-            new = _best_log_scale(prof, p)
-            if abs(new - prof.log_scale) < 1e-3:
+            new, kappa = prof.best_noise(p)
+            if abs(new - prof.log_scale) < 1e-3 and np.max(np.abs(np.log(kappa / prof.kappa))) < 1e-2:
                 break
-            prof.log_scale, prof._key = new, None
+            prof.log_scale = new
+            prof.set_kappa(kappa)
             p, converged, more, its2, message = _solve(prof, p, a_s, record, max_iter)
             passes, its = passes + more, its + its2
         return p, converged, passes, its, message
@@ -438,17 +317,20 @@ def fit_response(obs: Observations, exposure: np.ndarray | None = None, min_coun
             elif use:  # weak geometry: the likelihood's shape under the prior, the geometry's power
                 info.update(gauge="geometry", mode="power", gamma=1.0 / beta)
     info["count_scale"] = float(np.exp(prof.log_scale)) if bins else None
+    if bins:  # the quantisation weights (profile.quantisation_weights): how much each DN counts
+        info["quantisation_weight"] = {"min": float(prof.kappa.min()), "dn_of_min": int(lev.lo + np.argmin(prof.kappa)),
+                                       "dn_below_half": int(np.sum(prof.kappa < 0.5))}
     prof._eval(p)
     g, t = prof.state[:2]
     if t_free:
         gam = info["gamma"]  # the likelihood's shape, the geometry's power (see choose_gauge)
         g, t, g0 = g**gam, (t / np.exp(np.mean(np.log(t)))) ** gam, g0**gam  # geometric mean of t -> 1
         g *= np.exp(prof.log_scale) / np.exp(np.mean(np.log(g[lev_idx])))  # back on the fit's scale: chi2 comparable
-    x = g[lev_idx]
-    r_sub = radiance_update(x, sub, t)  # eq. 10 again: r^gamma is not the optimum when c varies
+    x, kap = g[lev_idx], prof.kappa[lev_idx]
+    r_sub = radiance_update(x, sub, t, kap)  # eq. 10 again: r^gamma is not the optimum when c varies
     mu = r_sub[sub.pixel] * known_factor(sub, t)
     n_params = prof.nv + (obs.n_images - 1 if t_free else 0) + sub.n_pixels
-    resid = residual_analysis(x, mu, lev_idx, len(g), n_params=n_params)
+    resid = residual_analysis(x, mu, lev_idx, len(g), n_params=n_params, weight=kap)
     a = g[zr - lev.lo]
     radiance = np.full(obs.n_pixels, np.nan)
     radiance[pix_ids] = r_sub / a

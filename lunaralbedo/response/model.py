@@ -95,10 +95,13 @@ def known_factor(obs: Observations, t: np.ndarray) -> np.ndarray:
     return ct if obs.factor is None else ct * obs.factor
 
 
-def radiance_update(x: np.ndarray, obs: Observations, t: np.ndarray) -> np.ndarray:
-    r"""Eq. 10 (and 15): :math:`r_i = \sum_j g(z_{ij}) / \sum_j t_j c_{ij}`; 0 where a pixel has no observation."""
-    num = np.bincount(obs.pixel, x, obs.n_pixels)
-    den = np.bincount(obs.pixel, known_factor(obs, t), obs.n_pixels)
+def radiance_update(x: np.ndarray, obs: Observations, t: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
+    r"""Eq. 10 (and 15): :math:`r_i = \sum_j g(z_{ij}) / \sum_j t_j c_{ij}`; 0 where a pixel has no observation.
+
+    ``weight`` (per observation, e.g. the quantisation weights :math:`\kappa` of :mod:`.profile`) weighs both sums."""
+    w = 1.0 if weight is None else weight
+    num = np.bincount(obs.pixel, w * x, obs.n_pixels)
+    den = np.bincount(obs.pixel, w * known_factor(obs, t), obs.n_pixels)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(den > 0, num / den, 0.0)
 
@@ -305,13 +308,15 @@ def choose_gauge(beta: float, se: float, spread: float, mode: str = "auto") -> t
     return True, f"geometric slope {beta:.3f} +- {se:.3f} (mid-range log-log slope of g {1 / beta:.2f})"
 
 
-def residual_analysis(x: np.ndarray, mu: np.ndarray, level: np.ndarray, n_levels: int, n_params: int) -> dict:
+def residual_analysis(x: np.ndarray, mu: np.ndarray, level: np.ndarray, n_levels: int, n_params: int,
+                      weight: np.ndarray | None = None) -> dict:
     r"""Per-DN residuals, goodness of fit and uncertainty of :math:`\ln g`.
 
     Per level: count, mean and standard deviation of :math:`\ln(\mu/g)` (the model's
     exposure against the curve's) and the standard error of :math:`\ln g` (std/√n).
     Global: Pearson :math:`\chi^2` per degree of freedom, :math:`\sum (x-\mu)^2/\mu / (N-p)`
-    (about 1 when the Poisson noise model holds at the fitted scale), and the RMS of
+    (about 1 when the Poisson noise model holds at the fitted scale; with ``weight`` :math:`\kappa` per
+    observation, :math:`\sum \kappa (x-\mu)^2/\mu`: the quantisation-weighted noise model), and the RMS of
     :math:`\ln(\mu/x)`.
     """
     d = np.log(mu / x)
@@ -325,7 +330,7 @@ def residual_analysis(x: np.ndarray, mu: np.ndarray, level: np.ndarray, n_levels
     dof = max(len(x) - n_params, 1)
     return {
         "count": cnt, "bias_log": mean, "std_log": std, "se_log_g": se,
-        "chi2_per_dof": float(np.sum((x - mu) ** 2 / mu) / dof),
+        "chi2_per_dof": float(np.sum((1.0 if weight is None else weight) * (x - mu) ** 2 / mu) / dof),
         "rms_log": float(np.sqrt(np.mean(d * d))), "n_obs": int(len(x)), "n_params": int(n_params),
     }
 

@@ -17,16 +17,22 @@ error (paired over the held-out pixels); the weight chosen is the one with the l
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
+from threadpoolctl import threadpool_limits
 
-from .fit import ResponseFit, fit_response
+from .fit import BLAS_THREADS, ResponseFit, fit_response
 from .model import Observations
 
 #: Candidate weights per observation of the fit (0: Kim et al.'s fit unpenalised); the weight is this times N.
 GRID_PER_OBS = (0.0, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1e3, 3e3, 1e4, 3e4, 1e5)
 #: Pixel groups of the cross-validation.
 FOLDS = 2
+#: Observations the cross-validation uses at most (a fixed subset of pixels beyond).
+CV_MAX_OBS = 150_000
 #: Periods (in ln exposure) searched by the diagnosis.
 PERIODS = np.linspace(0.05, 3.0, 600)
+#: Observations the diagnosis uses at most (a fixed subset of pixels beyond: it is a mean over pixels).
+DIAGNOSIS_MAX_OBS = 100_000
 
 
 def exposure_diagnosis(obs: Observations, exposure: np.ndarray, periods: np.ndarray = PERIODS) -> dict:
@@ -38,20 +44,25 @@ def exposure_diagnosis(obs: Observations, exposure: np.ndarray, periods: np.ndar
     :math:`1 - |\overline{e^{i\phi}}|^2` (0: invisible, the data cannot see waves of that period;
     about 1: fully determined).  Returns the smallest visibility over ``periods`` (ln units), its
     longest period (also as an exposure ratio; P/2, P/3 ... are as invisible as P) and the fraction of periods with visibility below 0.1.
+    Pixels seen once are left out; beyond ``DIAGNOSIS_MAX_OBS`` observations, every k-th pixel is used.
     """
-    u = np.log(np.asarray(exposure, np.float64)[obs.image])
-    if obs.factor is not None:
-        u = u + np.log(obs.factor)
-    n_i = np.bincount(obs.pixel, minlength=obs.n_pixels).astype(np.float64)
+    n_i = np.bincount(obs.pixel, minlength=obs.n_pixels)
     many = n_i[obs.pixel] >= 2
-    pix, u, n_i = obs.pixel[many], u[many], np.maximum(n_i, 1.0)
+    step = max(1, -(-int(many.sum()) // DIAGNOSIS_MAX_OBS))  # a fixed subset of pixels beyond that many observations
+    many &= obs.pixel % step == 0
+    u = np.log(np.asarray(exposure, np.float64)[obs.image[many]])
+    if obs.factor is not None:
+        u = u + np.log(obs.factor[many])
+    pix = np.unique(obs.pixel[many], return_inverse=True)[1]
+    u_uniq, u_idx = np.unique(u, return_inverse=True)  # the images' exposures when there is no factor: few values
+    m = sp.csr_matrix((np.ones(len(u)), (pix, u_idx)), shape=(int(pix.max()) + 1 if len(pix) else 0, len(u_uniq)))
+    n_pix = np.asarray(m.sum(axis=1)).ravel()
     vis = np.empty(len(periods))
-    for k, per in enumerate(periods):
-        ph = 2 * np.pi * u / per
-        c = np.bincount(pix, np.cos(ph), obs.n_pixels) / n_i
-        s = np.bincount(pix, np.sin(ph), obs.n_pixels) / n_i
-        w = np.bincount(pix, minlength=obs.n_pixels)
-        vis[k] = float(np.sum(w * (1.0 - c * c - s * s)) / max(w.sum(), 1))
+    chunk = max(1, 2_000_000 // max(len(u_uniq), 1))  # periods at a time: about 32 MB of phase factors
+    for k0 in range(0, len(periods), chunk):  # per pixel: the sum of e^{i phase} over its observations
+        per = np.asarray(periods[k0:k0 + chunk], np.float64)
+        sums = m @ np.exp(2j * np.pi * u_uniq[:, None] / per[None, :])
+        vis[k0:k0 + len(per)] = 1.0 - (np.abs(sums) ** 2 / n_pix[:, None]).sum(axis=0) / max(n_pix.sum(), 1)
     k = int(np.flatnonzero(vis <= vis.min() + 0.01)[-1])  # the longest of the least visible (P/2, P/3 ... tie with P)
     return {"min_visibility": float(vis[k]), "worst_period_log": float(periods[k]),
             "worst_period_ratio": float(np.exp(periods[k])), "fraction_poorly_seen": float(np.mean(vis < 0.1)),
@@ -83,7 +94,13 @@ def heldout_error(fit: ResponseFit, obs: Observations) -> np.ndarray:
 
 def choose_smoothing(obs: Observations, exposure, grid_per_obs=GRID_PER_OBS, folds: int = FOLDS, seed: int = 0,
                      **fit_kw) -> dict:
-    """Cross-validated weight (module doc): the grid, the held-out scores and the weight chosen."""
+    """Cross-validated weight (module doc): the grid, the held-out scores and the weight chosen.
+
+    Beyond ``CV_MAX_OBS`` observations the cross-validation runs on a fixed subset of pixels (every k-th): the
+    weight is per observation, so it carries over to the fit on all of them (a slight over-smoothing at most)."""
+    step = max(1, -(-len(obs) // CV_MAX_OBS))
+    if step > 1:
+        obs = obs.take(obs.pixel % step == 0)[0]
     group = np.random.default_rng(seed).integers(0, folds, obs.n_pixels)[obs.pixel]
     splits = [(obs.take(group != f)[0], obs.take(group == f)[0]) for f in range(folds)]
     errors, excess = [], []  # per held-out pixel, per weight; excess over the best: mean and paired s.e.
@@ -99,12 +116,13 @@ def choose_smoothing(obs: Observations, exposure, grid_per_obs=GRID_PER_OBS, fol
         if excess[-1][0] > excess[-1][1]:  # significantly worse than the best: past it
             break
     pick = int(np.argmin(scores))
-    return {"weight_per_observation": float(grid_per_obs[pick]), "weight": float(grid_per_obs[pick] * len(obs)),
-            "rule": f"{folds}-fold cross-validation over pixels: the weight with the least held-out DN error",
+    return {"weight_per_observation": float(grid_per_obs[pick]), "rule": f"{folds}-fold cross-validation over pixels: the weight with the least held-out DN error",
+            "cv_observations": len(obs),
             "grid_per_observation": [float(v) for v in grid_per_obs[:len(errors)]], "heldout_dn_mse": scores,
             "excess_over_best": [d for d, _ in excess], "excess_se": [se for _, se in excess]}
 
 
+@threadpool_limits.wrap(limits=BLAS_THREADS, user_api="blas")
 def fit_regularised(obs: Observations, exposure=None, smoothing="auto", bins: bool = True, **fit_kw) -> ResponseFit:
     """:func:`.fit.fit_response` with the roughness weight chosen by :func:`choose_smoothing` ("auto")
     or given (a weight per observation); ``fit.smoothing`` records it and the exposure diagnosis."""
@@ -112,7 +130,8 @@ def fit_regularised(obs: Observations, exposure=None, smoothing="auto", bins: bo
     if smoothing == "auto":
         info = choose_smoothing(obs, exposure, **fit_kw)
     else:
-        info = {"weight_per_observation": float(smoothing), "weight": float(smoothing) * len(obs), "rule": "given"}
+        info = {"weight_per_observation": float(smoothing), "rule": "given"}
+    info["weight"] = info["weight_per_observation"] * len(obs)
     fit = fit_response(obs, exposure, smoothing=info["weight"], **fit_kw)
     info["exposure_ratios"] = exposure_diagnosis(obs, fit.exposure)
     fit.smoothing = info
