@@ -153,6 +153,12 @@ def apollo(out: Path, iterations: int) -> dict:
     got["plain_no_robust_s"] = _run(["solve", plain, "-o", out / "plain_no_robust", "--workers", 1, "--quiet",
                                      "--max-iter", iterations], out / "plain_no_robust.log")
     got["leakage"]["plain_no_robust_input_dem"] = leakage(plain, out / "plain_no_robust")
+    # the input held pixel by pixel (the blur stated 0): how much of the above rests on the estimated blur
+    sharp, folder = _with_keys(given, out, {"REFINE_DEM": 1, "REFINE_DEM_INPUT_BLUR": 0}), out / "refine_blur0"
+    got["refine_blur0_s"] = _run(["solve", sharp, "-o", folder, "--workers", 1, "--quiet", "--max-iter", iterations],
+                                 out / "refine_blur0.log")
+    got["refine_blur0"] = _refine_report(folder)
+    got["leakage"]["refine_blur0_refined_dem"] = leakage(sharp, folder, sorted((folder / "DEM").glob("*.tif")))
     return got
 
 
