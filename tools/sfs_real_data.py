@@ -11,7 +11,9 @@ folder; nothing is written under ``../shared``). Printed, and written to ``DIR/s
   and tile, the correlation over the image's usable pixels (those the solver observes: valid, lit, not
   saturated, outside cast shadows, cos i and cos e above the solver's floors) between the albedo and
   that image's cos i, from the input DEM and from the refined heights (``OUTDIR/DEM/``), averaged
-  weighted by pixels (``|corr|`` and the signed mean).
+  weighted by pixels (``|corr|`` and the signed mean). Also solved: plainly without outlier rejection and
+  robust loss (the defaults of the earlier figures), and with ``REFINE_DEM_INPUT_BLUR 0`` (the input held
+  pixel by pixel).
 * **nac**, **wac**: the real LRO cubes of ``../shared/realdata/isis`` (an NAC crop; a WAC cube whose
   five bands share one geometry), each ingested over the GLD100 DEM: single observations.
 
