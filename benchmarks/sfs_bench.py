@@ -7,7 +7,8 @@ with the true DEM, with the blurred one (a plain solve), and with the blurred on
 Prints the heights' RMS error against the truth (all pixels, within 3 px of a tile edge, elsewhere; and the same
 bands of a refinement on one tile, where no seam can exist),
 the albedo's error, the time of the refinement against the plain solve, nanoseconds per observation
-per L-BFGS iteration (one core) and the peak memory; ``--figures`` writes docs/sfs_*.png.
+per L-BFGS iteration (one core), the peak memory and
+``dem_sigma/`` against the heights' errors; ``--figures`` writes docs/sfs_*.png.
 
     python benchmarks/sfs_bench.py [--out bench_out] [--figures] [--set KEY=VALUE ...]
 """
@@ -61,6 +62,20 @@ def height_errors(out: Path, d: Path, tile_deg: float) -> dict:
             "given_edge_rms_m": rms(gerr, inside & near), "given_elsewhere_rms_m": rms(gerr, inside & ~near)}
 
 
+def sigma_check(out: Path, d: Path) -> dict:
+    """``dem_sigma/`` against the heights' errors: the median, the RMS error in the pixels below the median sigma,
+    between the median and the 90th percentile and above it, and the fraction with |error| < 3 sigma."""
+    like = d / "truth" / "albedo.tif"
+    err = mosaic(glob.glob(str(out / "DEM" / "*.tif")), like) - mosaic([d / "truth/dem.tif"], like)
+    sig = mosaic(glob.glob(str(out / "dem_sigma" / "*.tif")), like)
+    ok = np.isfinite(err) & np.isfinite(sig)
+    e, s = err[ok], sig[ok]
+    q50, q90 = np.percentile(s, [50, 90])
+    bands = [s < q50, (s >= q50) & (s < q90), s >= q90]
+    return {"sigma_median_m": float(q50), "error_rms_by_sigma_band_m": [float(np.sqrt(np.mean(e[b] ** 2))) for b in bands],
+            "within_3_sigma": float(np.mean(np.abs(e) < 3 * s))}
+
+
 def run(root: Path, extra: dict, figures: bool) -> dict:
     from lunaralbedo.simulate import score
 
@@ -84,6 +99,7 @@ def run(root: Path, extra: dict, figures: bool) -> dict:
         "peak_mb_refine": runs["refine"]["peak_mb"], "peak_mb_plain": runs["plain"]["peak_mb"],
         "refine": rd,
     }
+    fig["sigma"] = sigma_check(root / "sfs_out_refine", d)
     fig["time_ratio"] = fig["seconds_refine"] / fig["seconds_plain"]
     fig["height_ratio"] = fig["rms_m"] / fig["given_rms_m"]
     fig["edge_ratio"] = fig["edge_rms_m"] / fig["elsewhere_rms_m"]

@@ -274,3 +274,47 @@ def test_refine_dem_with_every_defect_haze_outliers_misregistration(tmp_path):
     assert err <= 0.6 * given, (err, given)  # measured x0.29-0.31
     assert sc["albedo_rel_rmse"] <= 0.03 and sc["exposure_max_rel_err"] <= 0.015, sc  # measured 1.7 %, 0.7-0.9 %
     assert res.report["refine_dem"]["input_blur_fit"]["sigma_px"] == pytest.approx(3.0, abs=0.4)  # the scene's blur
+
+
+def test_height_uncertainty_counts_the_floating_albedo_in_the_degrees_of_freedom():
+    """With the albedo floating per pixel, each observed pixel's a* uses up one observation: one image leaves
+    zero residuals whatever the heights (the real NAC crop read 3e-17 m), so no standard error is given; two
+    images leave n - pixels degrees of freedom, and s^2 is the misfit over them."""
+    rng = np.random.default_rng(2)
+    h_, w_ = 9, 11
+    lon, lat = np.meshgrid(10 + 0.01 * np.arange(w_), -5 - 0.01 * np.arange(h_))
+    h = rng.normal(0, 50, (h_, w_))
+    pts = geometry.body_fixed(lon, lat, h)
+    obs = [observation(rng.uniform(0.3, 0.8, (h_ - 2, w_ - 2)), np.ones((h_ - 2, w_ - 2)), pts,
+                       forward.sun_position(geometry.body_fixed(10.05, -5.05, 0), az, 55),
+                       geometry.body_fixed(10.05, -5.05, 1e5)) for az in (50, 130)]
+    terms = lambda o: Cost([Shading(1.0, unit_up(lon, lat), 1737.4, o, photometry.get(2).reflectance, (1.4, 0.5)),  # noqa: E731
+                            Smoothness(0.3, 300.0), Fidelity(0.2, 300.0, h, 1.5)])
+    sigma, s2 = height_uncertainty(terms(obs[:1]), h)
+    assert np.isnan(s2) and np.isnan(sigma).all()
+    sigma, s2 = height_uncertainty(terms(obs), h)
+    _, misfit, n, dof = terms(obs).terms[0].gauss_newton_diagonal(h)
+    assert (n, dof) == (2 * (h_ - 2) * (w_ - 2), (h_ - 2) * (w_ - 2))
+    assert s2 == pytest.approx(misfit / dof, rel=1e-12) and np.isfinite(sigma).all()
+
+
+def test_input_blur_is_left_at_zero_when_the_images_cannot_tell_the_blurs_apart(monkeypatch):
+    """``REFINE_DEM_INPUT_BLUR auto``: a misfit curve with a clear minimum gives its vertex; one that varies by 1 %
+    over all the candidates (PhotometryTK's Apollo scene: the smallest at 3.13 px moved the heights 431 m RMS)
+    holds the input as given (sigma 0) instead of taking the minimum of noise."""
+    from lunaralbedo.engine import refine, sfs_tile
+    from lunaralbedo.parallel.executor import SerialExecutor
+
+    def curve(shape):
+        def misfits(t, *, sigmas, level, scene=None, **kw):  # per window: the misfit at each candidate blur
+            return [shape(s) / 8 for s in sigmas]
+        return misfits
+
+    clear = lambda s: 1.0 + (np.log(max(s, 0.1)) - np.log(3.0)) ** 2  # noqa: E731  minimum at 3 px
+    flat = lambda s: 1.0 + 0.005 * np.cos(3 * s)  # noqa: E731  1 % of wobble, its minimum near 3.14 px
+    monkeypatch.setattr(sfs_tile, "blur_misfits", curve(clear))
+    fit = refine.estimate_input_blur(SerialExecutor(), n_windows=8, levels=2, max_iter=5, scene=None)
+    assert fit["sigma_px"] == pytest.approx(3.0, rel=0.1) and not fit.get("flat")
+    monkeypatch.setattr(sfs_tile, "blur_misfits", curve(flat))
+    fit = refine.estimate_input_blur(SerialExecutor(), n_windows=8, levels=2, max_iter=5, scene=None)
+    assert fit["sigma_px"] == 0.0 and fit["flat"]

@@ -129,6 +129,12 @@ BLUR_FINE_BELOW = 1.25
 #: blur's: more freedom always lowers the misfit a little (it fits the noise), so a sharp input's best blur is the
 #: smallest tried, by 1 % (on the strip: 0.67 px held, heights 7.6 m off the true DEM given; held per pixel 0.6 m).
 SHARP_TOLERANCE = 0.05
+#: When the misfits of all the candidates lie within this fraction of the smallest, the images cannot tell the input's
+#: blurs apart and the input is held as given (sigma 0): PhotometryTK's Apollo scene (one 1267 m pixel per frame and
+#: DEM point) has a 1 % spread over 0.67-7.6 px, and the smallest (3.13 px) moved the heights 431 m RMS where held as
+#: given they moved 43 m and more of the albedo's correlation with the shaded relief went (0.351 -> 0.261,
+#: docs/sfs.md); the strip's blurred DEM spreads them x11.
+FLAT_TOLERANCE = 0.05
 #: L-BFGS iterations of each candidate's height step (None: REFINE_DEM_MAX_ITER): 10 gave 3.12 px on the strip of
 #: docs/sfs.md (30: 3.17 px; the true blur 3 px) at a third of the cost.
 BLUR_MAX_ITER = 10
@@ -151,7 +157,9 @@ def estimate_input_blur(executor, n_windows: int, levels: int, max_iter: int, **
     the height step, :func:`.sfs_tile.blur_misfits`) grows.  Its sum over up to :data:`BLUR_WINDOWS` windows is taken
     at :data:`BLUR_CANDIDATES`, then at the two geometric midpoints around the best (on the fine level, with the best
     itself, when the best is below :data:`BLUR_FINE_BELOW` pixels of the coarse level); the estimate is the vertex of
-    the parabola in ``log sigma`` through the best candidate and its two neighbours.  Returns ``{"sigma_px", "sigmas",
+    the parabola in ``log sigma`` through the best candidate and its two neighbours.  Where the candidates' misfits
+    lie within :data:`FLAT_TOLERANCE` of each other the images say nothing of the input's resolution, and it is held
+    as given (sigma 0, ``"flat": True``).  Returns ``{"sigma_px", "sigmas",
     "misfits"}``."""
     from .sfs_tile import blur_misfits
 
@@ -166,6 +174,9 @@ def estimate_input_blur(executor, n_windows: int, levels: int, max_iter: int, **
 
     sig = list(BLUR_CANDIDATES)
     mis = total(sig, level)
+    if max(mis) <= (1.0 + FLAT_TOLERANCE) * min(mis):  # the images cannot tell the blurs apart: the input as given
+        return {"sigma_px": 0.0, "sigmas": [round(x, 3) for x in sig], "misfits": mis, "level": level,
+                "windows": len(chosen), "flat": True}
     k = int(np.argmin(mis))
     if sig[k] < BLUR_FINE_BELOW * 2**level:  # too fine for the coarse level to tell apart: three candidates on the fine
         level, step = 0, 1.5**0.5

@@ -149,7 +149,9 @@ def height_uncertainty(cost: Cost, h: np.ndarray) -> tuple[np.ndarray, float]:
     r"""Each height's standard error (metres) from the diagonal of the Gauss-Newton matrix at ``h``, and the
     residuals' variance :math:`s^2`.
 
-    With residuals of variance :math:`s^2` (estimated as the data term's mean square per observation) the cost is
+    With residuals of variance :math:`s^2` (estimated as the data term's value over its degrees of freedom: the
+    observations less one per pixel whose albedo floats; NaN, no value anywhere, when none are left, as under one
+    image, where the residuals are zero whatever the heights and only the priors hold them) the cost is
     :math:`2 s^2` times a negative log posterior, whose Gauss-Newton Hessian is
     :math:`H = (J^\top J + \mu L^\top L/\Delta^2 + \lambda S^\top S/\Delta^2)/s^2`.  The standard error is taken as
     :math:`s/\sqrt{H_{pp} s^2}`: the spread of one height with its neighbours held (ASP ``sfs``'s
@@ -159,8 +161,8 @@ def height_uncertainty(cost: Cost, h: np.ndarray) -> tuple[np.ndarray, float]:
     that moves together over many pixels.  The terms are found by name (``shading``, ``smoothness``, ``fidelity``).
     """
     terms = {t.name: t for t in cost.terms}
-    diag, misfit, n = terms["shading"].gauss_newton_diagonal(h)
-    s2 = misfit / max(n, 1)
+    diag, misfit, n, dof = terms["shading"].gauss_newton_diagonal(h)
+    s2 = misfit / dof if dof > 0 else float("nan")
     for name in ("smoothness", "fidelity"):
         if name in terms and terms[name].weight:
             diag = diag + terms[name].weight * terms[name].diagonal(h.shape)

@@ -224,10 +224,12 @@ class Shading:
         _adjoint(gn, n, snorm, a, b, self.up, gh)
         return total, gh
 
-    def gauss_newton_diagonal(self, h: np.ndarray) -> tuple[np.ndarray, float, int]:
-        r"""``(diag, misfit, n)``: the diagonal of :math:`J^\top J` over the heights (per metre squared), with
+    def gauss_newton_diagonal(self, h: np.ndarray) -> tuple[np.ndarray, float, int, int]:
+        r"""``(diag, misfit, n, dof)``: the diagonal of :math:`J^\top J` over the heights (per metre squared), with
         :math:`J` the residuals' derivatives :math:`-a^* \sqrt{w}\,\partial R/\partial h` (the floating albedo's own
-        derivative left out, as in the gradient), the data term's value and its number of observations."""
+        derivative left out, as in the gradient), the data term's value, its number of observations, and the
+        residuals' degrees of freedom: ``n`` less one per observed pixel when the albedo floats (each such pixel's
+        :math:`a^*` is fitted to its own observations: one image per pixel leaves no residual at all)."""
         pts = self.points(h)
         n, snorm, a, b = interior_normals(pts)
         f = self.reflectance
@@ -244,4 +246,5 @@ class Shading:
             _accumulate(gn, c * (f(ci + _EPS, ce, o.alpha, self.params) - r), c * (f(ci, ce + _EPS, o.alpha, self.params) - r),
                         o.l, o.v)
             _adjoint_squares(gn, n, snorm, a, b, self.up, diag)
-        return diag, total, count
+        seen = int(np.count_nonzero(sum(o.w > 0 for o in self.observations))) if self.float_albedo else 0
+        return diag, total, count, count - seen
