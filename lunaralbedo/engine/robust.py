@@ -49,22 +49,28 @@ def weights_path(block: Path, gen: int) -> Path:
     return block.parent / f"robust_{gen}" / f"{block.name}.npy"
 
 
+def _blocks(t: int, scene: Scene, cache_root: Path):
+    """``(block folder, observations)`` of tile ``t``'s cached blocks of rows that hold any, in order (the row
+    progress advanced for every block)."""
+    folder = cache_dir(cache_root, scene, t)
+    for i, (b0, b1) in enumerate(load_meta(folder)["blocks"]):
+        block = folder / f"block_{i:04d}"
+        arrays = pixel_stack(block, cache_root, scene)
+        ROWS.advance(b1 - b0)
+        if len(arrays["index"]):
+            yield block, arrays
+
+
 def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, gen: int) -> dict:
     """Write generation ``gen`` of the effective weights of tile ``t``'s blocks; return per local image the
     counts of used, rejected and down-weighted (sum of 1 - m) observations."""
-    folder = cache_dir(cache_root, scene, t)
-    meta = load_meta(folder)
+    meta = load_meta(cache_dir(cache_root, scene, t))
     idx = np.asarray(meta["index"], np.int32)
     width = scene.tiles[t].width
     counts = np.zeros((3, len(idx)))
     loss_obs = 0
     pos = {k: j for j, k in enumerate(idx.tolist())}
-    for i, (b0, b1) in enumerate(meta["blocks"]):
-        block = folder / f"block_{i:04d}"
-        arrays = pixel_stack(block, cache_root, scene)
-        ROWS.advance(b1 - b0)
-        if not len(arrays["index"]):
-            continue
+    for block, arrays in _blocks(t, scene, cache_root):
         w_prev = effective_weights(block, arrays, state.robust)
         w_new, c, n_loss = block_weights(arrays, scene, state, w_prev, width)
         loss_obs += n_loss
@@ -80,15 +86,8 @@ def kept_pairs_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState
     """The overlap log-ratio sums (:func:`lunaralbedo.model.exposure_init.pair_sums`) of tile ``t``'s observations kept
     by generation ``gen`` of the robust weights (computed with ``state``), for the exposures to be initialised again
     without the outliers."""
-    folder = cache_dir(cache_root, scene, t)
-    meta = load_meta(folder)
     totals: dict = {}
-    for i, (b0, b1) in enumerate(meta["blocks"]):
-        block = folder / f"block_{i:04d}"
-        arrays = pixel_stack(block, cache_root, scene)
-        ROWS.advance(b1 - b0)
-        if not len(arrays["index"]):
-            continue
+    for block, arrays in _blocks(t, scene, cache_root):
         r, w_lit, texp = tile_model(scene, arrays, state)
         signal, tr = _signal(arrays, state, r, texp)
         keep = (np.asarray(w_lit) > 0) & (tr > 0) & (effective_weights(block, arrays, gen) > 0)

@@ -112,20 +112,27 @@ def _accumulate(gn, ci_coef, ce_coef, l, v):
                 gn[i, j, k] += ci_coef[i, j] * l[i, j, k] + ce_coef[i, j] * v[i, j, k]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _edge_derivatives(gn, n, snorm, a, b, i, j):
+    """At interior pixel ``(i, j)``: the derivatives over the two edge vectors ``a`` and ``b`` of the normal, from the
+    one over the unit normal ``gn`` (module docstring): dD/da = b x g and dD/db = g x a, halved to the neighbours and
+    times dp/dh = up / 1000 (km per metre)."""
+    d = gn[i, j, 0] * n[i, j, 0] + gn[i, j, 1] * n[i, j, 1] + gn[i, j, 2] * n[i, j, 2]
+    gx = (gn[i, j, 0] - d * n[i, j, 0]) / snorm[i, j]
+    gy = (gn[i, j, 1] - d * n[i, j, 1]) / snorm[i, j]
+    gz = (gn[i, j, 2] - d * n[i, j, 2]) / snorm[i, j]
+    ax, ay, az, bx, by, bz = a[i, j, 0], a[i, j, 1], a[i, j, 2], b[i, j, 0], b[i, j, 1], b[i, j, 2]
+    return (5e-4 * (by * gz - bz * gy), 5e-4 * (bz * gx - bx * gz), 5e-4 * (bx * gy - by * gx),
+            5e-4 * (gy * az - gz * ay), 5e-4 * (gz * ax - gx * az), 5e-4 * (gx * ay - gy * ax))
+
+
 @njit(cache=True, nogil=True)
 def _adjoint(gn, n, snorm, a, b, up, gh):
     """The gradient over the heights (``gh``, metres) from the one over the unit normals ``gn`` (module docstring)."""
     gh[:] = 0.0
     for i in range(n.shape[0]):
         for j in range(n.shape[1]):
-            d = gn[i, j, 0] * n[i, j, 0] + gn[i, j, 1] * n[i, j, 1] + gn[i, j, 2] * n[i, j, 2]
-            gx = (gn[i, j, 0] - d * n[i, j, 0]) / snorm[i, j]
-            gy = (gn[i, j, 1] - d * n[i, j, 1]) / snorm[i, j]
-            gz = (gn[i, j, 2] - d * n[i, j, 2]) / snorm[i, j]
-            ax, ay, az, bx, by, bz = a[i, j, 0], a[i, j, 1], a[i, j, 2], b[i, j, 0], b[i, j, 1], b[i, j, 2]
-            # dD/da = b x g, dD/db = g x a; halves to the neighbours, projected on dp/dh = up / 1000
-            dax, day, daz = 5e-4 * (by * gz - bz * gy), 5e-4 * (bz * gx - bx * gz), 5e-4 * (bx * gy - by * gx)
-            dbx, dby, dbz = 5e-4 * (gy * az - gz * ay), 5e-4 * (gz * ax - gx * az), 5e-4 * (gx * ay - gy * ax)
+            dax, day, daz, dbx, dby, dbz = _edge_derivatives(gn, n, snorm, a, b, i, j)
             gh[i + 2, j + 1] += dax * up[i + 2, j + 1, 0] + day * up[i + 2, j + 1, 1] + daz * up[i + 2, j + 1, 2]
             gh[i, j + 1] -= dax * up[i, j + 1, 0] + day * up[i, j + 1, 1] + daz * up[i, j + 1, 2]
             gh[i + 1, j + 2] += dbx * up[i + 1, j + 2, 0] + dby * up[i + 1, j + 2, 1] + dbz * up[i + 1, j + 2, 2]
@@ -134,18 +141,12 @@ def _adjoint(gn, n, snorm, a, b, up, gh):
 
 @njit(cache=True, nogil=True)
 def _adjoint_squares(gn, n, snorm, a, b, up, diag):
-    """``diag`` += the squares of each height's derivative of one image's residuals, ``gn`` the derivative of each
+    r"""``diag`` += the squares of each height's derivative of one image's residuals, ``gn`` the derivative of each
     pixel's residual over its unit normal: :func:`_adjoint` with squares summed instead of values (the diagonal of
     the Gauss-Newton matrix :math:`J^\top J`)."""
     for i in range(n.shape[0]):
         for j in range(n.shape[1]):
-            d = gn[i, j, 0] * n[i, j, 0] + gn[i, j, 1] * n[i, j, 1] + gn[i, j, 2] * n[i, j, 2]
-            gx = (gn[i, j, 0] - d * n[i, j, 0]) / snorm[i, j]
-            gy = (gn[i, j, 1] - d * n[i, j, 1]) / snorm[i, j]
-            gz = (gn[i, j, 2] - d * n[i, j, 2]) / snorm[i, j]
-            ax, ay, az, bx, by, bz = a[i, j, 0], a[i, j, 1], a[i, j, 2], b[i, j, 0], b[i, j, 1], b[i, j, 2]
-            dax, day, daz = 5e-4 * (by * gz - bz * gy), 5e-4 * (bz * gx - bx * gz), 5e-4 * (bx * gy - by * gx)
-            dbx, dby, dbz = 5e-4 * (gy * az - gz * ay), 5e-4 * (gz * ax - gx * az), 5e-4 * (gx * ay - gy * ax)
+            dax, day, daz, dbx, dby, dbz = _edge_derivatives(gn, n, snorm, a, b, i, j)
             v = dax * up[i + 2, j + 1, 0] + day * up[i + 2, j + 1, 1] + daz * up[i + 2, j + 1, 2]
             diag[i + 2, j + 1] += v * v
             v = dax * up[i, j + 1, 0] + day * up[i, j + 1, 1] + daz * up[i, j + 1, 2]
