@@ -48,15 +48,22 @@ def _height_errors(out, scene):
     return float(np.sqrt(np.mean((dem - truth)[ok] ** 2))), float(np.sqrt(np.mean((given - truth)[ok] ** 2)))
 
 
-def test_cost_gradient_matches_finite_differences():
-    rng = np.random.default_rng(0)
-    h_, w_ = 10, 12
+def _window(rng, h_, w_, weights=None):
+    """A window of random heights (metres) at lon 10, lat -5 and two images' ``J`` under Suns at azimuths 50 and
+    130 degrees, 55 degrees from the zenith; ``weights()`` gives each image's weights (default 1)."""
     lon, lat = np.meshgrid(10 + 0.01 * np.arange(w_), -5 - 0.01 * np.arange(h_))
     h = rng.normal(0, 50, (h_, w_))
     pts = geometry.body_fixed(lon, lat, h)
-    obs = [observation(rng.uniform(0.3, 0.8, (h_ - 2, w_ - 2)), np.ones((h_ - 2, w_ - 2)), pts,
+    obs = [observation(rng.uniform(0.3, 0.8, (h_ - 2, w_ - 2)), weights() if weights else np.ones((h_ - 2, w_ - 2)), pts,
                        forward.sun_position(geometry.body_fixed(10.05, -5.05, 0), az, 55),
                        geometry.body_fixed(10.05, -5.05, 1e5)) for az in (50, 130)]
+    return lon, lat, h, pts, obs
+
+
+def test_cost_gradient_matches_finite_differences():
+    rng = np.random.default_rng(0)
+    h_, w_ = 10, 12
+    lon, lat, h, pts, obs = _window(rng, h_, w_)
     cost = Cost([Shading(1.0, unit_up(lon, lat), 1737.4, obs, photometry.get(2).reflectance, (1.4, 0.5)),
                  Smoothness(0.3, 300.0), Fidelity(0.2, 300.0, rng.normal(0, 50, (h_, w_)), 1.5)])
     g = cost(h)[1]
@@ -72,12 +79,7 @@ def test_height_uncertainty_is_the_gauss_newton_diagonal():
     """The diagonal of J^T J + mu L^T L + lambda S^T S against the Jacobian of the residuals by finite differences."""
     rng = np.random.default_rng(1)
     h_, w_ = 9, 11
-    lon, lat = np.meshgrid(10 + 0.01 * np.arange(w_), -5 - 0.01 * np.arange(h_))
-    h = rng.normal(0, 50, (h_, w_))
-    pts = geometry.body_fixed(lon, lat, h)
-    obs = [observation(rng.uniform(0.3, 0.8, (h_ - 2, w_ - 2)), rng.uniform(0.5, 1.5, (h_ - 2, w_ - 2)), pts,
-                       forward.sun_position(geometry.body_fixed(10.05, -5.05, 0), az, 55),
-                       geometry.body_fixed(10.05, -5.05, 1e5)) for az in (50, 130)]
+    lon, lat, h, pts, obs = _window(rng, h_, w_, lambda: rng.uniform(0.5, 1.5, (h_ - 2, w_ - 2)))
     shading = Shading(1.0, unit_up(lon, lat), 1737.4, obs, photometry.get(2).reflectance, (1.4, 0.5), float_albedo=False)
     smooth, fid = Smoothness(0.3, 300.0), Fidelity(0.2, 300.0, rng.normal(0, 50, (h_, w_)), 1.5)
     sigma, s2 = height_uncertainty(Cost([shading, smooth, fid]), h)
@@ -282,12 +284,7 @@ def test_height_uncertainty_counts_the_floating_albedo_in_the_degrees_of_freedom
     images leave n - pixels degrees of freedom, and s^2 is the misfit over them."""
     rng = np.random.default_rng(2)
     h_, w_ = 9, 11
-    lon, lat = np.meshgrid(10 + 0.01 * np.arange(w_), -5 - 0.01 * np.arange(h_))
-    h = rng.normal(0, 50, (h_, w_))
-    pts = geometry.body_fixed(lon, lat, h)
-    obs = [observation(rng.uniform(0.3, 0.8, (h_ - 2, w_ - 2)), np.ones((h_ - 2, w_ - 2)), pts,
-                       forward.sun_position(geometry.body_fixed(10.05, -5.05, 0), az, 55),
-                       geometry.body_fixed(10.05, -5.05, 1e5)) for az in (50, 130)]
+    lon, lat, h, pts, obs = _window(rng, h_, w_)
     terms = lambda o: Cost([Shading(1.0, unit_up(lon, lat), 1737.4, o, photometry.get(2).reflectance, (1.4, 0.5)),  # noqa: E731
                             Smoothness(0.3, 300.0), Fidelity(0.2, 300.0, h, 1.5)])
     sigma, s2 = height_uncertainty(terms(obs[:1]), h)

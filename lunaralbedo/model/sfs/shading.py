@@ -205,13 +205,17 @@ class Shading:
         den = sum(o.w * r * r for o, r in zip(self.observations, refl))
         return np.where(den > 0, num / np.where(den > 0, den, 1.0), 1.0)
 
+    def _shade(self, h: np.ndarray):
+        """At heights ``h``: the interior normals with their edge vectors (:func:`interior_normals`), each image's
+        ``(cos i, cos e)`` and reflectance, and the albedo's scale (:meth:`albedo_scale`)."""
+        normals = interior_normals(self.points(h))
+        cosines = [_cosines(normals[0], o.l, o.v) for o in self.observations]
+        refl = [self.reflectance(ci, ce, o.alpha, self.params) for (ci, ce), o in zip(cosines, self.observations)]
+        return normals, cosines, refl, self.albedo_scale(refl)
+
     def value_grad(self, h: np.ndarray) -> tuple[float, np.ndarray]:
-        pts = self.points(h)
-        n, snorm, a, b = interior_normals(pts)
         f = self.reflectance
-        cosines = [_cosines(n, o.l, o.v) for o in self.observations]
-        refl = [f(ci, ce, o.alpha, self.params) for (ci, ce), o in zip(cosines, self.observations)]
-        scale = self.albedo_scale(refl)
+        (n, snorm, a, b), cosines, refl, scale = self._shade(h)
         gn = np.zeros_like(n)
         total = 0.0
         for o, (ci, ce), r in zip(self.observations, cosines, refl):
@@ -231,12 +235,8 @@ class Shading:
         derivative left out, as in the gradient), the data term's value, its number of observations, and the
         residuals' degrees of freedom: ``n`` less one per observed pixel when the albedo floats (each such pixel's
         :math:`a^*` is fitted to its own observations: one image per pixel leaves no residual at all)."""
-        pts = self.points(h)
-        n, snorm, a, b = interior_normals(pts)
         f = self.reflectance
-        cosines = [_cosines(n, o.l, o.v) for o in self.observations]
-        refl = [f(ci, ce, o.alpha, self.params) for (ci, ce), o in zip(cosines, self.observations)]
-        scale = self.albedo_scale(refl)
+        (n, snorm, a, b), cosines, refl, scale = self._shade(h)
         diag, total, count = np.zeros(h.shape), 0.0, 0
         for o, (ci, ce), r in zip(self.observations, cosines, refl):
             res = np.where(o.w > 0, o.j - scale * r, 0.0)
