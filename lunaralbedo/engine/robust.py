@@ -153,14 +153,19 @@ def _loss_factors(arrays, state, r, texp, keep, base, w_prev, n_img, s) -> np.nd
     albedo = np.bincount(inv, signal * tr * w) / np.maximum(np.bincount(inv, tr * tr * w), 1e-300)
     res = signal - albedo[inv] * tr
     pooled = outliers.robust_sigma(res[many])
+    # each image's observations in ascending order (a stable sort by image: one pass, not one mask per image)
+    idx = np.flatnonzero(many)
+    by_image = np.argsort(img[idx], kind="stable")
+    idx = idx[by_image]
+    bounds = np.searchsorted(img[idx], np.arange(n_img + 1))
     for k in range(n_img):
-        sel = many & (img == k)
-        if not sel.any():
+        sel = idx[bounds[k]:bounds[k + 1]]
+        if not len(sel):
             continue
-        scale = outliers.robust_sigma(res[sel]) if np.count_nonzero(sel) >= outliers.MIN_SCALE_OBS else pooled
+        scale = outliers.robust_sigma(res[sel]) if len(sel) >= outliers.MIN_SCALE_OBS else pooled
         if scale > 0:
             m[sel] = outliers.loss_weights(res[sel] / scale, s.robust_loss, s.robust_threshold)
-    return m, int(np.count_nonzero(many))
+    return m, len(idx)
 
 
 def reweight_pass(on_tiles, threads: int, scene: Scene, state: SolveState, ck: dict, reinit: bool) -> SolveState:
