@@ -145,6 +145,15 @@ def test_loss_weights():
     assert outliers.loss_weights(u, "none", 3.0) == pytest.approx([1.0] * 4)
 
 
+@pytest.mark.parametrize("loss", ["cauchy", "huber", "none"])
+def test_loss_rho_is_the_cost_whose_irls_weights_are_loss_weights(loss):
+    """IRLS minimises sum rho(u) by weights m = rho'(u) / u: the two must be one loss (finite differences)."""
+    u, h = np.array([-12.0, -4.0, -0.5, 0.3, 2.0, 2.9, 3.1, 7.0, 40.0]), 1e-6
+    slope = (outliers.loss_rho(u + h, loss, 3.0) - outliers.loss_rho(u - h, loss, 3.0)) / (4 * h)  # rho' (of 2 rho)
+    assert slope / u == pytest.approx(outliers.loss_weights(u, loss, 3.0), rel=1e-6)
+    assert outliers.loss_rho(np.array([1e-3]), loss, 3.0)[0] == pytest.approx(1e-6, rel=1e-6)  # u^2 near 0
+
+
 @pytest.mark.parametrize("key,value,needle", [("ROBUST_LOSS", "tukey", "ROBUST_LOSS must be one of cauchy, huber, none"),
                                               ("ROBUST_THRESHOLD", "-1", "ROBUST_THRESHOLD must be a number > 0"),
                                               ("REJECT_OUTLIERS", "2", "REJECT_OUTLIERS must be one of 0, 1")])

@@ -259,10 +259,17 @@ def estimate(scene: Scene, progress=None) -> Registration:
         more[0]["outlier_pixels_dropped"] = dropped  # the levels run again without them
         levels += more
     obs = lv.observations(images, shifts)
-    normal = reg.normal_equations(obs, exposure, a, lv.n_grid)
+    loss = _loss(s)
+    scales = reg.residual_scales(obs, exposure, a, lv.n_grid)
+    normal = reg.normal_equations(reg.reweighted(obs, exposure, a, scales, *loss), exposure, a, lv.n_grid)
     se = reg.standard_errors(normal, exposure)
     se[[len(o.value) == 0 for o in obs]] = np.nan
     return Registration(scene.keys, shifts, se, pixel_m, factor, levels)
+
+
+def _loss(s) -> tuple[str, float]:
+    """The registration's robust loss: the solve's (``ROBUST_LOSS``, ``ROBUST_THRESHOLD``)."""
+    return s.robust_loss, float(s.robust_threshold)
 
 
 def _coarse_to_fine(scene, images, top, factor, res, box, max_m, pixel_m, progress):
@@ -279,7 +286,7 @@ def _coarse_to_fine(scene, images, top, factor, res, box, max_m, pixel_m, progre
         for _ in range(3):  # exposures and albedo of eqs. 3 and 4 at the level's first shifts
             exposure = reg.exposures(obs, reg.albedo(obs, exposure, lv.n_grid), exposure)
         shifts, exposure, obs, a, q, it, evals = _gauss_newton(lv, images, obs, shifts, exposure, max_m,
-                                                               pixel_m * factor * 2**j)
+                                                               pixel_m * factor * 2**j, _loss(scene.settings))
         levels.append({"pixel_factor": factor * 2**j, "iterations": it, "evaluations": evals, "mean_sq_residual": q,
                        "observations": int(sum(len(o.value) for o in obs)), "setup_s": round(t1 - t0, 4),
                        "iterate_s": round(time.perf_counter() - t1, 4)})
@@ -309,18 +316,21 @@ def _drop_outliers(images, lv, shifts, exposure, a) -> int:
     return dropped
 
 
-def _gauss_newton(lv, images, obs, shifts, exposure, max_m, level_px):
+def _gauss_newton(lv, images, obs, shifts, exposure, max_m, level_px, loss=("none", 1.0)):
     """Levenberg-Marquardt iterations of one level from ``shifts`` (K, 2 metres) and ``exposure``: returns the
-    shifts, exposures, observations, albedo, mean squared residual, iterations and cost evaluations.  A step is
-    taken when the mean squared residual does not grow (the observations near image edges change with the shifts);
+    shifts, exposures, observations, albedo, mean cost per observation, iterations and cost evaluations.  The cost
+    is the robust one of ``loss`` (``(ROBUST_LOSS, ROBUST_THRESHOLD)``, :func:`lunaralbedo.model.registration.robust_cost`)
+    with each image's residual scale taken at the level's start; its steps are reweighted Gauss-Newton ones.
+    A step is taken when the mean cost does not grow (the observations near image edges change with the shifts);
     the level ends when no shift moves by :data:`STOP_PX` of its pixels (``level_px``, metres per image)."""
-    a = reg.albedo(obs, exposure, lv.n_grid)
-    q, n = reg.cost(obs, exposure, a)
+    scales = reg.residual_scales(obs, exposure, reg.albedo(obs, exposure, lv.n_grid), lv.n_grid)
+    a = reg.robust_albedo(obs, exposure, lv.n_grid, scales, *loss)
+    q, n = reg.robust_cost(obs, exposure, a, scales, *loss)
     damping, it, evals = 1e-3, 0, 0
     for it in range(1, ITERATIONS + 1):
         if obs and obs[0].d_east is None:
             obs = lv.observations(images, shifts)  # the accepted step's, now with the derivatives
-        normal = reg.normal_equations(obs, exposure, a, lv.n_grid)
+        normal = reg.normal_equations(reg.reweighted(obs, exposure, a, scales, *loss), exposure, a, lv.n_grid)
         accepted = False
         for _ in range(8):
             delta = reg.step(normal, exposure, damping)
@@ -328,8 +338,8 @@ def _gauss_newton(lv, images, obs, shifts, exposure, max_m, level_px):
             t_new = np.where(t_new > 0, t_new, exposure * np.exp(delta[:, 0] / exposure))
             s_new = np.clip(shifts + delta[:, 1:], -max_m[:, None], max_m[:, None])
             obs_new = lv.observations(images, s_new, derivatives=False)
-            a_new = reg.albedo(obs_new, t_new, lv.n_grid)
-            q_new, n_new = reg.cost(obs_new, t_new, a_new)
+            a_new = reg.robust_albedo(obs_new, t_new, lv.n_grid, scales, *loss)
+            q_new, n_new = reg.robust_cost(obs_new, t_new, a_new, scales, *loss)
             evals += 1
             if q_new / max(n_new, 1) <= q / max(n, 1):
                 moved = np.max(np.abs(s_new - shifts) / level_px[:, None])

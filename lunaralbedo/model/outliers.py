@@ -161,6 +161,23 @@ def loss_weights(u: np.ndarray, loss: str, k: float) -> np.ndarray:
     raise ValueError(f"unknown robust loss {loss!r}; one of {', '.join(LOSSES)}")
 
 
+def loss_rho(u: np.ndarray, loss: str, k: float) -> np.ndarray:
+    r"""Twice the robust loss :math:`2\rho(u)` of normalised residuals ``u`` (module docstring; ``none``: :math:`u^2`),
+    the cost whose IRLS weights are :func:`loss_weights`: :math:`u^2` near 0 for every loss.
+
+    * Cauchy: :math:`k^2 \log(1 + u^2/k^2)`;
+    * Huber: :math:`u^2` for :math:`|u| \le k`, else :math:`2k|u| - k^2`.
+    """
+    u = np.abs(np.asarray(u, np.float64))
+    if loss == "cauchy":
+        return k * k * np.log1p((u / k) ** 2)
+    if loss == "huber":
+        return np.where(u <= k, u * u, 2.0 * k * u - k * k)
+    if loss == "none":
+        return u * u
+    raise ValueError(f"unknown robust loss {loss!r}; one of {', '.join(LOSSES)}")
+
+
 def lost_fraction(base: np.ndarray, effective: np.ndarray, pixel: np.ndarray, n_pixels: int) -> np.ndarray:
     r"""Per pixel (``pixel``: each observation's, 0..n_pixels-1) the fraction of its observations' weight the robust
     weights took away, :math:`\sum (1 - m) / \#\{w > 0\}` (float32; NaN where no observation has weight)."""

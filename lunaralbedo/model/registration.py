@@ -28,15 +28,25 @@ other and the DEM's shading.  The albedo is then set by eq. 3 (:math:`Q` is quad
 that leaves the shifts' variances unchanged.  Standard errors: :math:`\sigma^2 S^{-1}` with
 :math:`\sigma^2 = Q / (n - m)` (observations minus unknowns).
 
+**A robust loss** (the solve's ``ROBUST_LOSS``, :mod:`.outliers`): with a few unrejected defects (hot
+spots, dropout rows) the least-squares :math:`Q` is dominated by them, and the whole set of
+shifts moves to where they hurt least (a common shift of a pixel was measured).  The robust
+cost replaces each :math:`w r^2` by :math:`\sigma_k^2\,2\rho(\sqrt{w}\,r/\sigma_k)`
+(:func:`robust_cost`), :math:`\sigma_k` image k's robust standard deviation of
+:math:`\sqrt{w}\,r` (:func:`residual_scales`), held through a level; its Gauss-Newton steps are
+those above with the weights :math:`w\,m` of iteratively reweighted least squares
+(:func:`reweighted`), and the albedo of a pixel is eq. 3 with those weights.
+
 Pure NumPy/SciPy; float64 sums in image order, then pixel order (``np.bincount``), so the
 result does not depend on how the work was split.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from . import outliers
 from .updates import albedo_terms
 
 
@@ -87,6 +97,58 @@ def cost(obs: list[ImageObs], exposure: np.ndarray, a: np.ndarray) -> tuple[floa
     for t, o in zip(exposure, obs):
         res = o.value - t * np.nan_to_num(a[o.pix]) * o.r
         q += float(np.sum(o.w * res * res, dtype=np.float64))
+        n += len(o.w)
+    return q, n
+
+
+def _normalised(o: ImageObs, t: float, a: np.ndarray, scale: float) -> np.ndarray:
+    """:math:`\sqrt{w}\,r/\sigma` of one image's observations."""
+    return np.sqrt(o.w) * (o.value - t * np.nan_to_num(a[o.pix]) * o.r) / scale
+
+
+def residual_scales(obs: list[ImageObs], exposure: np.ndarray, a: np.ndarray, n_grid: int) -> np.ndarray:
+    """Per image the robust standard deviation (:func:`.outliers.robust_sigma`) of :math:`\sqrt{w}\,r` over its
+    observations of pixels another image sees too (where one image alone sees a pixel its residual is 0); 1 where
+    there are none."""
+    seen = np.zeros(n_grid)
+    for o in obs:
+        seen += np.bincount(o.pix, minlength=n_grid)
+    out = np.ones(len(obs))
+    for k, (t, o) in enumerate(zip(exposure, obs)):
+        shared = seen[o.pix] > 1
+        sig = outliers.robust_sigma(_normalised(o, t, a, 1.0)[shared]) if shared.any() else float("nan")
+        out[k] = sig if np.isfinite(sig) and sig > 0 else 1.0
+    return out
+
+
+def reweighted(obs: list[ImageObs], exposure: np.ndarray, a: np.ndarray, scales, loss: str, k: float) -> list[ImageObs]:
+    """The observations with their weights (and the weights' derivatives) times the IRLS factors of ``loss``
+    (:func:`.outliers.loss_weights` of :math:`\sqrt{w}\,r/\sigma_k`); the same list for ``none``."""
+    if loss == "none":
+        return obs
+    out = []
+    for t, o, sc in zip(exposure, obs, scales):
+        m = outliers.loss_weights(_normalised(o, t, a, sc), loss, k)
+        out.append(replace(o, w=o.w * m, w_east=None if o.w_east is None else o.w_east * m,
+                           w_north=None if o.w_north is None else o.w_north * m))
+    return out
+
+
+def robust_albedo(obs: list[ImageObs], exposure: np.ndarray, n_grid: int, scales, loss: str, k: float) -> np.ndarray:
+    """The albedo of the robust cost: eq. 3, then eq. 3 again with the IRLS weights of its residuals (one IRLS step
+    from least squares; :func:`albedo` for ``none``)."""
+    a = albedo(obs, exposure, n_grid)
+    return a if loss == "none" else albedo(reweighted(obs, exposure, a, scales, loss, k), exposure, n_grid)
+
+
+def robust_cost(obs: list[ImageObs], exposure: np.ndarray, a: np.ndarray, scales, loss: str, k: float) -> tuple[float, int]:
+    """``(Q, observations)`` of the robust cost :math:`\sum_k \sigma_k^2 \sum 2\rho(\sqrt{w}\,r/\sigma_k)`
+    (:func:`.outliers.loss_rho`; :func:`cost` for ``none``)."""
+    if loss == "none":
+        return cost(obs, exposure, a)
+    q, n = 0.0, 0
+    for t, o, sc in zip(exposure, obs, scales):
+        q += float(sc * sc) * float(np.sum(outliers.loss_rho(_normalised(o, t, a, sc), loss, k), dtype=np.float64))
         n += len(o.w)
     return q, n
 
