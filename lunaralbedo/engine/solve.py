@@ -28,7 +28,7 @@ from ..errors import ResumeError, SettingsError, SolverError, typed_error
 from ..io import outputs
 from ..io.atomic import remove_stale_temporaries, remove_tree
 from ..io.guard import check_output_dir
-from ..model import exposure_init, exposure_prior, haze, updates
+from ..model import haze
 from ..settings import Settings, load_settings
 from ..parallel import local_workers, make_executor
 from ..parallel.progress import ROWS
@@ -44,6 +44,7 @@ from .run_report import (CACHE_DIR, CHECKPOINT_DIR, MARKER, OUTPUT_DIRS, REFINE_
 from .scene import Scene, build_scene
 from .prepare import WRITER, prepare_tile
 from . import robust
+from .pass_update import haze_sigma, reduce_init, reduce_iteration, update
 from .tilework import SolveState, finalize_tile, iterate_tile
 
 #: Modules local workers import as they start (the tile tasks' own, with NumPy, numba, rasterio).
@@ -78,65 +79,6 @@ def _clear_previous_run(out: Path) -> None:
         shutil.rmtree(out / name, ignore_errors=True)
     for name in RESULT_FILES:
         (out / name).unlink(missing_ok=True)
-
-
-def _reduce_init(scene: Scene, metas: list[dict], method: str) -> np.ndarray:
-    n = len(scene.images)
-    r_sum, r_cnt = np.zeros(n), np.zeros(n)
-    pairs: dict = {}
-    for meta in metas:  # fixed tile order
-        idx = np.asarray(meta["index"], dtype=int)
-        np.add.at(r_sum, idx, meta["r_sum"])
-        np.add.at(r_cnt, idx, meta["r_count"])
-        exposure_init.merge_pair_sums(pairs, {(j, k): (nn, d) for j, k, nn, d in meta["pairs"]})
-    t_seed = exposure_init.seed_exposure(scene.settings.tr_const, r_sum, r_cnt)
-    if method == "seed":
-        return t_seed
-    return exposure_init.overlap_exposure(pairs, np.log(t_seed))
-
-
-def _reduce_iteration(n_images: int, n_params: int, parts) -> updates.PassSums:
-    total = updates.PassSums(n_images, n_params)
-    for p in parts:  # fixed tile order: identical sums for any number of workers
-        total.add(p)
-    return total
-
-
-def _update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref: np.ndarray, fixed: bool = False,
-            prior: float | None = None) -> SolveState:
-    """One update of exposures (eq. 4) and parameters (eq. 5); ``fixed``: the exposures are known (kept);
-    ``prior``: the relative sigma of a Gaussian prior around ``t_ref`` (:mod:`lunaralbedo.model.exposure_prior`)."""
-    h = state.haze
-    if h is not None:  # FLOAT_HAZE: one joint (T, H) step with the albedo eliminated (model/haze.py)
-        g, mat = haze.assemble(len(state.exposure), sums.haze_parts)
-        mode = "fixed" if fixed else ("prior" if prior is not None else "solve")
-        t, h = haze.joint_step(state.exposure, h, g, mat, mode, t0=t_ref,
-                               prior_weight=exposure_prior.prior_weight(t_ref, prior) if prior is not None else None,
-                               noise_var=max(sums.q / sums.n_obs, 1e-12) if sums.n_obs else 1.0)
-    elif fixed:
-        t = state.exposure
-    elif prior is not None:
-        t = exposure_prior.exposure_update_prior(state.exposure, sums.exp_num, sums.exp_den, t_ref, prior, sums.q, sums.n_obs)
-    else:
-        t = updates.exposure_update(state.exposure, sums.exp_num, sums.exp_den)
-    c = state.params
-    if model.parameters and sums.n_obs:
-        if method == "seed":
-            c = updates.phase_update_seed(c, sums.jtj, sums.jtr)
-        else:
-            c = updates.phase_update_damped(c, sums.jtj, sums.jtr, (sums.alpha_min, sums.alpha_max), model.phase_curve)
-    if method != "seed" and not fixed and prior is None:
-        # A*T leaves one global scale free: pin the geometric mean of T to the initial one.
-        t = t * np.exp(np.mean(np.log(t_ref)) - np.mean(np.log(t)))
-    return SolveState(np.asarray(t, dtype=np.float64), np.asarray(c, dtype=np.float64), robust=state.robust, haze=h)
-
-
-def _haze_sigma(state: SolveState, mat, sums: updates.PassSums, fixed: bool, mode: str, t_ref, prior) -> list:
-    """Each image's haze standard error (:func:`lunaralbedo.model.haze.standard_errors`; None: no data)."""
-    how = "fixed" if fixed else ("prior" if mode == "prior" else "solve")
-    w = exposure_prior.prior_weight(t_ref, prior) if how == "prior" else None
-    sig = haze.standard_errors(state.exposure, mat, sums.haze_rss, how, prior_weight=w)
-    return [None if not np.isfinite(v) else float(v) for v in sig]
 
 
 def solve(
@@ -314,10 +256,10 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
     metas = _prepare(on_tiles, executor, lut)
     executor.place("tiles", {t: TASK_OBSERVATIONS + sum(m["r_count"]) for t, m in zip(tiles, metas)})
     if mode == "prior" and method == "overlap":  # the overlaps' relative exposures at the prior's overall scale
-        t_seed = _reduce_init(scene, metas, method)
+        t_seed = reduce_init(scene, metas, method)
         t_init = t_seed * np.exp(np.mean(np.log(t_given)) - np.mean(np.log(t_seed)))
     else:
-        t_init = _reduce_init(scene, metas, method) if t_given is None else t_given
+        t_init = reduce_init(scene, metas, method) if t_given is None else t_given
     t_ref = t_given if mode == "prior" else t_init
     timings["prepare"] = time.perf_counter() - t1
     if ck is None:
@@ -355,7 +297,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
             robust.drop_generation(cache, gen)
         parts = on_tiles(iterate_tile, f"iteration {ck['iteration'] + 1}", state=state, want_phase=want_phase,
                          threads=_threads(executor))  # one process: tiles on its CPUs, summed in tile order
-        sums = _reduce_iteration(len(scene.images), len(scene.model.parameters), parts)
+        sums = reduce_iteration(len(scene.images), len(scene.model.parameters), parts)
         q_prev = ck["q"][-1] if ck["q"] else None
         ck["q"].append(sums.q)
         converged = q_prev is not None and abs(q_prev - sums.q) <= tol * max(sums.q, 1e-300)
@@ -365,7 +307,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
         if converged and ck["robust"] < len(reweights):  # settled before the last reweight: reweight now, go on
             converged, ck["reweight_now"] = False, True
         if not converged:
-            state = _update(state, sums, method, scene.model, t_ref, fixed=t_known is not None,
+            state = update(state, sums, method, scene.model, t_ref, fixed=t_known is not None,
                             prior=s.exposure_prior_sigma if mode == "prior" else None)
             ck["params_history"].append(state.params.tolist())
         ck.update(iteration=ck["iteration"] + 1, exposure=state.exposure.tolist(), params=state.params.tolist(), done=converged,
@@ -374,7 +316,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
             mat = haze.assemble(len(scene.images), sums.haze_parts)[1]
             ck["haze_inseparable"] = [scene.keys[k] for k in haze.inseparable(mat)]
             if converged or ck["iteration"] >= max_iter:  # the last pass: the haze's standard errors at the solution
-                ck["haze_sigma"] = _haze_sigma(state, mat, sums, t_known is not None, mode, t_ref, s.exposure_prior_sigma)
+                ck["haze_sigma"] = haze_sigma(state, mat, sums, t_known is not None, mode, t_ref, s.exposure_prior_sigma)
         outputs.write_json(out / STATE_FILE, ck)
     timings["iterate"] = time.perf_counter() - t2
     t3 = time.perf_counter()

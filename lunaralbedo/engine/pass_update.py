@@ -1,0 +1,69 @@
+"""What a solve's passes reduce to: the initial exposures from the tiles' prepare sums, one pass's sums over the
+tiles (in tile order), and the state they update (eqs. 4 and 5 of the PhotometryTK manual, the joint exposure-haze
+step of :mod:`lunaralbedo.model.haze`, the exposures' prior of :mod:`lunaralbedo.model.exposure_prior`)."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..model import exposure_init, exposure_prior, haze, updates
+from .scene import Scene
+from .tilework import SolveState
+
+
+def reduce_init(scene: Scene, metas: list[dict], method: str) -> np.ndarray:
+    n = len(scene.images)
+    r_sum, r_cnt = np.zeros(n), np.zeros(n)
+    pairs: dict = {}
+    for meta in metas:  # fixed tile order
+        idx = np.asarray(meta["index"], dtype=int)
+        np.add.at(r_sum, idx, meta["r_sum"])
+        np.add.at(r_cnt, idx, meta["r_count"])
+        exposure_init.merge_pair_sums(pairs, {(j, k): (nn, d) for j, k, nn, d in meta["pairs"]})
+    t_seed = exposure_init.seed_exposure(scene.settings.tr_const, r_sum, r_cnt)
+    if method == "seed":
+        return t_seed
+    return exposure_init.overlap_exposure(pairs, np.log(t_seed))
+
+
+def reduce_iteration(n_images: int, n_params: int, parts) -> updates.PassSums:
+    total = updates.PassSums(n_images, n_params)
+    for p in parts:  # fixed tile order: identical sums for any number of workers
+        total.add(p)
+    return total
+
+
+def update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref: np.ndarray, fixed: bool = False,
+            prior: float | None = None) -> SolveState:
+    """One update of exposures (eq. 4) and parameters (eq. 5); ``fixed``: the exposures are known (kept);
+    ``prior``: the relative sigma of a Gaussian prior around ``t_ref`` (:mod:`lunaralbedo.model.exposure_prior`)."""
+    h = state.haze
+    if h is not None:  # FLOAT_HAZE: one joint (T, H) step with the albedo eliminated (model/haze.py)
+        g, mat = haze.assemble(len(state.exposure), sums.haze_parts)
+        mode = "fixed" if fixed else ("prior" if prior is not None else "solve")
+        t, h = haze.joint_step(state.exposure, h, g, mat, mode, t0=t_ref,
+                               prior_weight=exposure_prior.prior_weight(t_ref, prior) if prior is not None else None,
+                               noise_var=max(sums.q / sums.n_obs, 1e-12) if sums.n_obs else 1.0)
+    elif fixed:
+        t = state.exposure
+    elif prior is not None:
+        t = exposure_prior.exposure_update_prior(state.exposure, sums.exp_num, sums.exp_den, t_ref, prior, sums.q, sums.n_obs)
+    else:
+        t = updates.exposure_update(state.exposure, sums.exp_num, sums.exp_den)
+    c = state.params
+    if model.parameters and sums.n_obs:
+        if method == "seed":
+            c = updates.phase_update_seed(c, sums.jtj, sums.jtr)
+        else:
+            c = updates.phase_update_damped(c, sums.jtj, sums.jtr, (sums.alpha_min, sums.alpha_max), model.phase_curve)
+    if method != "seed" and not fixed and prior is None:
+        # A*T leaves one global scale free: pin the geometric mean of T to the initial one.
+        t = t * np.exp(np.mean(np.log(t_ref)) - np.mean(np.log(t)))
+    return SolveState(np.asarray(t, dtype=np.float64), np.asarray(c, dtype=np.float64), robust=state.robust, haze=h)
+
+
+def haze_sigma(state: SolveState, mat, sums: updates.PassSums, fixed: bool, mode: str, t_ref, prior) -> list:
+    """Each image's haze standard error (:func:`lunaralbedo.model.haze.standard_errors`; None: no data)."""
+    how = "fixed" if fixed else ("prior" if mode == "prior" else "solve")
+    w = exposure_prior.prior_weight(t_ref, prior) if how == "prior" else None
+    sig = haze.standard_errors(state.exposure, mat, sums.haze_rss, how, prior_weight=w)
+    return [None if not np.isfinite(v) else float(v) for v in sig]
