@@ -52,6 +52,89 @@ def _kept_counts(run_start, run_pixel, q0, q1, keep, lo, hi, cnt):
             cnt[p0 + o] += keep[o]
 
 
+@njit(cache=True, nogil=True)
+def _applies(chunks, run_start, run_pixel, run_image, n_img, keep, least, cnt):
+    """Pass 1: per image the kept observations on pixels with at least ``least`` kept ones (``cnt``: scratch)."""
+    n_k = np.zeros(n_img, np.int64)
+    for ch in range(chunks.shape[0] - 1):
+        q0, q1 = chunks[ch], chunks[ch + 1]
+        lo, hi = _chunk_span(run_start, run_pixel, q0, q1)
+        _kept_counts(run_start, run_pixel, q0, q1, keep, lo, hi, cnt)
+        for q in range(q0, q1):
+            p0, c = run_pixel[q] - lo - run_start[q], 0
+            for o in range(run_start[q], run_start[q + 1]):
+                c += keep[o] and cnt[p0 + o] >= least
+            n_k[run_image[q]] += c
+    return n_k
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _residuals(chunks, run_start, run_pixel, run_image, image, haze, texp, r, base, w_prev, keep, least, m, sample,
+               off, step, cnt, albedo, den):
+    """Pass 2: each pixel's albedo (eq. 3, weights :math:`w\\,m_{\\rm prev}` of its kept observations, summed in the
+    runs' order), the residuals where the loss applies (into ``m``; 1 elsewhere) and the samples of the finite ones
+    (image i's every ``step[i]``-th at ``off[i]``, of all every ``step[-1]``-th at ``off[-2]``); returns the samples'
+    sizes."""
+    n_img = off.shape[0] - 2
+    got = np.zeros(n_img + 1, np.int64)
+    skip = np.zeros(n_img + 1, np.int64)  # finite residuals to pass over before the next sampled one
+    for ch in range(chunks.shape[0] - 1):
+        q0, q1 = chunks[ch], chunks[ch + 1]
+        lo, hi = _chunk_span(run_start, run_pixel, q0, q1)
+        for p in range(hi - lo):
+            albedo[p], den[p], cnt[p] = 0.0, 0.0, 0
+        for q in range(q0, q1):
+            i = run_image[q]
+            h, t = np.float64(haze[i]), np.float64(texp[i])
+            p0 = run_pixel[q] - lo - run_start[q]
+            for o in range(run_start[q], run_start[q + 1]):
+                if keep[o]:
+                    b = np.float64(base[o])
+                    w = b * (np.float64(w_prev[o]) / b if b > 0 else 0.0)
+                    tr = t * np.float64(r[o])
+                    albedo[p0 + o] += (np.float64(image[o]) - h) * tr * w
+                    den[p0 + o] += tr * tr * w
+                    cnt[p0 + o] += 1
+        for p in range(hi - lo):
+            albedo[p] /= max(den[p], 1e-300)
+        for q in range(q0, q1):
+            i = run_image[q]
+            h, t = np.float64(haze[i]), np.float64(texp[i])
+            p0 = run_pixel[q] - lo - run_start[q]
+            for o in range(run_start[q], run_start[q + 1]):
+                p = p0 + o
+                if not (keep[o] and cnt[p] >= least):
+                    m[o] = 1.0
+                    continue
+                res = (np.float64(image[o]) - h) - albedo[p] * (t * np.float64(r[o]))
+                m[o] = res
+                if not abs(res) < np.inf:  # the scale of the finite residuals
+                    continue
+                for j in (i, n_img):  # no division per observation
+                    if skip[j] == 0:
+                        sample[off[j] + got[j]] = res
+                        got[j] += 1
+                        skip[j] = step[j]
+                    skip[j] -= 1
+    return got
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _factors(chunks, run_start, run_pixel, run_image, keep, least, scale, code, k, m, cnt):
+    """Pass 3: the residuals in ``m`` where the loss applies become :func:`lunaralbedo.model.outliers.loss_weight`
+    of the residual over its image's ``scale`` (1 where the scale is not above 0)."""
+    for ch in range(chunks.shape[0] - 1):
+        q0, q1 = chunks[ch], chunks[ch + 1]
+        lo, hi = _chunk_span(run_start, run_pixel, q0, q1)
+        _kept_counts(run_start, run_pixel, q0, q1, keep, lo, hi, cnt)
+        for q in range(q0, q1):
+            s = scale[run_image[q]]
+            p0 = run_pixel[q] - lo - run_start[q]
+            for o in range(run_start[q], run_start[q + 1]):
+                if keep[o] and cnt[p0 + o] >= least:
+                    m[o] = outliers.loss_weight(m[o] / s, code, k) if s > 0 else 1.0
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def loss_factors(chunks, run_start, run_pixel, run_image, n_img, image, haze, texp, r, base, w_prev, keep, code, k,
                  least, min_obs, m, sample):
@@ -72,85 +155,29 @@ def loss_factors(chunks, run_start, run_pixel, run_image, n_img, image, haze, te
 
     Returns the number of observations the loss applies to.
     """
-    n_ch = chunks.shape[0] - 1
     span = 0
-    for ch in range(n_ch):
+    for ch in range(chunks.shape[0] - 1):
         lo, hi = _chunk_span(run_start, run_pixel, chunks[ch], chunks[ch + 1])
         span = max(span, hi - lo)
     cnt = np.zeros(span, np.int32)
-    n_k = np.zeros(n_img, np.int64)
-    for ch in range(n_ch):  # 1: each image's observations on pixels with `least` kept ones
-        q0, q1 = chunks[ch], chunks[ch + 1]
-        lo, hi = _chunk_span(run_start, run_pixel, q0, q1)
-        _kept_counts(run_start, run_pixel, q0, q1, keep, lo, hi, cnt)
-        for q in range(q0, q1):
-            p0 = run_pixel[q] - lo - run_start[q]
-            for o in range(run_start[q], run_start[q + 1]):
-                n_k[run_image[q]] += keep[o] and cnt[p0 + o] >= least
+    n_k = _applies(chunks, run_start, run_pixel, run_image, n_img, keep, least, cnt)
     total = n_k.sum()
     if total < min_obs:
         return total
     big = robust_kernels.SCALE_SAMPLE
-    step = (n_k + big - 1) // big  # every step-th residual of the image (0: none)
-    off = np.zeros(n_img + 2, np.int64)  # image k's sample at off[k]:off[k + 1], the pooled one after
-    for i in range(n_img):
-        off[i + 1] = off[i] + ((n_k[i] + step[i] - 1) // step[i] if n_k[i] else 0)
-    step_all = (total + big - 1) // big
-    seen = np.zeros(n_img + 1, np.int64)  # finite residuals met of each image, and of all (the pooled sample)
-    got = np.zeros(n_img + 1, np.int64)  # values in each sample
-    num, den = np.empty(span), np.empty(span)
-    for ch in range(n_ch):  # 2: each pixel's albedo, the residuals (into m) and their samples
-        q0, q1 = chunks[ch], chunks[ch + 1]
-        lo, hi = _chunk_span(run_start, run_pixel, q0, q1)
-        for p in range(hi - lo):
-            num[p], den[p], cnt[p] = 0.0, 0.0, 0
-        for q in range(q0, q1):
-            i = run_image[q]
-            h, t = np.float64(haze[i]), np.float64(texp[i])
-            p0 = run_pixel[q] - lo - run_start[q]
-            for o in range(run_start[q], run_start[q + 1]):
-                if keep[o]:
-                    b = np.float64(base[o])
-                    w = b * (np.float64(w_prev[o]) / b if b > 0 else 0.0)
-                    tr = t * np.float64(r[o])
-                    num[p0 + o] += (np.float64(image[o]) - h) * tr * w
-                    den[p0 + o] += tr * tr * w
-                    cnt[p0 + o] += 1
-        for q in range(q0, q1):
-            i = run_image[q]
-            h, t = np.float64(haze[i]), np.float64(texp[i])
-            p0 = run_pixel[q] - lo - run_start[q]
-            for o in range(run_start[q], run_start[q + 1]):
-                p = p0 + o
-                if not (keep[o] and cnt[p] >= least):
-                    m[o] = 1.0
-                    continue
-                res = (np.float64(image[o]) - h) - num[p] / max(den[p], 1e-300) * (t * np.float64(r[o]))
-                m[o] = res
-                if res != res or abs(res) == np.inf:  # the scale of the finite residuals
-                    continue
-                if seen[i] % step[i] == 0:
-                    sample[off[i] + got[i]] = res
-                    got[i] += 1
-                if seen[n_img] % step_all == 0:
-                    sample[off[n_img] + got[n_img]] = res
-                    got[n_img] += 1
-                seen[i] += 1
-                seen[n_img] += 1
+    step = np.empty(n_img + 1, np.int64)  # every step-th residual of each image, and of all (the pooled scale)
+    off = np.zeros(n_img + 2, np.int64)  # their samples at off[i]:off[i + 1]
+    for i in range(n_img + 1):
+        n = n_k[i] if i < n_img else total
+        step[i] = max(1, (n + big - 1) // big)
+        off[i + 1] = off[i] + (n + step[i] - 1) // step[i]
+    got = _residuals(chunks, run_start, run_pixel, run_image, image, haze, texp, r, base, w_prev, keep, least, m, sample,
+                     off, step, cnt, np.empty(span), np.empty(span))
     pooled = robust_kernels._mad_sigma(sample[off[n_img]:], got[n_img])
     scale = np.empty(n_img)
     for i in range(n_img):
         scale[i] = robust_kernels._mad_sigma(sample[off[i]:], got[i]) if n_k[i] >= min_obs else pooled
-    for ch in range(n_ch):  # 3: the factors
-        q0, q1 = chunks[ch], chunks[ch + 1]
-        lo, hi = _chunk_span(run_start, run_pixel, q0, q1)
-        _kept_counts(run_start, run_pixel, q0, q1, keep, lo, hi, cnt)
-        for q in range(q0, q1):
-            s = scale[run_image[q]]
-            p0 = run_pixel[q] - lo - run_start[q]
-            for o in range(run_start[q], run_start[q + 1]):
-                if keep[o] and cnt[p0 + o] >= least:
-                    m[o] = outliers.loss_weight(m[o] / s, code, k) if s > 0 else 1.0
+    _factors(chunks, run_start, run_pixel, run_image, keep, least, scale, code, k, m, cnt)
     return total
 
 
