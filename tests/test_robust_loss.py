@@ -104,7 +104,8 @@ def _with(d, name, **keys):
 
 def test_the_robust_loss_alone_removes_outliers_where_three_images_overlap(tmp_path):
     """No spatial test (REJECT_OUTLIERS 0), the Cauchy loss: where three or more images cover a pixel (from the DRGs'
-    footprints) it must out-vote the 1 % planted hot spots and dropout rows that spoil the plain least squares."""
+    footprints) it must out-vote the 1 % planted hot spots and dropout rows that spoil the plain least squares; the
+    same bytes on two workers."""
     d = tmp_path / "scene"
     render_scene(d, SceneSpec(n_images=6, overlap=0.8, outlier_fraction=0.01, seed=23))
     truth = json.loads((d / "truth" / "truth.json").read_text())
@@ -127,6 +128,10 @@ def test_the_robust_loss_alone_removes_outliers_where_three_images_overlap(tmp_p
         s = np.sum(a[ok] * ta[ok]) / np.sum(a[ok] ** 2)  # A T leaves one global scale free
         errors[loss] = np.abs(s * a[ok] - ta[ok]) / ta[ok]
         assert ok.sum() > 0.5 * ok.size  # of the truth grid
+    solve(d / "cauchy.txt", out=tmp_path / "two", workers=2, plots=False)  # per tile in a fixed order: the same bytes
+    for sub in ("albedo", "outliers"):
+        files = sorted((tmp_path / "cauchy" / sub).glob("*.tif"))
+        assert len(files) > 1 and all(f.read_bytes() == (tmp_path / "two" / sub / f.name).read_bytes() for f in files)
     none, cauchy = errors["none"], errors["cauchy"]
     assert np.percentile(none, 99) > 0.2 and np.mean(none > 0.1) > 0.02, np.percentile(none, 99)  # what the loss removes
     assert np.percentile(cauchy, 99) < 0.05 and np.mean(cauchy > 0.1) < 0.01, (np.percentile(cauchy, 99), np.mean(cauchy > 0.1))
