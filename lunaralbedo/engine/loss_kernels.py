@@ -69,7 +69,7 @@ def _applies(chunks, run_start, run_pixel, run_image, n_img, keep, least, cnt):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _residuals(chunks, run_start, run_pixel, run_image, image, haze, texp, r, base, w_prev, keep, least, m, sample,
+def _residuals(chunks, run_start, run_pixel, run_image, image, haze, texp, r, w_prev, keep, least, m, sample,
                off, step, cnt, albedo, den):
     """Pass 2: each pixel's albedo (eq. 3, weights :math:`w\\,m_{\\rm prev}` of its kept observations, summed in the
     runs' order), the residuals where the loss applies (into ``m``; 1 elsewhere) and the samples of the finite ones
@@ -88,9 +88,8 @@ def _residuals(chunks, run_start, run_pixel, run_image, image, haze, texp, r, ba
             h, t = np.float64(haze[i]), np.float64(texp[i])
             p0 = run_pixel[q] - lo - run_start[q]
             for o in range(run_start[q], run_start[q + 1]):
-                if keep[o]:
-                    b = np.float64(base[o])
-                    w = b * (np.float64(w_prev[o]) / b if b > 0 else 0.0)
+                if keep[o]:  # kept: eq. 1's weight above 0, its effective weight m_prev w
+                    w = np.float64(w_prev[o])
                     tr = t * np.float64(r[o])
                     albedo[p0 + o] += (np.float64(image[o]) - h) * tr * w
                     den[p0 + o] += tr * tr * w
@@ -129,22 +128,23 @@ def _factors(chunks, run_start, run_pixel, run_image, keep, least, scale, code, 
         _kept_counts(run_start, run_pixel, q0, q1, keep, lo, hi, cnt)
         for q in range(q0, q1):
             s = scale[run_image[q]]
+            inv = 1.0 / s if s > 0 else 0.0
             p0 = run_pixel[q] - lo - run_start[q]
             for o in range(run_start[q], run_start[q + 1]):
                 if keep[o] and cnt[p0 + o] >= least:
-                    m[o] = outliers.loss_weight(m[o] / s, code, k) if s > 0 else 1.0
+                    m[o] = outliers.loss_weight(m[o] * inv, code, k) if s > 0 else 1.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def loss_factors(chunks, run_start, run_pixel, run_image, n_img, image, haze, texp, r, base, w_prev, keep, code, k,
+def loss_factors(chunks, run_start, run_pixel, run_image, n_img, image, haze, texp, r, w_prev, keep, code, k,
                  least, min_obs, m, sample):
     r"""The robust loss's factors of one block (module docstring).
 
     Parameters
     ----------
     chunks, run_start, run_pixel, run_image : the block's chunk-major runs (:mod:`.runs`) of ``n_img`` local images.
-    image, r, base, w_prev : per observation :math:`I` (DN), :math:`R`, eq. 1's weight :math:`w` and the previous
-        effective weight :math:`m_{\rm prev} w` (float32).
+    image, r, w_prev : per observation :math:`I` (DN), :math:`R` and the previous effective weight
+        :math:`m_{\rm prev} w` (float32; eq. 1's weight :math:`w` in the first pass).
     haze, texp : per local image :math:`H_k` (DN) and :math:`T_k`.
     keep : the observations kept by the spatial test (bool).
     code, k : the loss (:data:`lunaralbedo.model.outliers.LOSS_CODES`) and its threshold.
@@ -171,7 +171,7 @@ def loss_factors(chunks, run_start, run_pixel, run_image, n_img, image, haze, te
         n = n_k[i] if i < n_img else total
         step[i] = max(1, (n + big - 1) // big)
         off[i + 1] = off[i] + (n + step[i] - 1) // step[i]
-    got = _residuals(chunks, run_start, run_pixel, run_image, image, haze, texp, r, base, w_prev, keep, least, m, sample,
+    got = _residuals(chunks, run_start, run_pixel, run_image, image, haze, texp, r, w_prev, keep, least, m, sample,
                      off, step, cnt, np.empty(span), np.empty(span))
     pooled = robust_kernels._mad_sigma(sample[off[n_img]:], got[n_img])
     scale = np.empty(n_img)
@@ -181,7 +181,7 @@ def loss_factors(chunks, run_start, run_pixel, run_image, n_img, image, haze, te
     return total
 
 
-def block_loss_factors(arrays: dict, haze, texp, r, keep, base, w_prev, loss: str, threshold: float, out: np.ndarray):
+def block_loss_factors(arrays: dict, haze, texp, r, keep, w_prev, loss: str, threshold: float, out: np.ndarray):
     """:func:`loss_factors` of a block (``arrays``: its runs, values and weights; ``out``: float64, one per observation,
     e.g. scratch no longer needed).  Returns ``(m, n)``: the factors (``out``; empty: 1 everywhere, the loss applies
     to fewer than :data:`~lunaralbedo.model.outliers.MIN_SCALE_OBS` observations) and the observations it applies to."""
@@ -189,7 +189,7 @@ def block_loss_factors(arrays: dict, haze, texp, r, keep, base, w_prev, loss: st
     n = loss_factors(np.asarray(arrays["chunks"], np.int64), np.asarray(arrays["run_start"], np.int64),
                      np.asarray(arrays["run_pixel"], np.int64), np.asarray(arrays["run_image"], np.int64),
                      len(arrays["index"]), arrays["image"], np.asarray(haze, np.float32), np.asarray(texp, np.float32),
-                     np.asarray(r, np.float32), np.asarray(base, np.float32), np.asarray(w_prev, np.float32),
+                     np.asarray(r, np.float32), np.asarray(w_prev, np.float32),
                      np.asarray(keep, np.bool_), outliers.LOSS_CODES[loss], float(threshold),
                      outliers.MIN_IMAGES_FOR_LOSS, outliers.MIN_SCALE_OBS, out, sample)
     if n < outliers.MIN_SCALE_OBS:

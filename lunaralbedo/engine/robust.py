@@ -128,20 +128,20 @@ def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndar
     keep = used & ~flag
     m, n_loss = np.ones(0), 0  # m: the robust loss's factors (none: 1)
     if s.robust_loss != "none":
-        m, n_loss = _loss_factors(arrays, state, r, texp, keep, base, w_prev, s, loga)  # loga: no longer needed
+        m, n_loss = _loss_factors(arrays, state, r, texp, keep, w_prev, s, loga)  # loga: no longer needed
     w_new, counts = robust_kernels.workspace("weights", n_obs).view(np.float32)[:n_obs], np.zeros((3, n_img))
     robust_kernels.finish(arrays["run_start"], arrays["run_image"], base, used, flag, keep, m, w_new, counts)
     return w_new, counts, n_loss
 
 
-def _loss_factors(arrays, state, r, texp, keep, base, w_prev, s, out) -> tuple:
+def _loss_factors(arrays, state, r, texp, keep, w_prev, s, out) -> tuple:
     """The robust loss's IRLS factors m (empty: 1 everywhere, fewer than three images remain on every pixel; else 1
     where they do; ``out``: float64 scratch they go into) and how many observations it applies to
     (:mod:`.loss_kernels`)."""
     if robust_kernels.most_runs_on_a_pixel(arrays["chunks"], arrays["run_start"], arrays["run_pixel"]) < \
             outliers.MIN_IMAGES_FOR_LOSS:  # no pixel of the block has three images
         return np.ones(0), 0
-    return loss_kernels.block_loss_factors(arrays, state.haze_of(arrays["index"]), texp, r, keep, base, w_prev,
+    return loss_kernels.block_loss_factors(arrays, state.haze_of(arrays["index"]), texp, r, keep, w_prev,
                                            s.robust_loss, s.robust_threshold, out)
 
 
