@@ -20,7 +20,7 @@ from ..io.atomic import atomic_path
 from ..io.cache import load_meta
 from ..model import exposure_init, outliers
 from ..parallel.progress import ROWS
-from . import robust_kernels, runs
+from . import loss_kernels, robust_kernels, runs
 from .scene import Scene
 from .tilework import SolveState, cache_dir, effective_weights, pixel_stack, tile_model
 
@@ -128,44 +128,21 @@ def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndar
     keep = used & ~flag
     m, n_loss = np.ones(0), 0  # m: the robust loss's factors (none: 1)
     if s.robust_loss != "none":
-        m, n_loss = _loss_factors(arrays, state, r, texp, keep, base, w_prev, n_img, s)
+        m, n_loss = _loss_factors(arrays, state, r, texp, keep, w_prev, s, loga)  # loga: no longer needed
     w_new, counts = robust_kernels.workspace("weights", n_obs).view(np.float32)[:n_obs], np.zeros((3, n_img))
     robust_kernels.finish(arrays["run_start"], arrays["run_image"], base, used, flag, keep, m, w_new, counts)
     return w_new, counts, n_loss
 
 
-def _loss_factors(arrays, state, r, texp, keep, base, w_prev, n_img, s) -> np.ndarray:
-    """The robust loss's IRLS factors m (none: 1 everywhere, fewer than three images remain on every pixel; else 1
-    where they do) and how many observations it applies to."""
+def _loss_factors(arrays, state, r, texp, keep, w_prev, s, out) -> tuple:
+    """The robust loss's IRLS factors m (empty: 1 everywhere, fewer than three images remain on every pixel; else 1
+    where they do; ``out``: float64 scratch they go into) and how many observations it applies to
+    (:mod:`.loss_kernels`)."""
     if robust_kernels.most_runs_on_a_pixel(arrays["chunks"], arrays["run_start"], arrays["run_pixel"]) < \
             outliers.MIN_IMAGES_FOR_LOSS:  # no pixel of the block has three images
         return np.ones(0), 0
-    many = np.empty(len(base), bool)
-    if robust_kernels.kept_on_pixel(arrays["run_start"], arrays["run_pixel"], keep, runs.pixel_extent(arrays),
-                                    outliers.MIN_IMAGES_FOR_LOSS, many) < outliers.MIN_SCALE_OBS:
-        return np.ones(0), 0
-    m = np.ones(len(base))
-    signal, tr = _signal(arrays, state, r, texp)
-    img, inv = runs.observation_images(arrays), runs.observation_pixels(arrays)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        m_prev = np.where(base > 0, np.asarray(w_prev, np.float64) / base, 0.0)
-    w = np.where(keep, base * m_prev, 0.0)
-    albedo = np.bincount(inv, signal * tr * w) / np.maximum(np.bincount(inv, tr * tr * w), 1e-300)
-    res = signal - albedo[inv] * tr
-    pooled = outliers.robust_sigma(res[many])
-    # each image's observations in ascending order (a stable sort by image: one pass, not one mask per image)
-    idx = np.flatnonzero(many)
-    by_image = np.argsort(img[idx], kind="stable")
-    idx = idx[by_image]
-    bounds = np.searchsorted(img[idx], np.arange(n_img + 1))
-    for k in range(n_img):
-        sel = idx[bounds[k]:bounds[k + 1]]
-        if not len(sel):
-            continue
-        scale = outliers.robust_sigma(res[sel]) if len(sel) >= outliers.MIN_SCALE_OBS else pooled
-        if scale > 0:
-            m[sel] = outliers.loss_weights(res[sel] / scale, s.robust_loss, s.robust_threshold)
-    return m, len(idx)
+    return loss_kernels.block_loss_factors(arrays, state.haze_of(arrays["index"]), texp, r, keep, w_prev,
+                                           s.robust_loss, s.robust_threshold, out)
 
 
 def reweight_pass(on_tiles, threads: int, scene: Scene, state: SolveState, ck: dict, reinit: bool) -> SolveState:

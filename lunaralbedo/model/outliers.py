@@ -31,13 +31,14 @@ the IRLS weights of the M-estimators are (ASP ``sfs`` offers the Cauchy loss; Hu
 * Huber: :math:`m = \min(1, k/|u|)`;
 * none: :math:`m = 1`.
 
-Pure NumPy / SciPy, no I/O.
+Pure NumPy / SciPy (the loss's scalar formula compiled by numba, for the reweight kernels too), no I/O.
 """
 from __future__ import annotations
 
 import warnings
 
 import numpy as np
+from numba import njit
 from scipy import ndimage
 
 #: Side of the neighbourhood of the spatial test, pixels.
@@ -148,17 +149,38 @@ def spatial_outliers(e: np.ndarray, pixel: np.ndarray, tau: np.ndarray) -> np.nd
     return far & ((others < 1) | (np.abs(ev - mean_others) > tau))
 
 
+#: The robust losses' numbers in compiled code (:func:`loss_weight`).
+LOSS_CODES = {"none": 0, "cauchy": 1, "huber": 2}
+
+
+@njit(cache=True, nogil=True)
+def loss_weight(u, code, k):
+    """The IRLS weight m of one normalised residual ``u`` (float) for the loss numbered ``code`` (:data:`LOSS_CODES`),
+    threshold ``k`` > 0: Cauchy :math:`1/(1 + u^2/k^2)`, Huber :math:`\\min(1, k/|u|)`, none 1 (module docstring).
+    The one formula of the NumPy form (:func:`loss_weights`) and of the reweight pass's kernels."""
+    a = abs(u)
+    if code == 1:
+        return 1.0 / (1.0 + (a / k) ** 2)
+    if code == 2:
+        return 1.0 if a <= k else k / a  # min(1, k/|u|), without dividing by 0
+    return 1.0
+
+
+@njit(cache=True, nogil=True)
+def _loss_array(u, code, k, out):
+    for i in range(u.shape[0]):
+        out[i] = loss_weight(u[i], code, k)
+
+
 def loss_weights(u: np.ndarray, loss: str, k: float) -> np.ndarray:
-    """IRLS weights of the robust loss ``loss`` (:data:`LOSSES`) for normalised residuals ``u``, threshold ``k``."""
-    u = np.abs(np.asarray(u, np.float64))
-    if loss == "cauchy":
-        return 1.0 / (1.0 + (u / k) ** 2)
-    if loss == "huber":
-        with np.errstate(divide="ignore"):
-            return np.minimum(1.0, k / u)
-    if loss == "none":
-        return np.ones_like(u)
-    raise ValueError(f"unknown robust loss {loss!r}; one of {', '.join(LOSSES)}")
+    """IRLS weights of the robust loss ``loss`` (:data:`LOSSES`) for normalised residuals ``u``, threshold ``k``
+    (float64, :func:`loss_weight` of each)."""
+    if loss not in LOSS_CODES:
+        raise ValueError(f"unknown robust loss {loss!r}; one of {', '.join(LOSSES)}")
+    u = np.ascontiguousarray(u, np.float64)
+    out = np.empty(u.shape)
+    _loss_array(u.reshape(-1), LOSS_CODES[loss], float(k), out.reshape(-1))
+    return out
 
 
 def loss_rho(u: np.ndarray, loss: str, k: float) -> np.ndarray:

@@ -1,0 +1,165 @@
+"""The reweight pass's robust loss in numba (engine/loss_kernels.py): its factors against the NumPy formulas of
+model/outliers.py on small blocks, and a forward-model strip where the loss alone must remove planted outliers."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import rasterio
+from rasterio.merge import merge
+
+from lunaralbedo.engine import loss_kernels, robust_kernels, runs
+from lunaralbedo.engine.solve import solve
+from lunaralbedo.model import outliers
+from lunaralbedo.simulate import SceneSpec, render_scene
+
+
+def _block(rng, bands, h, w, hole=0.03):
+    """A block of ``len(bands)`` images, image i on columns ``bands[i]`` of an ``h x w`` block (holes in a few %), with
+    the truth A T R + H + noise and 2 % outliers (x0.3 or x2.5); returns the runs, haze, exposures, keep and the
+    planted outliers (bool per observation, in the runs' order)."""
+    n = len(bands)
+    albedo = rng.uniform(0.5, 1.5, h * w)
+    texp, haze = rng.uniform(0.8, 1.2, n).astype(np.float32), rng.uniform(0.0, 5.0, n).astype(np.float32)
+    cols = np.arange(h * w) % w
+    pix, parts = [], []
+    for i, (c0, c1) in enumerate(bands):
+        p = np.flatnonzero((cols >= c0) & (cols < c1) & (rng.random(h * w) > hole)).astype(np.int32)
+        r = rng.uniform(0.5, 1.0, len(p))
+        bad = rng.random(len(p)) < 0.02
+        value = (100 * albedo[p] * texp[i] * r + haze[i] + rng.normal(0, 1.0, len(p))) * np.where(bad, rng.choice([0.3, 2.5], len(p)), 1)
+        base = np.where(rng.random(len(p)) < 0.01, 0.0, rng.uniform(0.5, 1.0, len(p)))
+        prev = base * rng.uniform(0.6, 1.0, len(p))  # the previous pass's factors
+        pix.append(p)
+        parts.append(np.stack([value, base, 100 * r, prev, bad]).astype(np.float32))
+    rows = np.concatenate(parts, axis=1)
+    obs = {"pix": np.concatenate(pix), "index": np.arange(n, dtype=np.int32),
+           "start": np.concatenate([[0], np.cumsum([len(p) for p in pix])]).astype(np.int64),
+           **dict(zip(["image", "weight", "r", "prev", "bad"], rows))}
+    block = runs.chunk_runs(obs, h * w, ["image", "weight", "r", "prev", "bad"], 64)
+    keep = (block["weight"] > 0) & (rng.random(len(block["weight"])) > 0.03)  # the spatial test's rejections
+    return block, haze, texp, keep, block["bad"] > 0
+
+
+def _numpy_factors(block, haze, texp, keep, loss, k):
+    """The factors by the NumPy formulas: eq. 3's albedo per pixel, each image's 1.4826 MAD of its residuals (the
+    block's pooled one below MIN_SCALE_OBS), Cauchy 1/(1 + u^2/k^2) or Huber min(1, k/|u|)."""
+    img, pix = runs.observation_images(block), runs.observation_pixels(block)
+    w = np.where(keep, block["prev"], 0.0)
+    signal, tr = block["image"] - haze[img].astype(np.float64), texp[img].astype(np.float64) * block["r"]
+    albedo = np.bincount(pix, signal * tr * w) / np.maximum(np.bincount(pix, tr * tr * w), 1e-300)
+    res = signal - albedo[pix] * tr
+    many = keep & (np.bincount(pix, keep)[pix] >= outliers.MIN_IMAGES_FOR_LOSS)
+    pooled = outliers.robust_sigma(res[many])
+    m = np.ones(len(keep))
+    for i in range(len(haze)):
+        sel = many & (img == i)
+        scale = outliers.robust_sigma(res[sel]) if sel.sum() >= outliers.MIN_SCALE_OBS else pooled
+        u = np.abs(res[sel] / scale)
+        m[sel] = 1 / (1 + (u / k) ** 2) if loss == "cauchy" else np.minimum(1, k / u)
+    return m, many
+
+
+@pytest.mark.parametrize("loss", ["cauchy", "huber"])
+def test_the_loss_kernel_gives_the_numpy_factors(loss):
+    """Below SCALE_SAMPLE residuals an image's scale is its exact MAD: the same factors to rounding.  Pixels with
+    one to five images, an image with fewer than MIN_SCALE_OBS residuals where three meet (the pooled scale)."""
+    rng = np.random.default_rng(11)
+    bands = [(0, 20), (6, 26), (12, 32), (18, 38), (29, 31)]  # image 4: two columns (~40 px on >= 3 images)
+    block, haze, texp, keep, bad = _block(rng, bands, 30, 40)
+    want, many = _numpy_factors(block, haze, texp, keep, loss, 2.0)
+    assert 0 < np.count_nonzero(many & (runs.observation_images(block) == 4)) < outliers.MIN_SCALE_OBS
+    m, n = loss_kernels.block_loss_factors(block, haze, texp, block["r"], keep, block["prev"], loss, 2.0,
+                                           np.empty(len(keep)))
+    assert n == np.count_nonzero(many)
+    np.testing.assert_allclose(m, want, rtol=1e-10, atol=1e-12)
+    assert np.median(m[many & bad]) < 0.2 and np.median(m[many & ~bad]) > 0.7  # the planted outliers are down-weighted
+
+
+def test_the_loss_kernel_takes_the_scale_from_a_sample_of_large_images():
+    """Above SCALE_SAMPLE residuals an image's scale is the MAD of an evenly spaced sample: within a few % of the
+    full one, so the factors are too; and fewer than MIN_SCALE_OBS residuals in the block: no factors at all."""
+    rng = np.random.default_rng(12)
+    block, haze, texp, keep, bad = _block(rng, [(0, 100)] * 3, 100, 100, hole=0.0)
+    assert np.bincount(runs.observation_images(block)).min() > 1.2 * robust_kernels.SCALE_SAMPLE
+    want, many = _numpy_factors(block, haze, texp, keep, "cauchy", 3.0)
+    m, n = loss_kernels.block_loss_factors(block, haze, texp, block["r"], keep, block["prev"], "cauchy", 3.0,
+                                           np.empty(len(keep)))
+    assert n == np.count_nonzero(many)
+    assert np.max(np.abs(m - want)) < 0.03 and np.mean(np.abs(m - want)) < 0.005
+    few = keep & (runs.observation_pixels(block) < 10)  # 10 pixels of three images: 30 residuals
+    m, n = loss_kernels.block_loss_factors(block, haze, texp, block["r"], few, block["prev"], "cauchy", 3.0,
+                                           np.empty(len(keep)))
+    assert len(m) == 0 and n == 0
+
+
+def _with(d, name, **keys):
+    lines = [ln for ln in (d / "settings.txt").read_text().splitlines() if ln.split()[:1] not in ([k] for k in keys)]
+    (d / name).write_text("\n".join(lines + [f"{k} {v}" for k, v in keys.items()]) + "\n")
+    return d / name
+
+
+def test_the_robust_loss_alone_removes_outliers_where_three_images_overlap(tmp_path):
+    """No spatial test (REJECT_OUTLIERS 0), the Cauchy loss: where three or more images cover a pixel (from the DRGs'
+    footprints) it must out-vote the 1 % planted hot spots and dropout rows that spoil the plain least squares; the
+    same bytes on two workers."""
+    d = tmp_path / "scene"
+    render_scene(d, SceneSpec(n_images=6, overlap=0.8, outlier_fraction=0.01, seed=23))
+    truth = json.loads((d / "truth" / "truth.json").read_text())
+    with rasterio.open(d / truth["albedo"]) as t:
+        ta, tt, tb = t.read(1), t.transform, t.bounds
+    rows, cols = np.mgrid[:ta.shape[0], :ta.shape[1]]
+    lon, lat = tt.c + tt.a * (cols + 0.5), tt.f + tt.e * (rows + 0.5)  # pixel centres, degrees
+    cover = np.zeros(ta.shape, int)
+    for f in sorted((d / "DRG").glob("*.tif")):
+        with rasterio.open(f) as ds:
+            b, margin = ds.bounds, 2 * ds.res[0]
+        cover += (lon > b.left + margin) & (lon < b.right - margin) & (lat > b.bottom + margin) & (lat < b.top - margin)
+    errors = {}
+    for loss in ("none", "cauchy"):
+        solve(_with(d, f"{loss}.txt", REJECT_OUTLIERS=0, ROBUST_LOSS=loss, ROBUST_THRESHOLD=3), out=tmp_path / loss,
+              workers=1, plots=False)
+        a = merge(sorted(str(f) for f in (tmp_path / loss / "albedo").glob("*.tif")), bounds=tb, res=(tt.a, -tt.e),
+                  nodata=np.nan, dtype="float32")[0][0]
+        ok = np.isfinite(a) & np.isfinite(ta) & (cover >= outliers.MIN_IMAGES_FOR_LOSS)
+        s = np.sum(a[ok] * ta[ok]) / np.sum(a[ok] ** 2)  # A T leaves one global scale free
+        errors[loss] = np.abs(s * a[ok] - ta[ok]) / ta[ok]
+        assert ok.sum() > 0.5 * ok.size  # of the truth grid
+    solve(d / "cauchy.txt", out=tmp_path / "two", workers=2, plots=False)  # per tile in a fixed order: the same bytes
+    for sub in ("albedo", "outliers"):
+        files = sorted((tmp_path / "cauchy" / sub).glob("*.tif"))
+        assert len(files) > 1 and all(f.read_bytes() == (tmp_path / "two" / sub / f.name).read_bytes() for f in files)
+    none, cauchy = errors["none"], errors["cauchy"]
+    assert np.percentile(none, 99) > 0.2 and np.mean(none > 0.1) > 0.02, np.percentile(none, 99)  # what the loss removes
+    assert np.percentile(cauchy, 99) < 0.05 and np.mean(cauchy > 0.1) < 0.01, (np.percentile(cauchy, 99), np.mean(cauchy > 0.1))
+
+
+def test_resume_after_the_loss_pass_gives_the_same_bytes(tmp_path, monkeypatch):
+    """Default settings where five images meet: two reweight passes (the second, the loss's, before the third
+    iteration). A run stopped in its fourth iteration and resumed writes the bytes of an uninterrupted run."""
+    from lunaralbedo.engine import solve as solve_module
+
+    d = tmp_path / "scene"
+    render_scene(d, SceneSpec(n_images=6, overlap=0.8, outlier_fraction=0.01, image_px=80, seed=29))
+    ref = solve(d / "settings.txt", out=tmp_path / "ref", workers=1, plots=False, tolerance=0.0, max_iter=5)
+    assert ref.report["outliers"]["reweight_passes"] == 2
+    n_tiles, real, calls = len(ref.tiles), solve_module.iterate_tile, []
+
+    def stopped(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3 * n_tiles + 1:  # the fourth iteration
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(solve_module, "iterate_tile", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        solve(d / "settings.txt", out=tmp_path / "out", workers=1, plots=False, tolerance=0.0, max_iter=5)
+    state = json.loads((tmp_path / "out" / "checkpoint" / "state.json").read_text())
+    assert state["iteration"] == 3 and state["robust"] == 2 and state["loss_observations"] > 0, state
+    monkeypatch.setattr(solve_module, "iterate_tile", real)
+    solve(d / "settings.txt", out=tmp_path / "out", workers=1, plots=False, tolerance=0.0, max_iter=5, resume=True)
+    assert (tmp_path / "ref" / "exposure.csv").read_bytes() == (tmp_path / "out" / "exposure.csv").read_bytes()
+    for sub in ("albedo", "outliers"):
+        files = sorted((tmp_path / "ref" / sub).glob("*.tif"))
+        assert files and all(p.read_bytes() == (tmp_path / "out" / sub / p.name).read_bytes() for p in files), sub
