@@ -163,3 +163,30 @@ def test_resume_after_the_loss_pass_gives_the_same_bytes(tmp_path, monkeypatch):
     for sub in ("albedo", "outliers"):
         files = sorted((tmp_path / "ref" / sub).glob("*.tif"))
         assert files and all(p.read_bytes() == (tmp_path / "out" / sub / p.name).read_bytes() for p in files), sub
+
+
+def test_the_kept_overlaps_are_the_merge_of_the_kept_pixel_lists():
+    """The overlap sums for the exposures' new start, taken from the runs in the reweight pass (engine/pair_kernels.py),
+    against model/exposure_init.pair_sums over each image's kept pixels with a positive signal (its own merge)."""
+    from lunaralbedo.engine import robust
+    from lunaralbedo.engine.tilework import SolveState
+    from lunaralbedo.model import exposure_init
+
+    rng = np.random.default_rng(5)
+    block, haze, texp, keep, _ = _block(rng, [(0, 40), (25, 70), (30, 55), (60, 96)], 48, 96)
+    block["image"][rng.random(len(keep)) < 0.01] = 0.5  # a few signals below their image's haze
+    index = np.array([3, 0, 7, 5], np.int32)  # global ids, not in order
+    block["index"] = index
+    state = SolveState(np.ones(8), np.zeros(0), haze=np.zeros(8))
+    state.haze[index] = haze
+    img, pix = runs.observation_images(block), runs.observation_pixels(block)
+    signal = block["image"].astype(np.float64) - haze[img].astype(np.float64)
+    loga = np.log(np.maximum(signal, 1e-6) / (texp[img].astype(np.float64) * block["r"]))
+    got = robust._kept_pairs(block, state, texp, loga, keep)
+    ok = keep & (signal > 0)
+    order = np.lexsort((pix, img))[ok[np.lexsort((pix, img))]]  # image-major, pixels ascending
+    start = np.searchsorted(img[order], np.arange(len(index) + 1))
+    want = exposure_init.pair_sums(pix[order], start, signal[order], block["r"][order].astype(np.float64), index)
+    assert set(got) == set(want) and len(want) >= 4
+    for key, (n, d) in want.items():
+        assert got[key][0] == n and got[key][1] == pytest.approx(d, rel=1e-6, abs=1e-6), key

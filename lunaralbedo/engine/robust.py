@@ -20,7 +20,7 @@ from ..io.atomic import atomic_path
 from ..io.cache import load_meta
 from ..model import exposure_init, outliers
 from ..parallel.progress import ROWS
-from . import loss_kernels, robust_kernels, runs
+from . import loss_kernels, pair_kernels, robust_kernels
 from .scene import Scene
 from .tilework import SolveState, cache_dir, effective_weights, pixel_stack, tile_model
 
@@ -61,58 +61,54 @@ def _blocks(t: int, scene: Scene, cache_root: Path):
             yield block, arrays
 
 
-def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, gen: int) -> dict:
+def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, gen: int, pairs: bool = False) -> dict:
     """Write generation ``gen`` of the effective weights of tile ``t``'s blocks; return per local image the
-    counts of used, rejected and down-weighted (sum of 1 - m) observations."""
+    counts of used, rejected and down-weighted (sum of 1 - m) observations, and with ``pairs`` the overlap
+    log-ratio sums of the observations kept (:func:`lunaralbedo.model.exposure_init.pair_sums`' form), for the
+    exposures to be initialised again without the outliers."""
     meta = load_meta(cache_dir(cache_root, scene, t))
     idx = np.asarray(meta["index"], np.int32)
     width = scene.tiles[t].width
     counts = np.zeros((3, len(idx)))
     loss_obs = 0
     pos = {k: j for j, k in enumerate(idx.tolist())}
+    totals: dict = {}
     for block, arrays in _blocks(t, scene, cache_root):
         w_prev = effective_weights(block, arrays, state.robust)
-        w_new, c, n_loss = block_weights(arrays, scene, state, w_prev, width)
+        w_new, c, n_loss, kept = block_weights(arrays, scene, state, w_prev, width, pairs)
         loss_obs += n_loss
+        if pairs:
+            exposure_init.merge_pair_sums(totals, kept)
         counts[:, [pos[k] for k in np.asarray(arrays["index"]).tolist()]] += c
         path = weights_path(block, gen)
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as f:
                 np.save(f, w_new, allow_pickle=False)
-    return {"index": idx, "counts": counts, "loss_observations": loss_obs}
+    return {"index": idx, "counts": counts, "loss_observations": loss_obs, "pairs": sorted(totals.items())}
 
 
-def kept_pairs_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, gen: int) -> list:
-    """The overlap log-ratio sums (:func:`lunaralbedo.model.exposure_init.pair_sums`) of tile ``t``'s observations kept
-    by generation ``gen`` of the robust weights (computed with ``state``), for the exposures to be initialised again
-    without the outliers."""
-    totals: dict = {}
-    for block, arrays in _blocks(t, scene, cache_root):
-        r, w_lit, texp = tile_model(scene, arrays, state)
-        signal, tr = _signal(arrays, state, r, texp)
-        keep = (np.asarray(w_lit) > 0) & (tr > 0) & (effective_weights(block, arrays, gen) > 0)
-        exposure_init.merge_pair_sums(totals, _kept_pairs(arrays, signal, r, keep, scene.tiles[t].width))
-    return sorted(totals.items())
+def _kept_pairs(arrays: dict, state: SolveState, texp, loga, keep) -> dict:
+    """Overlap log-ratio sums ``{(j, k): (n, sum d)}`` of a block's kept observations with a positive signal
+    (:mod:`.pair_kernels`), ``d = log((I - H)/R)`` of ``j`` less that of ``k`` (the single-image log albedos'
+    difference plus ``log T_j - log T_k``)."""
+    n_img = len(arrays["index"])
+    count, total = np.zeros((n_img, n_img)), np.zeros((n_img, n_img))
+    pair_kernels.kept_pair_sums(arrays["chunks"], arrays["run_start"], arrays["run_pixel"], arrays["run_image"],
+                                arrays["image"], state.haze_of(arrays["index"]), loga, keep, count, total)
+    log_t = np.log(np.asarray(texp, np.float64))
+    index = np.asarray(arrays["index"]).tolist()
+    out = {}
+    for a, b in zip(*np.nonzero(count)):
+        n, j, k = int(count[a, b]), int(index[a]), int(index[b])
+        d = float(total[a, b]) + n * (log_t[a] - log_t[b])
+        out[(j, k) if j < k else (k, j)] = (n, d if j < k else -d)
+    return out
 
 
-def _signal(arrays: dict, state: SolveState, r, texp):
-    """Per observation ``I - H`` and ``T R`` (float64)."""
-    img = runs.observation_images(arrays)
-    signal = np.asarray(arrays["image"], np.float64) - state.haze_of(arrays["index"])[img]
-    return signal, texp[img].astype(np.float64) * r
-
-
-def _kept_pairs(arrays: dict, value, r, keep, width: int) -> dict:
-    """Overlap log-ratio sums ``{(j, k): (n, sum d)}`` of a block's kept observations (``value``: haze-subtracted)."""
-    # image-major; each image's pixels ascend in the runs' order
-    sel, pix, start = robust_kernels.image_major(arrays["run_start"], arrays["run_pixel"], arrays["run_image"],
-                                                 len(arrays["index"]), keep & (value > 0))
-    return exposure_init.pair_sums(pix, start, value[sel].astype(np.float32), r[sel], np.asarray(arrays["index"]), width)
-
-
-def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndarray, width: int):
-    """The effective weights of one block (float32), its ``(3, local images)`` counts (used, rejected, down-weighted)
-    and the observations the robust loss applies to."""
+def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndarray, width: int, pairs: bool = False):
+    """The effective weights of one block (float32), its ``(3, local images)`` counts (used, rejected, down-weighted),
+    the observations the robust loss applies to and, with ``pairs``, the overlap sums of the kept observations
+    (:func:`_kept_pairs`; else None)."""
     s = scene.settings
     base = np.asarray(arrays["weight"], np.float32)
     r, w_lit, texp = tile_model(scene, arrays, state)
@@ -126,12 +122,13 @@ def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndar
     elif s.reject_outliers:
         flag = robust_kernels.spatial_test(arrays, loga, width)
     keep = used & ~flag
+    kept = _kept_pairs(arrays, state, texp, loga, keep) if pairs else None  # before the loss reuses loga's memory
     m, n_loss = np.ones(0), 0  # m: the robust loss's factors (none: 1)
     if s.robust_loss != "none":
         m, n_loss = _loss_factors(arrays, state, r, texp, keep, w_prev, s, loga)  # loga: no longer needed
     w_new, counts = robust_kernels.workspace("weights", n_obs).view(np.float32)[:n_obs], np.zeros((3, n_img))
     robust_kernels.finish(arrays["run_start"], arrays["run_image"], base, used, flag, keep, m, w_new, counts)
-    return w_new, counts, n_loss
+    return w_new, counts, n_loss, kept
 
 
 def _loss_factors(arrays, state, r, texp, keep, w_prev, s, out) -> tuple:
@@ -148,18 +145,19 @@ def _loss_factors(arrays, state, r, texp, keep, w_prev, s, out) -> tuple:
 def reweight_pass(on_tiles, threads: int, scene: Scene, state: SolveState, ck: dict, reinit: bool) -> SolveState:
     """A reweight pass over the tiles (``on_tiles``: the solve's map over them): the next generation of robust
     weights, their per-image counts into the checkpoint ``ck``; with ``reinit`` (after the first pass) the
-    exposures initialised again from the overlaps of the observations kept, in a second pass over the tiles when
-    the first rejected any (else the observations kept are those the exposures were initialised with)."""
+    exposures initialised again from the overlaps of the observations kept (summed in the same pass; used when it
+    rejected any, else the observations kept are those the exposures were initialised with)."""
     gen = ck["robust"] + 1
-    parts = on_tiles(reweight_tile, f"outliers {gen}", state=state, gen=gen, threads=threads)
+    want_pairs = gen == 1 and reinit
+    parts = on_tiles(reweight_tile, f"outliers {gen}", state=state, gen=gen, threads=threads, pairs=want_pairs)
     counts = np.zeros((3, len(scene.images)))
     for p in parts:  # fixed tile order
         np.add.at(counts.T, p["index"], p["counts"].T)
     t = state.exposure
-    if gen == 1 and reinit and counts[1].sum() > 0:  # the overlaps' exposures again, without the rejected observations
+    if want_pairs and counts[1].sum() > 0:  # the overlaps' exposures again, without the rejected observations
         pairs: dict = {}
-        for p in on_tiles(kept_pairs_tile, f"outliers {gen}: overlaps", state=state, gen=gen, threads=threads):
-            exposure_init.merge_pair_sums(pairs, {tuple(k): tuple(v) for k, v in p})
+        for p in parts:  # fixed tile order
+            exposure_init.merge_pair_sums(pairs, {tuple(k): tuple(v) for k, v in p["pairs"]})
         t = exposure_init.overlap_exposure(pairs, np.log(state.exposure))
     robust_kernels.release()
     ck.update(robust=gen, reweight_now=False, outliers=counts.tolist(), exposure=np.asarray(t).tolist(),
