@@ -9,6 +9,7 @@ import pytest
 from scipy.sparse import csr_matrix
 
 from lunaralbedo.engine.solve import solve
+from resume_common import solve_stopped_at_pass
 from lunaralbedo.model import haze
 from lunaralbedo.simulate import SceneSpec, render_scene, score
 
@@ -127,26 +128,13 @@ def test_joint_step_solves_a_linear_problem_in_one_step():
 def test_resume_after_an_interrupted_pass_gives_the_same_bytes(tmp_path, monkeypatch):
     """The checkpoint holds the haze and the robust weights' generation: a run stopped in its third pass
     (after the reweight pass) and resumed writes the bytes of an uninterrupted run."""
-    from lunaralbedo.engine import solve as solve_module
-
     d = tmp_path / "scene"
     render_scene(d, SceneSpec(haze_dn=(5.0, 15.0), outlier_fraction=0.01, n_images=4, image_px=80, seed=6))
     s = _with(d / "settings.txt", d / "haze.txt", FLOAT_HAZE=1)
     n_tiles = len(solve(s, out=tmp_path / "ref", workers=1, plots=False, tolerance=0.0, max_iter=5).tiles)
-    real, calls = solve_module.iterate_tile, []
-
-    def stopped(*args, **kwargs):
-        calls.append(1)
-        if len(calls) == 2 * n_tiles + 1:  # the third pass
-            raise KeyboardInterrupt
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(solve_module, "iterate_tile", stopped)
-    with pytest.raises(KeyboardInterrupt):
-        solve(s, out=tmp_path / "out", workers=1, plots=False, tolerance=0.0, max_iter=5)
+    solve_stopped_at_pass(monkeypatch, s, tmp_path / "out", n_tiles, 3, workers=1, plots=False, tolerance=0.0, max_iter=5)
     state = json.loads((tmp_path / "out" / "checkpoint" / "state.json").read_text())
     assert state["iteration"] == 2 and state["robust"] == 1 and len(state["haze"]) == 4  # two images a pixel: one pass
-    monkeypatch.setattr(solve_module, "iterate_tile", real)
     solve(s, out=tmp_path / "out", workers=1, plots=False, tolerance=0.0, max_iter=5, resume=True)
     for name in ("haze.csv", "exposure.csv"):
         assert (tmp_path / "ref" / name).read_bytes() == (tmp_path / "out" / name).read_bytes(), name

@@ -13,6 +13,7 @@ from lunaralbedo.engine import loss_kernels, robust_kernels, runs
 from lunaralbedo.engine.solve import solve
 from lunaralbedo.model import outliers
 from lunaralbedo.simulate import SceneSpec, render_scene
+from resume_common import solve_stopped_at_pass
 
 
 def _block(rng, bands, h, w, hole=0.03):
@@ -138,26 +139,14 @@ def test_the_robust_loss_alone_removes_outliers_where_three_images_overlap(tmp_p
 def test_resume_after_the_loss_pass_gives_the_same_bytes(tmp_path, monkeypatch):
     """Default settings where five images meet: two reweight passes (the second, the loss's, before the third
     iteration). A run stopped in its fourth iteration and resumed writes the bytes of an uninterrupted run."""
-    from lunaralbedo.engine import solve as solve_module
-
     d = tmp_path / "scene"
     render_scene(d, SceneSpec(n_images=6, overlap=0.8, outlier_fraction=0.01, image_px=80, seed=29))
     ref = solve(d / "settings.txt", out=tmp_path / "ref", workers=1, plots=False, tolerance=0.0, max_iter=5)
     assert ref.report["outliers"]["reweight_passes"] == 2
-    n_tiles, real, calls = len(ref.tiles), solve_module.iterate_tile, []
-
-    def stopped(*args, **kwargs):
-        calls.append(1)
-        if len(calls) == 3 * n_tiles + 1:  # the fourth iteration
-            raise KeyboardInterrupt
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(solve_module, "iterate_tile", stopped)
-    with pytest.raises(KeyboardInterrupt):
-        solve(d / "settings.txt", out=tmp_path / "out", workers=1, plots=False, tolerance=0.0, max_iter=5)
+    solve_stopped_at_pass(monkeypatch, d / "settings.txt", tmp_path / "out", len(ref.tiles), 4, workers=1, plots=False,
+                          tolerance=0.0, max_iter=5)
     state = json.loads((tmp_path / "out" / "checkpoint" / "state.json").read_text())
     assert state["iteration"] == 3 and state["robust"] == 2 and state["loss_observations"] > 0, state
-    monkeypatch.setattr(solve_module, "iterate_tile", real)
     solve(d / "settings.txt", out=tmp_path / "out", workers=1, plots=False, tolerance=0.0, max_iter=5, resume=True)
     assert (tmp_path / "ref" / "exposure.csv").read_bytes() == (tmp_path / "out" / "exposure.csv").read_bytes()
     for sub in ("albedo", "outliers"):
