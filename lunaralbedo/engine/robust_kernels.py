@@ -22,22 +22,31 @@ import threading
 import numpy as np
 from numba import njit
 
-from ..model import outliers
+from ..model import outliers, vlog
+
+
+@njit(cache=True, error_model="numpy")
+def _log_run(image, r, w, h, t, loga, used, n):
+    """:func:`log_albedo` of one run (its own loop over slices, without branches: LLVM vectorises it)."""
+    for i in range(n):
+        s = np.float64(image[i]) - h
+        x = t * np.float64(r[i])
+        u = (w[i] > 0) & (x > 0)
+        lg = vlog.log((1e-6 if s < 1e-6 else s) / x)  # max(s, 1e-6), NaN kept
+        used[i] = u
+        loga[i] = lg if u else np.nan
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def log_albedo(run_start, run_image, image, haze, texp, r, w, loga, used):
     r"""Per observation the single-image :math:`\log a = \log(\max(I - H_k, 10^{-6}) / (T_k R))` (float64) and
-    whether it is used (eq. 1's weight ``w`` above 0 and :math:`TR > 0`; ``loga`` NaN where not)."""
+    whether it is used (eq. 1's weight ``w`` above 0 and :math:`TR > 0`; ``loga`` NaN where not).
+
+    The logarithm is :func:`lunaralbedo.model.vlog.log` (within 1 ulp of libm's; vectorised)."""
     for q in range(run_start.shape[0] - 1):
         k = run_image[q]
-        h, t = np.float64(haze[k]), np.float64(texp[k])
-        for o in range(run_start[q], run_start[q + 1]):
-            s = np.float64(image[o]) - h
-            x = t * np.float64(r[o])
-            u = w[o] > 0 and x > 0
-            used[o] = u
-            loga[o] = np.log(max(s, 1e-6) / x) if u else np.nan
+        a, b = run_start[q], run_start[q + 1]
+        _log_run(image[a:b], r[a:b], w[a:b], np.float64(haze[k]), np.float64(texp[k]), loga[a:b], used[a:b], b - a)
 
 
 #: Most values the spread of an image's :math:`d` is taken from, evenly spaced in the runs' order (the MAD's
