@@ -72,44 +72,189 @@ def _mad_sigma(x, n):
 
 
 @njit(cache=True)
-def _value_areas(ras, hk, wk, sv):
-    """:func:`_summed_areas` of the values of a raster without NaN."""
-    w1 = wk + 1
-    for j in range(w1):
-        sv[j] = 0.0
-    for i in range(hk):
-        up, at, row = i * w1, (i + 1) * w1, i * wk
-        sv[at] = 0.0
-        rv = 0.0
-        for j in range(wk):
-            rv += ras[row + j]
-            sv[at + j + 1] = sv[up + j + 1] + rv
+def _pad_row(x, p, pc, n, holes):
+    """``p = x`` with NaN (no value) as 0 and, with ``holes``, ``pc`` 1 where ``x`` is a number, else 0."""
+    if holes:
+        for i in range(n):
+            v = x[i]
+            ok = v == v
+            p[i] = v if ok else 0.0
+            pc[i] = 1.0 if ok else 0.0
+    else:
+        for i in range(n):
+            p[i] = x[i]
 
 
 @njit(cache=True)
-def _summed_areas(ras, hk, wk, sv, sc, counts):
-    """Summed-area tables (``(hk + 1) x (wk + 1)``, flat, into ``sv``, ``sc``) of the valid values of an ``hk x wk``
-    raster (NaN: none) and (with ``counts``) of their count: the sum over rows ``< i`` and columns ``< j`` at
-    ``i (wk + 1) + j``."""
-    if not counts:
-        _value_areas(ras, hk, wk, sv)
+def _box_row(p, out, n, size):
+    """``out[j] = p[j] + ... + p[j + size - 1]``, left to right (the window of 7 in one expression: its sums stay in
+    registers; any other size adds the same terms in the same order)."""
+    if size == 7:
+        for j in range(n):
+            out[j] = p[j] + p[j + 1] + p[j + 2] + p[j + 3] + p[j + 4] + p[j + 5] + p[j + 6]
         return
-    w1 = wk + 1
-    for j in range(w1):
-        sv[j] = 0.0
-        sc[j] = 0.0
+    for j in range(n):
+        out[j] = p[j]
+    for t in range(1, size):
+        for j in range(n):
+            out[j] += p[j + t]
+
+
+@njit(cache=True)
+def _box_col(ring, rows, out, n, size):
+    """``out[j] = ring[rows[0], j] + ... + ring[rows[size - 1], j]``, in that order (:func:`_box_row`)."""
+    if size == 7:
+        a, b, c, d, e, f, g = rows[0], rows[1], rows[2], rows[3], rows[4], rows[5], rows[6]
+        for j in range(n):
+            out[j] = ring[a, j] + ring[b, j] + ring[c, j] + ring[d, j] + ring[e, j] + ring[f, j] + ring[g, j]
+        return
+    for j in range(n):
+        out[j] = ring[rows[0], j]
+    for t in range(1, size):
+        r = rows[t]
+        for j in range(n):
+            out[j] += ring[r, j]
+
+
+@njit(cache=True, error_model="numpy")
+def _deviation_row(x, s, c, e, n, half):
+    """``e = x - s / c``, the value less its window's mean, where the window holds at least ``half`` values (``c``
+    of them), else NaN."""
+    for i in range(n):
+        e[i] = x[i] - s[i] / c[i] if c[i] >= half else np.nan
+
+
+@njit(cache=True)
+def _deviation_full(x, s, inv, e, n):
+    """``e = x - s inv`` (``inv``: 1 / the window's count, NaN where it holds fewer than half its values)."""
+    for i in range(n):
+        e[i] = x[i] - s[i] * inv[i]
+
+
+@njit(cache=True)
+def _count_row(e, n, lim):
+    """How many of ``e`` are numbers, and how many exceed ``lim`` in magnitude."""
+    k, big = 0, 0
+    for i in range(n):
+        k += e[i] == e[i]
+        big += abs(e[i]) > lim
+    return k, big
+
+
+@njit(cache=True, error_model="numpy")
+def window_deviations(ras, hk, wk, size, holes, dev, work, row_count, lim, cand):
+    r"""``dev``: each value of an ``hk x wk`` raster (flat; NaN: none) less the mean of the valid values of its ``size``
+    × ``size`` window (NaN with fewer than half of it valid); ``row_count``: each row's numbers of ``dev``;
+    ``cand[:nc]`` where :math:`|dev| >` ``lim`` (raster indices, ascending); returns ``nc``.
+
+    Box sums row by row: each row's sums over ``size`` columns (into a ring of ``size`` rows), then the sums of
+    ``size`` of those rows: O(size) a pixel in loops LLVM vectorises, every sum in a fixed order (columns, then
+    rows, ascending).  ``holes`` False: every value is a number, the counts are the window's area in the
+    raster.  ``work``: float64 scratch of :func:`window_scratch` values.
+    """
+    h = size // 2
+    half = (size * size + 1) // 2
+    wp = wk + 2 * h
+    ring = work[:(size + 1) * wk].reshape((size + 1, wk))  # the last row: zeros (rows beyond the raster)
+    ringc = work[(size + 1) * wk:2 * (size + 1) * wk].reshape((size + 1, wk))
+    at = 2 * (size + 1) * wk
+    p, pc, s, c = work[at:at + wp], work[at + wp:at + 2 * wp], work[at + 2 * wp:at + 2 * wp + wk], work[at + 2 * wp + wk:at + 2 * wp + 2 * wk]
+    p[:], pc[:], ring[size], ringc[size] = 0.0, 0.0, 0.0, 0.0
+    inv = ringc[:size]  # without holes: 1 / the count of a window of r + 1 rows at column j (NaN: below half)
+    if not holes:
+        for r in range(1, min(size, hk) + 1):
+            for j in range(wk):
+                a = r * (min(j + h + 1, wk) - max(j - h, 0))
+                inv[r - 1, j] = 1.0 / a if a >= half else np.nan
+    rows = np.empty(size, np.int64)
+    nc = 0
+    for ii in range(hk + h):
+        if ii < hk:  # row ii's sums over the window's columns, into the ring
+            _pad_row(ras[ii * wk:(ii + 1) * wk], p[h:h + wk], pc[h:h + wk], wk, holes)
+            _box_row(p, ring[ii % size], wk, size)
+            if holes:
+                _box_row(pc, ringc[ii % size], wk, size)
+        i = ii - h
+        if i < 0:
+            continue
+        for t in range(size):  # row i's window sums: the sums of its rows, ascending
+            r = i - h + t
+            rows[t] = r % size if 0 <= r < hk else size
+        _box_col(ring, rows, s, wk, size)
+        if holes:
+            _box_col(ringc, rows, c, wk, size)
+        e = dev[i * wk:(i + 1) * wk]
+        if holes:
+            _deviation_row(ras[i * wk:(i + 1) * wk], s, c, e, wk, half)
+        else:
+            _deviation_full(ras[i * wk:(i + 1) * wk], s, inv[min(i + h + 1, hk) - max(i - h, 0) - 1], e, wk)
+        row_count[i], big = _count_row(e, wk, lim)
+        if big:
+            for j in range(wk):
+                if abs(e[j]) > lim:
+                    cand[nc] = i * wk + j
+                    nc += 1
+    return nc
+
+
+@njit(cache=True)
+def window_scratch(width, size):
+    """The float64 scratch :func:`window_deviations` needs for rasters up to ``width`` wide."""
+    return 2 * (size + 1) * width + 2 * (width + 2 * (size // 2)) + 2 * width
+
+
+@njit(cache=True)
+def _sample(e, hk, wk, row_count, d):
+    """Every ``step``-th number of the raster ``e`` in raster order (``step``: the fewest that keep at most
+    :data:`SCALE_SAMPLE` of them) into ``d``; returns how many."""
+    m = 0
     for i in range(hk):
-        up, at, row = i * w1, (i + 1) * w1, i * wk
-        sv[at] = 0.0
-        sc[at] = 0.0
-        rv, rc = 0.0, 0.0
-        for j in range(wk):
-            x = ras[row + j]
-            ok = x == x
-            rv += x if ok else 0.0
-            rc += 1.0 if ok else 0.0
-            sv[at + j + 1] = sv[up + j + 1] + rv
-            sc[at + j + 1] = sc[up + j + 1] + rc
+        m += row_count[i]
+    if not m:
+        return 0
+    step = (m + SCALE_SAMPLE - 1) // SCALE_SAMPLE
+    n, seen = 0, 0  # taken, numbers before this row
+    for i in range(hk):
+        row = e[i * wk:(i + 1) * wk]
+        if row_count[i] == wk:  # no NaN: the numbers' ranks are their columns
+            for j in range((step - seen % step) % step, wk, step):
+                d[n] = row[j]
+                n += 1
+        elif row_count[i]:
+            r = seen
+            for j in range(wk):
+                if row[j] == row[j]:
+                    if r % step == 0:
+                        d[n] = row[j]
+                        n += 1
+                    r += 1
+        seen += row_count[i]
+    return n
+
+
+@njit(cache=True)
+def _count_far(e, t, n):
+    """How many of ``e`` (NaN: none) exceed ``t`` in magnitude."""
+    k = 0
+    for i in range(n):
+        k += abs(e[i]) > t
+    return k
+
+
+@njit(cache=True)
+def _count_valid(x, n):
+    """How many of ``x`` are numbers."""
+    k = 0
+    for i in range(n):
+        k += x[i] == x[i]
+    return k
+
+
+@njit(cache=True)
+def _copy(x, y, n):
+    """``y = x``."""
+    for i in range(n):
+        y[i] = x[i]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -121,120 +266,89 @@ def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, loga, s
     and median take the valid values of the window, NaN (no test) with fewer than half of it valid.
     ``work``: float64 scratch; returns 0, or the size it needs (then nothing is done).
     """
-    n_obs = loga.shape[0]
+    n_runs = run_start.shape[0] - 1
     rmin = np.full(n_img, 1 << 62)
     rmax = np.full(n_img, -1)
     cmin = np.full(n_img, 1 << 62)
     cmax = np.full(n_img, -1)
-    cnt = np.zeros(n_img, np.int64)
-    for q in range(run_start.shape[0] - 1):  # each image's used observations and a box around them
+    cnt = np.zeros(n_img, np.int64)  # used observations
+    tot = np.zeros(n_img, np.int64)  # all
+    for q in range(n_runs):  # each image's observations and a box around them
         k = run_image[q]
         o0, o1 = run_start[q], run_start[q + 1]
-        used = 0
-        for o in range(o0, o1):
-            used += loga[o] == loga[o]
-        if not used:
-            continue
-        cnt[k] += used
-        while loga[o0] != loga[o0]:  # the run's first and last used observations
-            o0 += 1
-        while loga[o1 - 1] != loga[o1 - 1]:
-            o1 -= 1
-        p0, p1 = run_pixel[q] + o0 - run_start[q], run_pixel[q] + o1 - 1 - run_start[q]
+        cnt[k] += _count_valid(loga[o0:o1], o1 - o0)
+        tot[k] += o1 - o0
+        p0, p1 = run_pixel[q], run_pixel[q] + o1 - 1 - o0
         r0, r1 = p0 // width, p1 // width
         c0, c1 = (p0 % width, p1 % width) if r0 == r1 else (0, width - 1)  # over a row's end: every column
         rmin[k], rmax[k] = min(rmin[k], r0), max(rmax[k], r1)
         cmin[k], cmax[k] = min(cmin[k], c0), max(cmax[k], c1)
     off = np.zeros(n_img + 1, np.int64)
-    most_sat, most_cnt = 0, 0
+    widest, tallest, most_cnt = 1, 1, 0
     for k in range(n_img):
-        area = (rmax[k] - rmin[k] + 1) * (cmax[k] - cmin[k] + 1) if cnt[k] else 0
+        area = (rmax[k] - rmin[k] + 1) * (cmax[k] - cmin[k] + 1) if tot[k] else 0
         off[k + 1] = off[k] + area
-        most_sat = max(most_sat, (rmax[k] - rmin[k] + 2) * (cmax[k] - cmin[k] + 2) if cnt[k] else 0)
+        widest = max(widest, cmax[k] - cmin[k] + 1 if tot[k] else 1)
+        tallest = max(tallest, rmax[k] - rmin[k] + 1 if tot[k] else 1)
         most_cnt = max(most_cnt, cnt[k])
-    a0, a1 = off[n_img], off[n_img] + n_obs
-    a2 = a1 + 2 * most_sat
-    a3 = a2 + most_cnt
-    if work.shape[0] < a3:
-        return a3
-    raster, e = work[:a0], work[a0:a1]
-    sv, sc, d = work[a1:a1 + most_sat], work[a1 + most_sat:a2], work[a2:a3]
-    for i in range(a0):
-        raster[i] = np.nan
-    for q in range(run_start.shape[0] - 1):
+    a0 = off[n_img]
+    ws = window_scratch(widest, size)
+    need = 2 * a0 + ws + SCALE_SAMPLE
+    if work.shape[0] < need:
+        return need
+    raster, dev, wwork, d = work[:a0], work[a0:2 * a0], work[2 * a0:2 * a0 + ws], work[2 * a0 + ws:need]
+    rbase = np.empty(n_runs, np.int64)  # each run's first observation in its image's raster (a run is contiguous there)
+    for q in range(n_runs):
         k = run_image[q]
-        wk = cmax[k] - cmin[k] + 1
-        row, col = run_pixel[q] // width, run_pixel[q] % width
-        for o in range(run_start[q], run_start[q + 1]):
-            if loga[o] == loga[o]:
-                raster[off[k] + (row - rmin[k]) * wk + col - cmin[k]] = loga[o]
-            col += 1
-            if col == width:
-                row, col = row + 1, 0
-    h = size // 2
-    half = (size * size + 1) // 2
+        rbase[q] = off[k] + (run_pixel[q] // width - rmin[k]) * (cmax[k] - cmin[k] + 1) + run_pixel[q] % width - cmin[k]
+    for k in range(n_img):
+        if tot[k] < off[k + 1] - off[k]:  # pixels of the box no observation covers
+            raster[off[k]:off[k + 1]] = np.nan
+        if not cnt[k]:
+            dev[off[k]:off[k + 1]] = np.nan
+    for q in range(n_runs):
+        n = run_start[q + 1] - run_start[q]
+        _copy(loga[run_start[q]:run_start[q + 1]], raster[rbase[q]:rbase[q] + n], n)
     tau = np.full(n_img, tau_min)
     win = np.empty(size * size)
+    cand = np.empty(max(most_cnt, 1), np.int64)  # deviations that may exceed tau / 2: few
+    row_count = np.empty(tallest, np.int64)
+    h = size // 2
     for k in range(n_img):
-        hk, wk = rmax[k] - rmin[k] + 1, cmax[k] - cmin[k] + 1
-        full = cnt[k] == hk * wk  # no hole: a window's count is its area within the raster
-        ras = raster[off[k]:off[k + 1]]
-        if cnt[k]:
-            _summed_areas(ras, hk, wk, sv, sc, not full)
-        w1 = wk + 1
-        m, nc = 0, 0
-        cand = np.empty((cnt[k], 3), np.int64)  # observations whose d may exceed tau / 2 (tau >= tau_min): few
-        for q in range(run_start.shape[0] - 1):  # d = log a - the window's mean, the image's observations in run order
-            if run_image[q] != k:
-                continue
-            i, j = run_pixel[q] // width - rmin[k], run_pixel[q] % width - cmin[k]
-            for o in range(run_start[q], run_start[q + 1]):
-                if o > run_start[q]:
-                    j += 1
-                    if j + cmin[k] == width:
-                        i, j = i + 1, -cmin[k]
-                e[o] = np.nan
-                if loga[o] != loga[o]:
-                    continue
-                i0, i1, j0, j1 = max(i - h, 0), min(i + h + 1, hk), max(j - h, 0), min(j + h + 1, wk)
-                a, b, c_, d_ = i1 * w1 + j1, i0 * w1 + j1, i1 * w1 + j0, i0 * w1 + j0
-                c = np.float64((i1 - i0) * (j1 - j0)) if full else sc[a] - sc[b] - sc[c_] + sc[d_]
-                if c >= half:
-                    ev = loga[o] - (sv[a] - sv[b] - sv[c_] + sv[d_]) / c
-                    e[o] = ev
-                    d[m] = ev
-                    m += 1
-                    if abs(ev) > tau_min / 2:
-                        cand[nc, 0], cand[nc, 1], cand[nc, 2] = o, i, j
-                        nc += 1
         if not cnt[k]:
             continue
-        s = _mad_sigma(d, m)
-        tau[k] = max(tau_min, sigmas * s) if m else tau_min
+        hk, wk = rmax[k] - rmin[k] + 1, cmax[k] - cmin[k] + 1
+        ras, e = raster[off[k]:off[k + 1]], dev[off[k]:off[k + 1]]
+        nc = window_deviations(ras, hk, wk, size, cnt[k] < hk * wk, e, wwork, row_count, tau_min / 2, cand)
+        m = _sample(e, hk, wk, row_count, d)
+        tau[k] = max(tau_min, sigmas * _mad_sigma(d, m)) if m else tau_min
         for x_ in range(nc):  # the window's median where the mean says it may matter
-            o, i, j = cand[x_, 0], cand[x_, 1], cand[x_, 2]
-            if not abs(e[o]) > tau[k] / 2:
+            p = cand[x_]
+            if not abs(e[p]) > tau[k] / 2:
                 continue
-            c = 0
+            i, j = p // wk, p % wk
+            n = 0
             for ii in range(max(i - h, 0), min(i + h + 1, hk)):
                 for jj in range(max(j - h, 0), min(j + h + 1, wk)):
                     x = ras[ii * wk + jj]
                     if x == x:
-                        win[c] = x
-                        c += 1
-            e[o] = loga[o] - np.median(win[:c]) if 2 * c > size * size else np.nan
+                        win[n] = x
+                        n += 1
+            e[p] = ras[p] - np.median(win[:n]) if 2 * n > size * size else np.nan
     for ch in range(chunks.shape[0] - 1):  # the few observations far out: against the other images' mean e
         for q in range(chunks[ch], chunks[ch + 1]):
-            t = tau[run_image[q]]
+            t, n = tau[run_image[q]], run_start[q + 1] - run_start[q]
+            if not _count_far(dev[rbase[q]:rbase[q] + n], t, n):
+                continue
             for o in range(run_start[q], run_start[q + 1]):
-                ev = e[o]
+                ev = dev[rbase[q] + o - run_start[q]]
                 if not abs(ev) > t:
                     continue
                 p = run_pixel[q] + o - run_start[q]
                 se, others = 0.0, 0.0
                 for r in range(chunks[ch], chunks[ch + 1]):  # a pixel's observations are in its chunk's runs
                     if r != q and run_pixel[r] <= p < run_pixel[r] + run_start[r + 1] - run_start[r]:
-                        x = e[run_start[r] + p - run_pixel[r]]
+                        x = dev[rbase[r] + p - run_pixel[r]]
                         if x == x:
                             se += x
                             others += 1.0
@@ -274,19 +388,34 @@ def kept_on_pixel(run_start, run_pixel, keep, npix, least, many):
     return total
 
 
+@njit(cache=True)
+def _finish_run(base, used, flag, w_new, n):
+    """:func:`finish` of one run without robust loss factors: the weights and the used and rejected counts."""
+    nu, nr = 0, 0
+    for i in range(n):
+        w_new[i] = np.float32(0.0) if flag[i] else base[i]
+        nu += used[i]
+        nr += used[i] & flag[i]
+    return nu, nr
+
+
 @njit(cache=True, nogil=True)
 def finish(run_start, run_image, base, used, flag, keep, m, w_new, counts):
     """The effective weights ``w_new = 0`` (rejected) or ``m w`` (float32; ``m`` empty: 1), and per local image
     (``counts``, 3 rows) the used, rejected and down-weighted (sum of 1 - m) observations, summed in run order."""
     ones = m.shape[0] == 0
     for q in range(run_start.shape[0] - 1):
-        k = run_image[q]
-        for o in range(run_start[q], run_start[q + 1]):
-            mo = 1.0 if ones else m[o]
-            w_new[o] = np.float32(0.0) if flag[o] else np.float32(base[o] * mo)
+        k, a, b = run_image[q], run_start[q], run_start[q + 1]
+        if ones:  # counts summed per run (integers: exact in any order), in a loop LLVM vectorises
+            nu, nr = _finish_run(base[a:b], used[a:b], flag[a:b], w_new[a:b], b - a)
+            counts[0, k] += nu
+            counts[1, k] += nr
+            continue
+        for o in range(a, b):
+            w_new[o] = np.float32(0.0) if flag[o] else np.float32(base[o] * m[o])
             counts[0, k] += used[o]
             counts[1, k] += used[o] and flag[o]
-            counts[2, k] += 1.0 - mo if keep[o] else 0.0
+            counts[2, k] += 1.0 - m[o] if keep[o] else 0.0
 
 
 @njit(cache=True, nogil=True)
