@@ -166,3 +166,36 @@ def test_standing_out_flags_defects_of_one_image_not_its_noise():
     wide = rng.normal(0.0, 0.05, 5000)  # 5 % noise: tau 0.3, a 16 % deviation is not an outlier
     wide[0] = 0.16
     assert not outliers.standing_out(wide)[0]
+
+
+@pytest.mark.parametrize("size", [7, 5])
+@pytest.mark.parametrize("holes", [True, False])
+@pytest.mark.parametrize("shape", [(37, 23), (4, 9)])
+def test_window_deviations_are_each_value_less_its_windows_mean(size, holes, shape):
+    """The spatial test's box sums (engine/robust_kernels.window_deviations) against a brute-force NumPy mean of
+    every window's valid values (NaN where fewer than half of the window is valid), on a random raster with holes
+    and one without, a raster smaller than the window too; the counts per row and the candidates above a limit."""
+    from lunaralbedo.engine import robust_kernels
+
+    hk, wk = shape
+    rng = np.random.default_rng(size + 10 * holes + hk)
+    x = rng.normal(-1.0, 0.3, shape)
+    if holes:
+        x[rng.random(shape) < 0.25] = np.nan
+        x[:2, :] = np.nan  # a row with no value, as at a footprint's edge
+    h, half = size // 2, (size * size + 1) // 2
+    want = np.full(shape, np.nan)
+    for i in range(hk):
+        for j in range(wk):
+            win = x[max(0, i - h):i + h + 1, max(0, j - h):j + h + 1]
+            v = win[np.isfinite(win)]
+            if len(v) >= half:
+                want[i, j] = x[i, j] - v.mean()
+    dev, rows, cand = np.empty(hk * wk), np.empty(hk, np.int64), np.empty(hk * wk, np.int64)
+    work = np.empty(robust_kernels.window_scratch(wk, size))
+    nc = robust_kernels.window_deviations(x.ravel(), hk, wk, size, holes, dev, work, rows, 0.3, cand)
+    got = dev.reshape(shape)
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+    np.testing.assert_allclose(got[np.isfinite(want)], want[np.isfinite(want)], rtol=0, atol=1e-13)
+    np.testing.assert_array_equal(rows, np.isfinite(want).sum(axis=1))
+    np.testing.assert_array_equal(cand[:nc], np.flatnonzero(np.abs(np.nan_to_num(want)) > 0.3))
