@@ -172,10 +172,10 @@ def test_standing_out_flags_defects_of_one_image_not_its_noise():
 @pytest.mark.parametrize("holes", [True, False])
 @pytest.mark.parametrize("shape", [(37, 23), (4, 9)])
 def test_window_deviations_are_each_value_less_its_windows_mean(size, holes, shape):
-    """The spatial test's box sums (engine/robust_kernels.window_deviations) against a brute-force NumPy mean of
+    """The spatial test's box sums (engine/window_kernels.window_deviations) against a brute-force NumPy mean of
     every window's valid values (NaN where fewer than half of the window is valid), on a random raster with holes
     and one without, a raster smaller than the window too; the counts per row and the candidates above a limit."""
-    from lunaralbedo.engine import robust_kernels
+    from lunaralbedo.engine import window_kernels
 
     hk, wk = shape
     rng = np.random.default_rng(size + 10 * holes + hk)
@@ -192,10 +192,42 @@ def test_window_deviations_are_each_value_less_its_windows_mean(size, holes, sha
             if len(v) >= half:
                 want[i, j] = x[i, j] - v.mean()
     dev, rows, cand = np.empty(hk * wk), np.empty(hk, np.int64), np.empty(hk * wk, np.int64)
-    work = np.empty(robust_kernels.window_scratch(wk, size))
-    nc = robust_kernels.window_deviations(x.ravel(), hk, wk, size, holes, dev, work, rows, 0.3, cand)
+    work = np.empty(window_kernels.window_scratch(wk, size))
+    nc = window_kernels.window_deviations(x.ravel(), hk, wk, size, holes, dev, work, rows, 0.3, cand)
     got = dev.reshape(shape)
     np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
     np.testing.assert_allclose(got[np.isfinite(want)], want[np.isfinite(want)], rtol=0, atol=1e-13)
     np.testing.assert_array_equal(rows, np.isfinite(want).sum(axis=1))
     np.testing.assert_array_equal(cand[:nc], np.flatnonzero(np.abs(np.nan_to_num(want)) > 0.3))
+
+
+def test_median_and_spread_are_numpys_on_ties_sorted_and_constant_values():
+    """The spread's median (engine/window_kernels.median: quickselect with a branch-free partition) is the value
+    np.median gives, for odd and even counts, ties, sorted and constant values; mad_sigma is outliers.robust_sigma."""
+    from lunaralbedo.engine import window_kernels
+
+    rng = np.random.default_rng(4)
+    for n in (1, 2, 3, 4, 7, 10, 101, 1000, 8191, 8192):
+        for case in range(6):
+            x = rng.normal(size=n)
+            x = {0: x, 1: np.round(x, 1), 2: np.sort(x), 3: np.sort(x)[::-1].copy(), 4: np.full(n, 0.25),
+                 5: np.round(rng.standard_cauchy(n), 2)}[case]
+            assert window_kernels.median(x.copy(), n) == np.median(x), (n, case)
+            assert window_kernels.mad_sigma(x.copy(), n) == pytest.approx(outliers.robust_sigma(x), rel=1e-15, abs=1e-300)
+    assert np.isnan(window_kernels.mad_sigma(np.zeros(0), 0))
+
+
+def test_the_spread_sample_is_every_step_th_number_in_raster_order():
+    from lunaralbedo.engine import window_kernels
+
+    rng = np.random.default_rng(5)
+    e = rng.normal(size=(300, 70))
+    e[:100][rng.random((100, 70)) < 0.1] = np.nan  # rows with holes, rows without (100-199), rows with NaN at an end
+    e[200:, :3] = np.nan
+    rows = np.isfinite(e).sum(axis=1)
+    d = np.empty(window_kernels.SCALE_SAMPLE)
+    n = window_kernels.sample(e.ravel(), 300, 70, rows, d)
+    v = e.ravel()[np.isfinite(e.ravel())]
+    step = -(-len(v) // window_kernels.SCALE_SAMPLE)
+    assert step == 3 and n == len(v[::step])
+    np.testing.assert_array_equal(d[:n], v[::step])

@@ -4,16 +4,19 @@ r"""The reweight pass's spatial consistency test (:mod:`lunaralbedo.model.outlie
 :func:`lunaralbedo.model.outliers.neighbourhood_deviation` and
 :func:`~lunaralbedo.model.outliers.spatial_outliers` do for NumPy rasters, without sorting the
 observations by image: each image's observations are written into a raster of its own
-bounding box straight from its runs, the mean of every :data:`~lunaralbedo.model.outliers.WINDOW`
-× WINDOW window of valid values comes from summed-area tables (O(1) a pixel; the box
-filters of the NumPy form), the image's threshold :math:`\tau_k` from the median absolute
-deviation of :math:`d = \log a - \operatorname{mean}_N \log a` (numba's ``np.median``, of at most
-:data:`SCALE_SAMPLE` values), and the window median only where :math:`|d| > \tau_k / 2`.  Then each
-observation far out is compared with the mean :math:`e` of the other images at its pixel.  The
-other kernels give the pass's log albedo, counts and weights, and the image-major order of the
-kept observations, all from the runs.  Float64 throughout, every sum in the
-order of the runs (fixed by the data: the same for any number of workers); ``cache=True``,
-no fastmath.
+bounding box straight from its runs (a run is contiguous there), each value less the mean
+of the valid values of its :data:`~lunaralbedo.model.outliers.WINDOW` × WINDOW window
+(:func:`.window_kernels.window_deviations`: box sums row by row, the box filters of the NumPy
+form) into a raster of deviations :math:`d = \log a - \operatorname{mean}_N \log a`, the
+image's threshold :math:`\tau_k` from the median absolute deviation of at most
+:data:`~.window_kernels.SCALE_SAMPLE` of them, and the window median only where
+:math:`|d| > \tau_k / 2`.  Then each observation far out is compared with the mean :math:`e`
+of the other images at its pixel.  The other kernels give the pass's log albedo (a
+logarithm LLVM vectorises, :mod:`lunaralbedo.model.vlog`), counts and weights, and the
+image-major order of the kept observations, all from the runs.  Float64 throughout, every
+sum in a fixed order (fixed by the data: the same for any number of workers);
+``cache=True``, no fastmath.  Loops over a run or a row are functions of their own over
+slices: LLVM vectorises those.
 """
 from __future__ import annotations
 
@@ -23,6 +26,7 @@ import numpy as np
 from numba import njit
 
 from ..model import outliers, vlog
+from .window_kernels import SCALE_SAMPLE, mad_sigma, sample, window_deviations, window_scratch
 
 
 @njit(cache=True, error_model="numpy")
@@ -47,189 +51,6 @@ def log_albedo(run_start, run_image, image, haze, texp, r, w, loga, used):
         k = run_image[q]
         a, b = run_start[q], run_start[q + 1]
         _log_run(image[a:b], r[a:b], w[a:b], np.float64(haze[k]), np.float64(texp[k]), loga[a:b], used[a:b], b - a)
-
-
-#: Most values the spread of an image's :math:`d` is taken from, evenly spaced in the runs' order (the MAD's
-#: relative standard error is then ~1.3 % for Gaussian values): two medians of every observation were a third
-#: of the pass.
-SCALE_SAMPLE = 1 << 13
-
-
-@njit(cache=True)
-def _mad_sigma(x, n):
-    """1.4826 × the median absolute deviation of ``x[:n]`` (NaN for none): :func:`lunaralbedo.model.outliers.robust_sigma`,
-    of at most :data:`SCALE_SAMPLE` of them."""
-    if n == 0:
-        return np.nan
-    step = (n + SCALE_SAMPLE - 1) // SCALE_SAMPLE
-    v = x[:n:step].copy()
-    n = v.shape[0]
-    med = np.median(v)
-    dev = np.empty(n)
-    for i in range(n):
-        dev[i] = abs(v[i] - med)
-    return 1.4826 * np.median(dev)
-
-
-@njit(cache=True)
-def _pad_row(x, p, pc, n, holes):
-    """``p = x`` with NaN (no value) as 0 and, with ``holes``, ``pc`` 1 where ``x`` is a number, else 0."""
-    if holes:
-        for i in range(n):
-            v = x[i]
-            ok = v == v
-            p[i] = v if ok else 0.0
-            pc[i] = 1.0 if ok else 0.0
-    else:
-        for i in range(n):
-            p[i] = x[i]
-
-
-@njit(cache=True)
-def _box_row(p, out, n, size):
-    """``out[j] = p[j] + ... + p[j + size - 1]``, left to right (the window of 7 in one expression: its sums stay in
-    registers; any other size adds the same terms in the same order)."""
-    if size == 7:
-        for j in range(n):
-            out[j] = p[j] + p[j + 1] + p[j + 2] + p[j + 3] + p[j + 4] + p[j + 5] + p[j + 6]
-        return
-    for j in range(n):
-        out[j] = p[j]
-    for t in range(1, size):
-        for j in range(n):
-            out[j] += p[j + t]
-
-
-@njit(cache=True)
-def _box_col(ring, rows, out, n, size):
-    """``out[j] = ring[rows[0], j] + ... + ring[rows[size - 1], j]``, in that order (:func:`_box_row`)."""
-    if size == 7:
-        a, b, c, d, e, f, g = rows[0], rows[1], rows[2], rows[3], rows[4], rows[5], rows[6]
-        for j in range(n):
-            out[j] = ring[a, j] + ring[b, j] + ring[c, j] + ring[d, j] + ring[e, j] + ring[f, j] + ring[g, j]
-        return
-    for j in range(n):
-        out[j] = ring[rows[0], j]
-    for t in range(1, size):
-        r = rows[t]
-        for j in range(n):
-            out[j] += ring[r, j]
-
-
-@njit(cache=True, error_model="numpy")
-def _deviation_row(x, s, c, e, n, half):
-    """``e = x - s / c``, the value less its window's mean, where the window holds at least ``half`` values (``c``
-    of them), else NaN."""
-    for i in range(n):
-        e[i] = x[i] - s[i] / c[i] if c[i] >= half else np.nan
-
-
-@njit(cache=True)
-def _deviation_full(x, s, inv, e, n):
-    """``e = x - s inv`` (``inv``: 1 / the window's count, NaN where it holds fewer than half its values)."""
-    for i in range(n):
-        e[i] = x[i] - s[i] * inv[i]
-
-
-@njit(cache=True)
-def _count_row(e, n, lim):
-    """How many of ``e`` are numbers, and how many exceed ``lim`` in magnitude."""
-    k, big = 0, 0
-    for i in range(n):
-        k += e[i] == e[i]
-        big += abs(e[i]) > lim
-    return k, big
-
-
-@njit(cache=True, error_model="numpy")
-def window_deviations(ras, hk, wk, size, holes, dev, work, row_count, lim, cand):
-    r"""``dev``: each value of an ``hk x wk`` raster (flat; NaN: none) less the mean of the valid values of its ``size``
-    × ``size`` window (NaN with fewer than half of it valid); ``row_count``: each row's numbers of ``dev``;
-    ``cand[:nc]`` where :math:`|dev| >` ``lim`` (raster indices, ascending); returns ``nc``.
-
-    Box sums row by row: each row's sums over ``size`` columns (into a ring of ``size`` rows), then the sums of
-    ``size`` of those rows: O(size) a pixel in loops LLVM vectorises, every sum in a fixed order (columns, then
-    rows, ascending).  ``holes`` False: every value is a number, the counts are the window's area in the
-    raster.  ``work``: float64 scratch of :func:`window_scratch` values.
-    """
-    h = size // 2
-    half = (size * size + 1) // 2
-    wp = wk + 2 * h
-    ring = work[:(size + 1) * wk].reshape((size + 1, wk))  # the last row: zeros (rows beyond the raster)
-    ringc = work[(size + 1) * wk:2 * (size + 1) * wk].reshape((size + 1, wk))
-    at = 2 * (size + 1) * wk
-    p, pc, s, c = work[at:at + wp], work[at + wp:at + 2 * wp], work[at + 2 * wp:at + 2 * wp + wk], work[at + 2 * wp + wk:at + 2 * wp + 2 * wk]
-    p[:], pc[:], ring[size], ringc[size] = 0.0, 0.0, 0.0, 0.0
-    inv = ringc[:size]  # without holes: 1 / the count of a window of r + 1 rows at column j (NaN: below half)
-    if not holes:
-        for r in range(1, min(size, hk) + 1):
-            for j in range(wk):
-                a = r * (min(j + h + 1, wk) - max(j - h, 0))
-                inv[r - 1, j] = 1.0 / a if a >= half else np.nan
-    rows = np.empty(size, np.int64)
-    nc = 0
-    for ii in range(hk + h):
-        if ii < hk:  # row ii's sums over the window's columns, into the ring
-            _pad_row(ras[ii * wk:(ii + 1) * wk], p[h:h + wk], pc[h:h + wk], wk, holes)
-            _box_row(p, ring[ii % size], wk, size)
-            if holes:
-                _box_row(pc, ringc[ii % size], wk, size)
-        i = ii - h
-        if i < 0:
-            continue
-        for t in range(size):  # row i's window sums: the sums of its rows, ascending
-            r = i - h + t
-            rows[t] = r % size if 0 <= r < hk else size
-        _box_col(ring, rows, s, wk, size)
-        if holes:
-            _box_col(ringc, rows, c, wk, size)
-        e = dev[i * wk:(i + 1) * wk]
-        if holes:
-            _deviation_row(ras[i * wk:(i + 1) * wk], s, c, e, wk, half)
-        else:
-            _deviation_full(ras[i * wk:(i + 1) * wk], s, inv[min(i + h + 1, hk) - max(i - h, 0) - 1], e, wk)
-        row_count[i], big = _count_row(e, wk, lim)
-        if big:
-            for j in range(wk):
-                if abs(e[j]) > lim:
-                    cand[nc] = i * wk + j
-                    nc += 1
-    return nc
-
-
-@njit(cache=True)
-def window_scratch(width, size):
-    """The float64 scratch :func:`window_deviations` needs for rasters up to ``width`` wide."""
-    return 2 * (size + 1) * width + 2 * (width + 2 * (size // 2)) + 2 * width
-
-
-@njit(cache=True)
-def _sample(e, hk, wk, row_count, d):
-    """Every ``step``-th number of the raster ``e`` in raster order (``step``: the fewest that keep at most
-    :data:`SCALE_SAMPLE` of them) into ``d``; returns how many."""
-    m = 0
-    for i in range(hk):
-        m += row_count[i]
-    if not m:
-        return 0
-    step = (m + SCALE_SAMPLE - 1) // SCALE_SAMPLE
-    n, seen = 0, 0  # taken, numbers before this row
-    for i in range(hk):
-        row = e[i * wk:(i + 1) * wk]
-        if row_count[i] == wk:  # no NaN: the numbers' ranks are their columns
-            for j in range((step - seen % step) % step, wk, step):
-                d[n] = row[j]
-                n += 1
-        elif row_count[i]:
-            r = seen
-            for j in range(wk):
-                if row[j] == row[j]:
-                    if r % step == 0:
-                        d[n] = row[j]
-                        n += 1
-                    r += 1
-        seen += row_count[i]
-    return n
 
 
 @njit(cache=True)
@@ -306,9 +127,6 @@ def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, loga, s
             raster[off[k]:off[k + 1]] = np.nan
         if not cnt[k]:
             dev[off[k]:off[k + 1]] = np.nan
-    for q in range(n_runs):
-        n = run_start[q + 1] - run_start[q]
-        _copy(loga[run_start[q]:run_start[q + 1]], raster[rbase[q]:rbase[q] + n], n)
     tau = np.full(n_img, tau_min)
     win = np.empty(size * size)
     cand = np.empty(max(most_cnt, 1), np.int64)  # deviations that may exceed tau / 2: few
@@ -317,11 +135,15 @@ def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, loga, s
     for k in range(n_img):
         if not cnt[k]:
             continue
+        for q in range(n_runs):  # the image's raster, just before its windows (in the core's cache)
+            if run_image[q] == k:
+                n = run_start[q + 1] - run_start[q]
+                _copy(loga[run_start[q]:run_start[q + 1]], raster[rbase[q]:rbase[q] + n], n)
         hk, wk = rmax[k] - rmin[k] + 1, cmax[k] - cmin[k] + 1
         ras, e = raster[off[k]:off[k + 1]], dev[off[k]:off[k + 1]]
         nc = window_deviations(ras, hk, wk, size, cnt[k] < hk * wk, e, wwork, row_count, tau_min / 2, cand)
-        m = _sample(e, hk, wk, row_count, d)
-        tau[k] = max(tau_min, sigmas * _mad_sigma(d, m)) if m else tau_min
+        m = sample(e, hk, wk, row_count, d)
+        tau[k] = max(tau_min, sigmas * mad_sigma(d, m)) if m else tau_min
         for x_ in range(nc):  # the window's median where the mean says it may matter
             p = cand[x_]
             if not abs(e[p]) > tau[k] / 2:
