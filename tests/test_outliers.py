@@ -121,8 +121,12 @@ def test_the_reweight_kernel_flags_what_the_numpy_test_flags():
     obs = {"pix": np.concatenate(sel).astype(np.int32), "index": np.arange(k, dtype=np.int32),
            "start": np.concatenate([[0], np.cumsum([len(x) for x in sel])]).astype(np.int64),
            "loga": np.concatenate([loga[i].ravel()[sel[i]] for i in range(k)])}
-    block = runs.chunk_runs(obs, h * w, ["loga"], 64)
-    got = robust_kernels.spatial_test(block, block["loga"].astype(np.float64), w)
+    obs["image"] = np.exp(obs["loga"].astype(np.float64))  # the kernel takes values, R, T and haze: a = I / (T R)
+    block = runs.chunk_runs(obs, h * w, ["loga", "image"], 64)
+    ones, used = np.ones(len(block["image"]), np.float32), np.empty(len(block["image"]), bool)
+    got = robust_kernels.spatial_test(block, w, np.zeros(k), np.ones(k), ones, ones, used)
+    assert used.all()
+    block["loga"] = np.log(block["image"])  # the kernel's logarithm is within 1 ulp of NumPy's (tests/test_vlog.py)
 
     img, pix = runs.observation_images(block), runs.observation_pixels(block)
     e, tau = np.full(len(pix), np.nan), np.zeros(len(pix))

@@ -117,14 +117,12 @@ def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndar
     base = np.asarray(arrays["weight"], np.float32)
     r, w_lit, texp = tile_model(scene, arrays, state)
     n_obs, n_img = len(base), len(arrays["index"])
-    loga, used = robust_kernels.workspace("loga", n_obs)[:n_obs], np.empty(n_obs, bool)
-    robust_kernels.log_albedo(arrays["run_start"], arrays["run_image"], arrays["image"], state.haze_of(arrays["index"]),
-                              texp, r, np.asarray(w_lit, np.float32), loga, used)
-    flag = np.zeros(n_obs, bool)
-    if s.reject_outliers and state.robust:  # the spatial test ran in the first pass: its rejections stay
-        flag = used & (np.asarray(w_prev) == 0) & (base > 0)
-    elif s.reject_outliers:
-        flag = robust_kernels.spatial_test(arrays, loga, width)
+    used, w_lit = np.empty(n_obs, bool), np.asarray(w_lit, np.float32)
+    if s.reject_outliers and not state.robust:  # the spatial test, in the first pass
+        flag = robust_kernels.spatial_test(arrays, width, state.haze_of(arrays["index"]), texp, r, w_lit, used)
+    else:  # later passes keep the first pass's rejections
+        robust_kernels.usable(arrays["run_start"], arrays["run_image"], texp, r, w_lit, used)
+        flag = used & (np.asarray(w_prev) == 0) & (base > 0) if s.reject_outliers else np.zeros(n_obs, bool)
     keep = used & ~flag
     m, n_loss = np.ones(0), 0  # m: the robust loss's factors (none: 1)
     if s.robust_loss != "none":

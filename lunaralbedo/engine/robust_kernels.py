@@ -31,26 +31,34 @@ from .window_kernels import SCALE_SAMPLE, mad_sigma, sample, window_deviations, 
 
 @njit(cache=True, error_model="numpy")
 def _log_run(image, r, w, h, t, loga, used, n):
-    """:func:`log_albedo` of one run (its own loop over slices, without branches: LLVM vectorises it)."""
+    r"""One run's single-image :math:`\log a = \log(\max(I - H_k, 10^{-6}) / (T_k R))` (float64; NaN where not used)
+    and whether each observation is used (:func:`usable`); returns how many :math:`\log a` are numbers.  The
+    logarithm is :func:`lunaralbedo.model.vlog.log` (within 1 ulp of libm's); no branch: LLVM vectorises the loop."""
+    n_ok = 0
     for i in range(n):
         s = np.float64(image[i]) - h
         x = t * np.float64(r[i])
         u = (w[i] > 0) & (x > 0)
         lg = vlog.log((1e-6 if s < 1e-6 else s) / x)  # max(s, 1e-6), NaN kept
+        v = lg if u else np.nan
         used[i] = u
-        loga[i] = lg if u else np.nan
+        loga[i] = v
+        n_ok += v == v
+    return n_ok
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def log_albedo(run_start, run_image, image, haze, texp, r, w, loga, used):
-    r"""Per observation the single-image :math:`\log a = \log(\max(I - H_k, 10^{-6}) / (T_k R))` (float64) and
-    whether it is used (eq. 1's weight ``w`` above 0 and :math:`TR > 0`; ``loga`` NaN where not).
+@njit(cache=True)
+def _usable_run(r, w, t, used, n):
+    for i in range(n):
+        used[i] = (w[i] > 0) & (t * np.float64(r[i]) > 0)
 
-    The logarithm is :func:`lunaralbedo.model.vlog.log` (within 1 ulp of libm's; vectorised)."""
+
+@njit(cache=True, nogil=True)
+def usable(run_start, run_image, texp, r, w, used):
+    """Whether each observation is used by the reweight pass: eq. 1's weight ``w`` above 0 and :math:`T_k R > 0`."""
     for q in range(run_start.shape[0] - 1):
-        k = run_image[q]
         a, b = run_start[q], run_start[q + 1]
-        _log_run(image[a:b], r[a:b], w[a:b], np.float64(haze[k]), np.float64(texp[k]), loga[a:b], used[a:b], b - a)
+        _usable_run(r[a:b], w[a:b], np.float64(texp[run_image[q]]), used[a:b], b - a)
 
 
 @njit(cache=True)
@@ -62,42 +70,29 @@ def _count_far(e, t, n):
     return k
 
 
-@njit(cache=True)
-def _count_valid(x, n):
-    """How many of ``x`` are numbers."""
-    k = 0
-    for i in range(n):
-        k += x[i] == x[i]
-    return k
-
-
-@njit(cache=True)
-def _copy(x, y, n):
-    """``y = x``."""
-    for i in range(n):
-        y[i] = x[i]
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
-def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, loga, size, sigmas, tau_min, flag, work):
-    r"""Set ``flag`` (bool per observation, False on entry) where the spatial test rejects it (:mod:`lunaralbedo.model.outliers`).
+def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, image, haze, texp, r, w, size, sigmas, tau_min,
+                  used, flag, work):
+    r"""Set ``used`` (:func:`usable`) and ``flag`` (False on entry) where the spatial test rejects an observation
+    (:mod:`lunaralbedo.model.outliers`).
 
-    ``loga``: :math:`\log a` per observation (NaN: unused); ``width``: the block's width in pixels
-    (observation pixels are numbered row by row); ``size``: the window's side.  The window's mean
-    and median take the valid values of the window, NaN (no test) with fewer than half of it valid.
-    ``work``: float64 scratch; returns 0, or the size it needs (then nothing is done).
+    ``image``, ``r``, ``w``: each observation's value, reflectance R and eq. 1's weight; ``haze``, ``texp``: each
+    local image's :math:`H_k`, :math:`T_k`.  Each image's :math:`\log a` (:func:`_log_run`) goes straight into its
+    raster, just before its windows (the raster then is in the core's cache).  ``width``: the block's width in
+    pixels (observation pixels are numbered row by row); ``size``: the window's side.  The window's mean and median
+    take the valid values of the window, NaN (no test) with fewer than half of it valid.  ``work``: float64
+    scratch; returns 0, or the size it needs (then nothing is done).
     """
     n_runs = run_start.shape[0] - 1
     rmin = np.full(n_img, 1 << 62)
     rmax = np.full(n_img, -1)
     cmin = np.full(n_img, 1 << 62)
     cmax = np.full(n_img, -1)
-    cnt = np.zeros(n_img, np.int64)  # used observations
+    cnt = np.zeros(n_img, np.int64)  # observations with a log albedo
     tot = np.zeros(n_img, np.int64)  # all
     for q in range(n_runs):  # each image's observations and a box around them
         k = run_image[q]
         o0, o1 = run_start[q], run_start[q + 1]
-        cnt[k] += _count_valid(loga[o0:o1], o1 - o0)
         tot[k] += o1 - o0
         p0, p1 = run_pixel[q], run_pixel[q] + o1 - 1 - o0
         r0, r1 = p0 // width, p1 // width
@@ -105,13 +100,13 @@ def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, loga, s
         rmin[k], rmax[k] = min(rmin[k], r0), max(rmax[k], r1)
         cmin[k], cmax[k] = min(cmin[k], c0), max(cmax[k], c1)
     off = np.zeros(n_img + 1, np.int64)
-    widest, tallest, most_cnt = 1, 1, 0
+    widest, tallest, most = 1, 1, 1
     for k in range(n_img):
         area = (rmax[k] - rmin[k] + 1) * (cmax[k] - cmin[k] + 1) if tot[k] else 0
         off[k + 1] = off[k] + area
         widest = max(widest, cmax[k] - cmin[k] + 1 if tot[k] else 1)
         tallest = max(tallest, rmax[k] - rmin[k] + 1 if tot[k] else 1)
-        most_cnt = max(most_cnt, cnt[k])
+        most = max(most, tot[k])
     a0 = off[n_img]
     ws = window_scratch(widest, size)
     need = 2 * a0 + ws + SCALE_SAMPLE
@@ -122,23 +117,22 @@ def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, loga, s
     for q in range(n_runs):
         k = run_image[q]
         rbase[q] = off[k] + (run_pixel[q] // width - rmin[k]) * (cmax[k] - cmin[k] + 1) + run_pixel[q] % width - cmin[k]
-    for k in range(n_img):
-        if tot[k] < off[k + 1] - off[k]:  # pixels of the box no observation covers
-            raster[off[k]:off[k + 1]] = np.nan
-        if not cnt[k]:
-            dev[off[k]:off[k + 1]] = np.nan
     tau = np.full(n_img, tau_min)
     win = np.empty(size * size)
-    cand = np.empty(max(most_cnt, 1), np.int64)  # deviations that may exceed tau / 2: few
+    cand = np.empty(most, np.int64)  # deviations that may exceed tau / 2: few
     row_count = np.empty(tallest, np.int64)
     h = size // 2
     for k in range(n_img):
+        if tot[k] < off[k + 1] - off[k]:  # pixels of the box no observation covers
+            raster[off[k]:off[k + 1]] = np.nan
+    for q in range(n_runs):  # the log albedo into the rasters
+        k, a, b = run_image[q], run_start[q], run_start[q + 1]
+        cnt[k] += _log_run(image[a:b], r[a:b], w[a:b], np.float64(haze[k]), np.float64(texp[k]), raster[rbase[q]:rbase[q] + b - a],
+                           used[a:b], b - a)
+    for k in range(n_img):
         if not cnt[k]:
+            dev[off[k]:off[k + 1]] = np.nan
             continue
-        for q in range(n_runs):  # the image's raster, just before its windows (in the core's cache)
-            if run_image[q] == k:
-                n = run_start[q + 1] - run_start[q]
-                _copy(loga[run_start[q]:run_start[q + 1]], raster[rbase[q]:rbase[q] + n], n)
         hk, wk = rmax[k] - rmin[k] + 1, cmax[k] - cmin[k] + 1
         ras, e = raster[off[k]:off[k + 1]], dev[off[k]:off[k + 1]]
         nc = window_deviations(ras, hk, wk, size, cnt[k] < hk * wk, e, wwork, row_count, tau_min / 2, cand)
@@ -286,13 +280,16 @@ def release() -> None:
         _WORK.clear()
 
 
-def spatial_test(arrays: dict, loga: np.ndarray, width: int) -> np.ndarray:
-    r"""The observations of a block (chunk-major runs) the spatial test rejects (bool), from their :math:`\log a`."""
-    flag = np.zeros(len(loga), bool)
+def spatial_test(arrays: dict, width: int, haze, texp, r, w, used: np.ndarray) -> np.ndarray:
+    r"""The observations of a block (chunk-major runs) the spatial test rejects (bool), and ``used`` (:func:`usable`):
+    ``haze``, ``texp`` each local image's :math:`H_k`, :math:`T_k`; ``r``, ``w`` each observation's R and eq. 1's
+    weight (:func:`spatial_flags`)."""
+    n = len(used)
+    flag = np.zeros(n, bool)
     args = (np.asarray(arrays["chunks"], np.int64), np.asarray(arrays["run_start"], np.int64), np.asarray(arrays["run_pixel"], np.int64),
-            np.asarray(arrays["run_image"], np.int64), len(arrays["index"]), width, loga, outliers.WINDOW,
-            outliers.SIGMAS, outliers.TAU_MIN, flag)
-    need = spatial_flags(*args, workspace("spatial", 3 * len(loga)))
+            np.asarray(arrays["run_image"], np.int64), len(arrays["index"]), width, arrays["image"], haze, texp, r, w,
+            outliers.WINDOW, outliers.SIGMAS, outliers.TAU_MIN, used, flag)
+    need = spatial_flags(*args, workspace("spatial", 3 * n))
     if need:
         spatial_flags(*args, workspace("spatial", need))
     return flag
