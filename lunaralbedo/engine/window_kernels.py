@@ -10,7 +10,8 @@ in a fixed order, no summed-area table: its differences of large sums cost digit
 more passes over memory).  :func:`mad_sigma` is the image's robust spread from a sample of
 its :math:`d` (:func:`sample`), with medians by :func:`median` (quickselect with a
 branch-free partition: numba's ``np.median`` mispredicts a branch for every other value and
-took a tenth of the pass).  Float64, no fastmath, ``cache=True``.
+took a tenth of the pass).  The rasters may be float32; every sum, mean and median is
+float64; no fastmath, ``cache=True``.
 """
 from __future__ import annotations
 
@@ -166,7 +167,8 @@ def window_deviations(ras, hk, wk, size, holes, dev, work, row_count, lim, cand)
     ring = work[:(size + 1) * wk].reshape((size + 1, wk))  # the last row: zeros (rows beyond the raster)
     ringc = work[(size + 1) * wk:2 * (size + 1) * wk].reshape((size + 1, wk))
     at = 2 * (size + 1) * wk
-    p, pc, s, c = work[at:at + wp], work[at + wp:at + 2 * wp], work[at + 2 * wp:at + 2 * wp + wk], work[at + 2 * wp + wk:at + 2 * wp + 2 * wk]
+    p, pc = work[at:at + wp], work[at + wp:at + 2 * wp]
+    s, c = work[at + 2 * wp:at + 2 * wp + wk], work[at + 2 * wp + wk:at + 2 * wp + 2 * wk]
     p[:], pc[:], ring[size], ringc[size] = 0.0, 0.0, 0.0, 0.0
     inv = ringc[:size]  # without holes: 1 / the count of a window of r + 1 rows at column j (NaN: below half)
     if not holes:
