@@ -235,3 +235,29 @@ def test_the_spread_sample_is_every_step_th_number_in_raster_order():
     step = -(-len(v) // window_kernels.SCALE_SAMPLE)
     assert step == 3 and n == len(v[::step])
     np.testing.assert_array_equal(d[:n], v[::step])
+
+
+def test_the_log_albedo_kernel_uses_what_the_float64_product_uses_and_stays_finite():
+    """The reweight pass's float32 log albedo (engine/robust_kernels._log_run): the observations it uses are those
+    with eq. 1's weight above 0 and T R > 0 in float64 (robust_kernels.usable), for every sign, zero, NaN and
+    infinity of T and R; log a within 3e-7 of NumPy's float64 log of max(I - H, 1e-6) / (T R), and a number (the
+    ratio clamped to the float32 range) even where T R is below or beyond it."""
+    from lunaralbedo.engine import robust_kernels
+
+    special = np.array([0.0, -0.0, 1.0, -1.0, 2.5, -2.5, np.nan, np.inf, -np.inf, 1e-40, 3e38], np.float32)
+    for t in special:
+        rng = np.random.default_rng(6)
+        r = np.concatenate([special, rng.uniform(-1, 2, 200).astype(np.float32)])
+        w = np.where(rng.random(len(r)) < 0.2, 0.0, 1.0).astype(np.float32)
+        image = np.concatenate([np.full(len(special), 80.0), rng.uniform(-5, 300, 200)]).astype(np.float32)
+        loga, used, want = np.empty(len(r), np.float32), np.empty(len(r), bool), np.empty(len(r), bool)
+        n_ok = robust_kernels._log_run(image, r, w, np.float32(3.0), t, loga, used, len(r))
+        robust_kernels.usable(np.array([0, len(r)]), np.array([0]), np.array([t]), r, w, want)
+        with np.errstate(all="ignore"):
+            x = np.float64(t) * r.astype(np.float64)
+            ref = np.log(np.maximum(image.astype(np.float64) - 3.0, 1e-6) / x)
+        np.testing.assert_array_equal(used, want)
+        np.testing.assert_array_equal(used, (w > 0) & (x > 0))
+        assert np.isfinite(loga[used]).all() and np.isnan(loga[~used]).all() and n_ok == used.sum()
+        ok = used & (x > 1e-30) & (x < 1e30)
+        assert np.all(np.abs(loga[ok] - ref[ok]) <= 3e-7 * np.maximum(1.0, np.abs(ref[ok])))
