@@ -223,20 +223,22 @@ def sample(e, hk, wk, row_count, d):
     if not m:
         return 0
     step = (m + SCALE_SAMPLE - 1) // SCALE_SAMPLE
-    n, seen = 0, 0  # taken, numbers before this row
+    n, seen, take = 0, 0, 0  # taken, numbers before this row, the rank of the next one taken
     for i in range(hk):
         row = e[i * wk:(i + 1) * wk]
         if row_count[i] == wk:  # no NaN: the numbers' ranks are their columns
-            for j in range((step - seen % step) % step, wk, step):
+            for j in range(take - seen, wk, step):
                 d[n] = row[j]
                 n += 1
+                take += step
         elif row_count[i]:
             r = seen
             for j in range(wk):
                 if row[j] == row[j]:
-                    if r % step == 0:
+                    if r == take:
                         d[n] = row[j]
                         n += 1
+                        take += step
                     r += 1
         seen += row_count[i]
     return n
