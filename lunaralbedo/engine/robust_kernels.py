@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 
 from ..model import outliers, vlog
-from .window_kernels import SCALE_SAMPLE, mad_sigma, sample, window_deviations, window_scratch
+from .window_kernels import SCALE_SAMPLE, mad_sigma, median, sample, window_deviations, window_scratch
 
 
 #: The float32 normal range: the ratio :math:`a` is clamped into it (beyond, the inputs are absurd), so that
@@ -60,6 +60,7 @@ def _log_run(image, r, w, h, t, loga, used, n):
 
 @njit(cache=True)
 def _usable_run(r, w, t, used, n):
+    """:func:`usable` of one run (its own loop: vectorised)."""
     for i in range(n):
         used[i] = (w[i] > 0) & (t * np.float64(r[i]) > 0)
 
@@ -162,7 +163,7 @@ def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, image, 
                     if x == x:
                         win[n] = x
                         n += 1
-            e[p] = ras[p] - np.median(win[:n]) if 2 * n > size * size else np.nan
+            e[p] = ras[p] - median(win, n) if 2 * n > size * size else np.nan
     for ch in range(chunks.shape[0] - 1):  # the few observations far out: against the other images' mean e
         for q in range(chunks[ch], chunks[ch + 1]):
             t, n = tau[run_image[q]], run_start[q + 1] - run_start[q]
@@ -174,9 +175,9 @@ def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, image, 
                     continue
                 p = run_pixel[q] + o - run_start[q]
                 se, others = 0.0, 0.0
-                for r in range(chunks[ch], chunks[ch + 1]):  # a pixel's observations are in its chunk's runs
-                    if r != q and run_pixel[r] <= p < run_pixel[r] + run_start[r + 1] - run_start[r]:
-                        x = dev[rbase[r] + p - run_pixel[r]]
+                for qq in range(chunks[ch], chunks[ch + 1]):  # a pixel's observations are in its chunk's runs
+                    if qq != q and run_pixel[qq] <= p < run_pixel[qq] + run_start[qq + 1] - run_start[qq]:
+                        x = dev[rbase[qq] + p - run_pixel[qq]]
                         if x == x:
                             se += x
                             others += 1.0
