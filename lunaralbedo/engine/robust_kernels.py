@@ -73,15 +73,6 @@ def usable(run_start, run_image, texp, r, w, used):
         _usable_run(r[a:b], w[a:b], np.float64(texp[run_image[q]]), used[a:b], b - a)
 
 
-@njit(cache=True)
-def _count_far(e, t, n):
-    """How many of ``e`` (NaN: none) exceed ``t`` in magnitude."""
-    k = 0
-    for i in range(n):
-        k += abs(e[i]) > t
-    return k
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, image, haze, texp, r, w, size, sigmas, tau_min,
                   used, flag, work):
@@ -133,6 +124,7 @@ def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, image, 
     tau = np.full(n_img, tau_min)
     win = np.empty(size * size)
     cand = np.empty(most, np.int64)  # deviations that may exceed tau / 2: few
+    far, n_far = np.empty(a0, np.int64), 0  # those beyond tau (all the test may reject), in the rasters
     row_count = np.empty(tallest, np.int64)
     h = size // 2
     for k in range(n_img):
@@ -164,24 +156,28 @@ def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, image, 
                         win[n] = x
                         n += 1
             e[p] = ras[p] - median(win, n) if 2 * n > size * size else np.nan
-    for ch in range(chunks.shape[0] - 1):  # the few observations far out: against the other images' mean e
-        for q in range(chunks[ch], chunks[ch + 1]):
-            t, n = tau[run_image[q]], run_start[q + 1] - run_start[q]
-            if not _count_far(dev[rbase[q]:rbase[q] + n], t, n):
-                continue
-            for o in range(run_start[q], run_start[q + 1]):
-                ev = dev[rbase[q] + o - run_start[q]]
-                if not abs(ev) > t:
-                    continue
-                p = run_pixel[q] + o - run_start[q]
-                se, others = 0.0, 0.0
-                for qq in range(chunks[ch], chunks[ch + 1]):  # a pixel's observations are in its chunk's runs
-                    if qq != q and run_pixel[qq] <= p < run_pixel[qq] + run_start[qq + 1] - run_start[qq]:
-                        x = dev[rbase[qq] + p - run_pixel[qq]]
-                        if x == x:
-                            se += x
-                            others += 1.0
-                flag[o] = others < 1 or abs(ev - se / others) > t
+        for x_ in range(nc):
+            if abs(e[cand[x_]]) > tau[k]:
+                far[n_far] = off[k] + cand[x_]
+                n_far += 1
+    by_image = np.argsort(run_image, kind="mergesort")  # each image's runs, ascending in its raster
+    first = np.searchsorted(run_image[by_image], np.arange(n_img + 1))
+    at = rbase[by_image]
+    for x_ in range(n_far):  # the few observations far out: against the other images' mean e
+        gp = far[x_]
+        k = np.searchsorted(off, gp, side="right") - 1
+        q = by_image[first[k] + np.searchsorted(at[first[k]:first[k + 1]], gp, side="right") - 1]  # the run holding it
+        o, t, ev = run_start[q] + gp - rbase[q], tau[k], dev[gp]
+        ch = np.searchsorted(chunks, q, side="right") - 1
+        p = run_pixel[q] + o - run_start[q]
+        se, others = 0.0, 0.0
+        for qq in range(chunks[ch], chunks[ch + 1]):  # a pixel's observations are in its chunk's runs
+            if qq != q and run_pixel[qq] <= p < run_pixel[qq] + run_start[qq + 1] - run_start[qq]:
+                x = dev[rbase[qq] + p - run_pixel[qq]]
+                if x == x:
+                    se += x
+                    others += 1.0
+        flag[o] = others < 1 or abs(ev - se / others) > t
     return 0
 
 
