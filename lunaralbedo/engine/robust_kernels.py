@@ -73,6 +73,33 @@ def usable(run_start, run_image, texp, r, w, used):
         _usable_run(r[a:b], w[a:b], np.float64(texp[run_image[q]]), used[a:b], b - a)
 
 
+@njit(cache=True)
+def _window_values(ras, hk, wk, p, h, win):
+    """The numbers of the window of half-side ``h`` around raster index ``p`` (an ``hk x wk`` raster) into ``win``;
+    returns how many."""
+    i, j = p // wk, p % wk
+    n = 0
+    for ii in range(max(i - h, 0), min(i + h + 1, hk)):
+        for jj in range(max(j - h, 0), min(j + h + 1, wk)):
+            x = ras[ii * wk + jj]
+            if x == x:
+                win[n] = x
+                n += 1
+    return n
+
+
+@njit(cache=True)
+def _beyond_median(x, win, n, t):
+    r"""Whether :math:`|x - \operatorname{med}| > t` for the median of ``win[:n]`` (``n`` odd), without it: ``x - v``
+    falls as ``v`` rises (IEEE subtraction is monotonic), so the median is ``t`` below ``x`` when more than half
+    of the values are, and above likewise."""
+    below, above = 0, 0
+    for i in range(n):
+        below += (x - win[i]) > t
+        above += (win[i] - x) > t
+    return below > n // 2 or above > n // 2
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, image, haze, texp, r, w, size, sigmas, tau_min,
                   used, flag, work):
@@ -125,6 +152,7 @@ def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, image, 
     win = np.empty(size * size)
     cand = np.empty(most, np.int64)  # deviations that may exceed tau / 2: few
     far, n_far = np.empty(a0, np.int64), 0  # those beyond tau (all the test may reject), in the rasters
+    later, n_later = np.empty(a0, np.int64), 0  # those within, whose window median is not taken yet (ascending)
     row_count = np.empty(tallest, np.int64)
     h = size // 2
     for k in range(n_img):
@@ -147,18 +175,17 @@ def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, image, 
             p = cand[x_]
             if not abs(e[p]) > tau[k] / 2:
                 continue
-            i, j = p // wk, p % wk
-            n = 0
-            for ii in range(max(i - h, 0), min(i + h + 1, hk)):
-                for jj in range(max(j - h, 0), min(j + h + 1, wk)):
-                    x = ras[ii * wk + jj]
-                    if x == x:
-                        win[n] = x
-                        n += 1
-            e[p] = ras[p] - median(win, n) if 2 * n > size * size else np.nan
-        for x_ in range(nc):
-            if abs(e[cand[x_]]) > tau[k]:
-                far[n_far] = off[k] + cand[x_]
+            n = _window_values(ras, hk, wk, p, h, win)
+            if 2 * n <= size * size:
+                e[p] = np.nan
+                continue
+            if n & 1 and not _beyond_median(np.float64(ras[p]), win, n, tau[k]):  # not far out: its median only
+                later[n_later] = off[k] + p                                   # if another image's far one needs it
+                n_later += 1
+                continue
+            e[p] = ras[p] - median(win, n)
+            if abs(e[p]) > tau[k]:
+                far[n_far] = off[k] + p
                 n_far += 1
     by_image = np.argsort(run_image, kind="mergesort")  # each image's runs, ascending in its raster
     first = np.searchsorted(run_image[by_image], np.arange(n_img + 1))
@@ -173,7 +200,14 @@ def spatial_flags(chunks, run_start, run_pixel, run_image, n_img, width, image, 
         se, others = 0.0, 0.0
         for qq in range(chunks[ch], chunks[ch + 1]):  # a pixel's observations are in its chunk's runs
             if qq != q and run_pixel[qq] <= p < run_pixel[qq] + run_start[qq + 1] - run_start[qq]:
-                x = dev[rbase[qq] + p - run_pixel[qq]]
+                g = rbase[qq] + p - run_pixel[qq]
+                x = dev[g]
+                at_l = np.searchsorted(later[:n_later], g)
+                if at_l < n_later and later[at_l] == g:  # its window's median now
+                    k2 = run_image[qq]
+                    n = _window_values(raster[off[k2]:off[k2 + 1]], rmax[k2] - rmin[k2] + 1, cmax[k2] - cmin[k2] + 1,
+                                       g - off[k2], h, win)
+                    x = raster[g] - median(win, n)
                 if x == x:
                     se += x
                     others += 1.0
