@@ -10,10 +10,12 @@ of the valid values of its :data:`~lunaralbedo.model.outliers.WINDOW` × WINDOW 
 form) into a raster of deviations :math:`d = \log a - \operatorname{mean}_N \log a`, the
 image's threshold :math:`\tau_k` from the median absolute deviation of at most
 :data:`~.window_kernels.SCALE_SAMPLE` of them, and the window median only where
-:math:`|d| > \tau_k / 2`.  Then each observation far out is compared with the mean :math:`e`
-of the other images at its pixel.  The other kernels give the pass's log albedo (a
-logarithm LLVM vectorises, :mod:`lunaralbedo.model.vlog`), counts and weights, and the
-image-major order of the kept observations, all from the runs.  The rasters of
+:math:`|d| > \tau_k / 2` (and there only where the observation may lie beyond :math:`\tau_k`, or
+where another image's far observation needs its deviation: :func:`_beyond_median`).  Then each
+observation far out is compared with the mean :math:`e` of the other images at its pixel.
+The other kernels give the pass's log albedo (a logarithm LLVM vectorises,
+:mod:`lunaralbedo.model.vlog`), counts and weights, and the image-major order of the kept
+observations, all from the runs.  The rasters of
 :math:`\log a` and of :math:`d` are float32 (half the memory traffic of the pass's two
 biggest arrays; their rounding, :math:`6 \cdot 10^{-8}` relative, is far below the test's
 thresholds of :math:`\tau_k / 2 \ge 0.075`), every sum, mean, median and spread float64, every
