@@ -261,3 +261,35 @@ def test_the_log_albedo_kernel_uses_what_the_float64_product_uses_and_stays_fini
         assert np.isfinite(loga[used]).all() and np.isnan(loga[~used]).all() and n_ok == used.sum()
         ok = used & (x > 1e-30) & (x < 1e30)
         assert np.all(np.abs(loga[ok] - ref[ok]) <= 3e-7 * np.maximum(1.0, np.abs(ref[ok])))
+
+
+def test_a_far_observation_is_compared_with_the_median_deviation_of_the_other_image():
+    """Image 1 has a dropout row: the window means of the rows around it are pulled beyond tau / 2, so its
+    deviations there are its window medians'.  At P image 0 is 0.29 above its neighbourhood and image 1 0.10 (0.27
+    from its window mean): against image 1's median deviation image 0 stands out (0.19 > tau = 0.15), against the
+    mean deviation it would not.  The kernel (which takes such a median only when a far observation asks for it)
+    flags what the NumPy form flags."""
+    from lunaralbedo.engine import robust_kernels, runs
+
+    rng = np.random.default_rng(8)
+    k, h, w = 2, 30, 40
+    loga = rng.normal(0, 0.01, (k, h, w))
+    loga[1, 15, :] -= 1.2
+    loga[1, 13, 20] += 0.1
+    loga[0, 13, 20] += 0.3
+    obs = {"pix": np.tile(np.arange(h * w, dtype=np.int32), k), "index": np.arange(k, dtype=np.int32),
+           "start": np.array([0, h * w, 2 * h * w], np.int64), "image": np.exp(loga.reshape(-1))}
+    block = runs.chunk_runs(obs, h * w, ["image"], 64)
+    ones, used = np.ones(len(block["image"]), np.float32), np.empty(len(block["image"]), bool)
+    got = robust_kernels.spatial_test(block, w, np.zeros(k), np.ones(k), ones, ones, used)
+
+    img, pix = runs.observation_images(block), runs.observation_pixels(block)
+    e, tau = np.full(len(pix), np.nan), np.zeros(len(pix))
+    for i in range(k):
+        at = np.flatnonzero(img == i)
+        e[at], tau[at] = outliers.neighbourhood_deviation(np.log(block["image"][at]).reshape(h, w), pix[at] // w, pix[at] % w)
+    want = outliers.spatial_outliers(e, pix, tau)
+    at_p = np.flatnonzero(pix == 13 * w + 20)
+    assert want[at_p].tolist() == [True, False] and 0.05 < e[at_p[1]] < 0.15 < e[at_p[0]] - e[at_p[1]]
+    assert want[(img == 1) & (pix // w == 15)].all()  # the dropout row
+    np.testing.assert_array_equal(got, want)
