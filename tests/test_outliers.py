@@ -121,8 +121,12 @@ def test_the_reweight_kernel_flags_what_the_numpy_test_flags():
     obs = {"pix": np.concatenate(sel).astype(np.int32), "index": np.arange(k, dtype=np.int32),
            "start": np.concatenate([[0], np.cumsum([len(x) for x in sel])]).astype(np.int64),
            "loga": np.concatenate([loga[i].ravel()[sel[i]] for i in range(k)])}
-    block = runs.chunk_runs(obs, h * w, ["loga"], 64)
-    got = robust_kernels.spatial_test(block, block["loga"].astype(np.float64), w)
+    obs["image"] = np.exp(obs["loga"].astype(np.float64))  # the kernel takes values, R, T and haze: a = I / (T R)
+    block = runs.chunk_runs(obs, h * w, ["loga", "image"], 64)
+    ones, used = np.ones(len(block["image"]), np.float32), np.empty(len(block["image"]), bool)
+    got = robust_kernels.spatial_test(block, w, np.zeros(k), np.ones(k), ones, ones, used)
+    assert used.all()
+    block["loga"] = np.log(block["image"])  # the kernel's logarithm is within 1 ulp of NumPy's (tests/test_vlog.py)
 
     img, pix = runs.observation_images(block), runs.observation_pixels(block)
     e, tau = np.full(len(pix), np.nan), np.zeros(len(pix))
@@ -175,3 +179,126 @@ def test_standing_out_flags_defects_of_one_image_not_its_noise():
     wide = rng.normal(0.0, 0.05, 5000)  # 5 % noise: tau 0.3, a 16 % deviation is not an outlier
     wide[0] = 0.16
     assert not outliers.standing_out(wide)[0]
+
+
+@pytest.mark.parametrize("size", [7, 5])
+@pytest.mark.parametrize("holes", [True, False])
+@pytest.mark.parametrize("shape", [(37, 23), (4, 9)])
+def test_window_deviations_are_each_value_less_its_windows_mean(size, holes, shape):
+    """The spatial test's box sums (engine/window_kernels.window_deviations) against a brute-force NumPy mean of
+    every window's valid values (NaN where fewer than half of the window is valid), on a random raster with holes
+    and one without, a raster smaller than the window too; the counts per row and the candidates above a limit."""
+    from lunaralbedo.engine import window_kernels
+
+    hk, wk = shape
+    rng = np.random.default_rng(size + 10 * holes + hk)
+    x = rng.normal(-1.0, 0.3, shape)
+    if holes:
+        x[rng.random(shape) < 0.25] = np.nan
+        x[:2, :] = np.nan  # a row with no value, as at a footprint's edge
+    h, half = size // 2, (size * size + 1) // 2
+    want = np.full(shape, np.nan)
+    for i in range(hk):
+        for j in range(wk):
+            win = x[max(0, i - h):i + h + 1, max(0, j - h):j + h + 1]
+            v = win[np.isfinite(win)]
+            if len(v) >= half:
+                want[i, j] = x[i, j] - v.mean()
+    dev, rows, cand = np.empty(hk * wk), np.empty(hk, np.int64), np.empty(hk * wk, np.int64)
+    work = np.empty(window_kernels.window_scratch(wk, size))
+    nc = window_kernels.window_deviations(x.ravel(), hk, wk, size, holes, dev, work, rows, 0.3, cand)
+    got = dev.reshape(shape)
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+    np.testing.assert_allclose(got[np.isfinite(want)], want[np.isfinite(want)], rtol=0, atol=1e-13)
+    np.testing.assert_array_equal(rows, np.isfinite(want).sum(axis=1))
+    np.testing.assert_array_equal(cand[:nc], np.flatnonzero(np.abs(np.nan_to_num(want)) > 0.3))
+
+
+def test_median_and_spread_are_numpys_on_ties_sorted_and_constant_values():
+    """The spread's median (engine/window_kernels.median: quickselect with a branch-free partition) is the value
+    np.median gives, for odd and even counts, ties, sorted and constant values; mad_sigma is outliers.robust_sigma."""
+    from lunaralbedo.engine import window_kernels
+
+    rng = np.random.default_rng(4)
+    for n in (1, 2, 3, 4, 7, 10, 101, 1000, 8191, 8192):
+        for case in range(6):
+            x = rng.normal(size=n)
+            x = {0: x, 1: np.round(x, 1), 2: np.sort(x), 3: np.sort(x)[::-1].copy(), 4: np.full(n, 0.25),
+                 5: np.round(rng.standard_cauchy(n), 2)}[case]
+            assert window_kernels.median(x.copy(), n) == np.median(x), (n, case)
+            assert window_kernels.mad_sigma(x.copy(), n) == pytest.approx(outliers.robust_sigma(x), rel=1e-15, abs=1e-300)
+    assert np.isnan(window_kernels.mad_sigma(np.zeros(0), 0))
+
+
+def test_the_spread_sample_is_every_step_th_number_in_raster_order():
+    from lunaralbedo.engine import window_kernels
+
+    rng = np.random.default_rng(5)
+    e = rng.normal(size=(300, 70))
+    e[:100][rng.random((100, 70)) < 0.1] = np.nan  # rows with holes, rows without (100-199), rows with NaN at an end
+    e[200:, :3] = np.nan
+    rows = np.isfinite(e).sum(axis=1)
+    d = np.empty(window_kernels.SCALE_SAMPLE)
+    n = window_kernels.sample(e.ravel(), 300, 70, rows, d)
+    v = e.ravel()[np.isfinite(e.ravel())]
+    step = -(-len(v) // window_kernels.SCALE_SAMPLE)
+    assert step == 3 and n == len(v[::step])
+    np.testing.assert_array_equal(d[:n], v[::step])
+
+
+def test_the_log_albedo_kernel_uses_what_the_float64_product_uses_and_stays_finite():
+    """The reweight pass's float32 log albedo (engine/robust_kernels._log_run): the observations it uses are those
+    with eq. 1's weight above 0 and T R > 0 in float64 (robust_kernels.usable), for every sign, zero, NaN and
+    infinity of T and R; log a within 3e-7 of NumPy's float64 log of max(I - H, 1e-6) / (T R), and a number (the
+    ratio clamped to the float32 range) even where T R is below or beyond it."""
+    from lunaralbedo.engine import robust_kernels
+
+    special = np.array([0.0, -0.0, 1.0, -1.0, 2.5, -2.5, np.nan, np.inf, -np.inf, 1e-40, 3e38], np.float32)
+    for t in special:
+        rng = np.random.default_rng(6)
+        r = np.concatenate([special, rng.uniform(-1, 2, 200).astype(np.float32)])
+        w = np.where(rng.random(len(r)) < 0.2, 0.0, 1.0).astype(np.float32)
+        image = np.concatenate([np.full(len(special), 80.0), rng.uniform(-5, 300, 200)]).astype(np.float32)
+        loga, used, want = np.empty(len(r), np.float32), np.empty(len(r), bool), np.empty(len(r), bool)
+        n_ok = robust_kernels._log_run(image, r, w, np.float32(3.0), t, loga, used, len(r))
+        robust_kernels.usable(np.array([0, len(r)]), np.array([0]), np.array([t]), r, w, want)
+        with np.errstate(all="ignore"):
+            x = np.float64(t) * r.astype(np.float64)
+            ref = np.log(np.maximum(image.astype(np.float64) - 3.0, 1e-6) / x)
+        np.testing.assert_array_equal(used, want)
+        np.testing.assert_array_equal(used, (w > 0) & (x > 0))
+        assert np.isfinite(loga[used]).all() and np.isnan(loga[~used]).all() and n_ok == used.sum()
+        ok = used & (x > 1e-30) & (x < 1e30)
+        assert np.all(np.abs(loga[ok] - ref[ok]) <= 3e-7 * np.maximum(1.0, np.abs(ref[ok])))
+
+
+def test_a_far_observation_is_compared_with_the_median_deviation_of_the_other_image():
+    """Image 1 has a dropout row: the window means of the rows around it are pulled beyond tau / 2, so its
+    deviations there are its window medians'.  At P image 0 is 0.29 above its neighbourhood and image 1 0.10 (0.27
+    from its window mean): against image 1's median deviation image 0 stands out (0.19 > tau = 0.15), against the
+    mean deviation it would not.  The kernel (which takes such a median only when a far observation asks for it)
+    flags what the NumPy form flags."""
+    from lunaralbedo.engine import robust_kernels, runs
+
+    rng = np.random.default_rng(8)
+    k, h, w = 2, 30, 40
+    loga = rng.normal(0, 0.01, (k, h, w))
+    loga[1, 15, :] -= 1.2
+    loga[1, 13, 20] += 0.1
+    loga[0, 13, 20] += 0.3
+    obs = {"pix": np.tile(np.arange(h * w, dtype=np.int32), k), "index": np.arange(k, dtype=np.int32),
+           "start": np.array([0, h * w, 2 * h * w], np.int64), "image": np.exp(loga.reshape(-1))}
+    block = runs.chunk_runs(obs, h * w, ["image"], 64)
+    ones, used = np.ones(len(block["image"]), np.float32), np.empty(len(block["image"]), bool)
+    got = robust_kernels.spatial_test(block, w, np.zeros(k), np.ones(k), ones, ones, used)
+
+    img, pix = runs.observation_images(block), runs.observation_pixels(block)
+    e, tau = np.full(len(pix), np.nan), np.zeros(len(pix))
+    for i in range(k):
+        at = np.flatnonzero(img == i)
+        e[at], tau[at] = outliers.neighbourhood_deviation(np.log(block["image"][at]).reshape(h, w), pix[at] // w, pix[at] % w)
+    want = outliers.spatial_outliers(e, pix, tau)
+    at_p = np.flatnonzero(pix == 13 * w + 20)
+    assert want[at_p].tolist() == [True, False] and 0.05 < e[at_p[1]] < 0.15 < e[at_p[0]] - e[at_p[1]]
+    assert want[(img == 1) & (pix // w == 15)].all()  # the dropout row
+    np.testing.assert_array_equal(got, want)

@@ -14,8 +14,8 @@ are consecutive), hence each image's count :math:`n_k` of observations the loss 
 (2) each pixel's albedo (float64 sums in the runs' order, as ``np.bincount`` adds them), the
 residuals (written into the output) and an evenly spaced sample of each image's residuals in the
 runs' order -- every :math:`\lceil n_k / S \rceil`-th, :math:`S` =
-:data:`.robust_kernels.SCALE_SAMPLE`, so at most :math:`S` values, and the same of all of them for
-the pooled scale; (3) each image's scale from its sample (:func:`.robust_kernels._mad_sigma`, as
+:data:`.window_kernels.SCALE_SAMPLE`, so at most :math:`S` values, and the same of all of them for
+the pooled scale; (3) each image's scale from its sample (:func:`.window_kernels.mad_sigma`, as
 the spatial test takes its threshold) and the factors.  The sample is the one change against the
 full medians: an image with at most :math:`S` residuals in a block gets its exact MAD; above, the
 scale's relative standard error is ~1.3 % (Gaussian residuals), which moves a Cauchy factor
@@ -28,7 +28,7 @@ import numpy as np
 from numba import njit
 
 from ..model import outliers
-from . import robust_kernels
+from . import robust_kernels, window_kernels
 
 
 @njit(cache=True, nogil=True)
@@ -164,7 +164,7 @@ def loss_factors(chunks, run_start, run_pixel, run_image, n_img, image, haze, te
     total = n_k.sum()
     if total < min_obs:
         return total
-    big = robust_kernels.SCALE_SAMPLE
+    big = window_kernels.SCALE_SAMPLE
     step = np.empty(n_img + 1, np.int64)  # every step-th residual of each image, and of all (the pooled scale)
     off = np.zeros(n_img + 2, np.int64)  # their samples at off[i]:off[i + 1]
     for i in range(n_img + 1):
@@ -173,10 +173,10 @@ def loss_factors(chunks, run_start, run_pixel, run_image, n_img, image, haze, te
         off[i + 1] = off[i] + (n + step[i] - 1) // step[i]
     got = _residuals(chunks, run_start, run_pixel, run_image, image, haze, texp, r, w_prev, keep, least, m, sample,
                      off, step, cnt, np.empty(span), np.empty(span))
-    pooled = robust_kernels._mad_sigma(sample[off[n_img]:], got[n_img])
+    pooled = window_kernels.mad_sigma(sample[off[n_img]:], got[n_img])
     scale = np.empty(n_img)
     for i in range(n_img):
-        scale[i] = robust_kernels._mad_sigma(sample[off[i]:], got[i]) if n_k[i] >= min_obs else pooled
+        scale[i] = window_kernels.mad_sigma(sample[off[i]:], got[i]) if n_k[i] >= min_obs else pooled
     _factors(chunks, run_start, run_pixel, run_image, keep, least, scale, code, k, m, cnt)
     return total
 
@@ -185,7 +185,7 @@ def block_loss_factors(arrays: dict, haze, texp, r, keep, w_prev, loss: str, thr
     """:func:`loss_factors` of a block (``arrays``: its runs, values and weights; ``out``: float64, one per observation,
     e.g. scratch no longer needed).  Returns ``(m, n)``: the factors (``out``; empty: 1 everywhere, the loss applies
     to fewer than :data:`~lunaralbedo.model.outliers.MIN_SCALE_OBS` observations) and the observations it applies to."""
-    sample = robust_kernels.workspace("loss_sample", (len(arrays["index"]) + 1) * robust_kernels.SCALE_SAMPLE)
+    sample = robust_kernels.workspace("loss_sample", (len(arrays["index"]) + 1) * window_kernels.SCALE_SAMPLE)
     n = loss_factors(np.asarray(arrays["chunks"], np.int64), np.asarray(arrays["run_start"], np.int64),
                      np.asarray(arrays["run_pixel"], np.int64), np.asarray(arrays["run_image"], np.int64),
                      len(arrays["index"]), arrays["image"], np.asarray(haze, np.float32), np.asarray(texp, np.float32),

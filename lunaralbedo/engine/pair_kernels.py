@@ -3,14 +3,25 @@ initialised again without the outliers (:func:`lunaralbedo.model.exposure_init.o
 
 For every pair of images :math:`(a, b)` sharing pixels where both observations are kept and both signals
 :math:`I - H` are positive: the count :math:`n_{ab}` and :math:`\sum (\log a_a - \log a_b)` of the single-image log
-albedos :math:`\log a = \log((I - H)/(T R))` the reweight pass has already computed
-(:func:`.robust_kernels.log_albedo`).  Two runs of different images in one chunk share the pixels where their
+albedos :math:`\log a = \log((I - H)/(T R))` (float32, :func:`log_albedo`, the spatial test's own
+:func:`.robust_kernels._log_run`; a vectorised pass over the block, in the first reweight pass only).  Two runs of different images in one chunk share the pixels where their
 ranges meet (:func:`.haze_kernels.chunk_pairs` walks them alike); the sums run chunk by chunk, pixel by pixel, in
 float64: one order fixed by the data, the same for any number of workers.  ``cache=True``, no fastmath.
 """
 from __future__ import annotations
 
+import numpy as np
 from numba import njit
+
+from .robust_kernels import _log_run
+
+
+@njit(cache=True, nogil=True)
+def log_albedo(run_start, run_image, image, haze, texp, r, w, loga, used):
+    """Every observation's single-image log albedo (float32, :func:`.robust_kernels._log_run`; NaN where not used)."""
+    for q in range(run_start.shape[0] - 1):
+        a, b, k = run_start[q], run_start[q + 1], run_image[q]
+        _log_run(image[a:b], r[a:b], w[a:b], np.float32(haze[k]), np.float32(texp[k]), loga[a:b], used[a:b], b - a)
 
 
 @njit(cache=True, nogil=True)
@@ -38,6 +49,6 @@ def kept_pair_sums(chunks, run_start, run_pixel, run_image, image, haze, loga, k
                     ia, ib = oa + p - pa, ob + p - pb
                     if keep[ia] and keep[ib] and image[ia] - ha > 0 and image[ib] - hb > 0:
                         n += 1.0
-                        s += loga[ia] - loga[ib]
+                        s += np.float64(loga[ia]) - np.float64(loga[ib])
                 count[lo, hi] += n
                 total[lo, hi] += sign * s

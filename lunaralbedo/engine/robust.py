@@ -87,14 +87,18 @@ def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, 
     return {"index": idx, "counts": counts, "loss_observations": loss_obs, "pairs": sorted(totals.items())}
 
 
-def _kept_pairs(arrays: dict, state: SolveState, texp, loga, keep) -> dict:
+def _kept_pairs(arrays: dict, state: SolveState, texp, r, w_lit, keep) -> dict:
     """Overlap log-ratio sums ``{(j, k): (n, sum d)}`` of a block's kept observations with a positive signal
     (:mod:`.pair_kernels`), ``d = log((I - H)/R)`` of ``j`` less that of ``k`` (the single-image log albedos'
     difference plus ``log T_j - log T_k``)."""
-    n_img = len(arrays["index"])
+    n_img, n_obs = len(arrays["index"]), len(keep)
+    haze = state.haze_of(arrays["index"])
+    loga = robust_kernels.workspace("pairs", n_obs // 2 + 1).view(np.float32)[:n_obs]
+    pair_kernels.log_albedo(arrays["run_start"], arrays["run_image"], arrays["image"], haze, texp, r, w_lit, loga,
+                            np.empty(n_obs, bool))
     count, total = np.zeros((n_img, n_img)), np.zeros((n_img, n_img))
     pair_kernels.kept_pair_sums(arrays["chunks"], arrays["run_start"], arrays["run_pixel"], arrays["run_image"],
-                                arrays["image"], state.haze_of(arrays["index"]), loga, keep, count, total)
+                                arrays["image"], haze, loga, keep, count, total)
     log_t = np.log(np.asarray(texp, np.float64))
     index = np.asarray(arrays["index"]).tolist()
     out = {}
@@ -113,19 +117,17 @@ def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndar
     base = np.asarray(arrays["weight"], np.float32)
     r, w_lit, texp = tile_model(scene, arrays, state)
     n_obs, n_img = len(base), len(arrays["index"])
-    loga, used = robust_kernels.workspace("loga", n_obs)[:n_obs], np.empty(n_obs, bool)
-    robust_kernels.log_albedo(arrays["run_start"], arrays["run_image"], arrays["image"], state.haze_of(arrays["index"]),
-                              texp, r, np.asarray(w_lit, np.float32), loga, used)
-    flag = np.zeros(n_obs, bool)
-    if s.reject_outliers and state.robust:  # the spatial test ran in the first pass: its rejections stay
-        flag = used & (np.asarray(w_prev) == 0) & (base > 0)
-    elif s.reject_outliers:
-        flag = robust_kernels.spatial_test(arrays, loga, width)
+    used, w_lit = np.empty(n_obs, bool), np.asarray(w_lit, np.float32)
+    if s.reject_outliers and not state.robust:  # the spatial test, in the first pass
+        flag = robust_kernels.spatial_test(arrays, width, state.haze_of(arrays["index"]), texp, r, w_lit, used)
+    else:  # later passes keep the first pass's rejections
+        robust_kernels.usable(arrays["run_start"], arrays["run_image"], texp, r, w_lit, used)
+        flag = used & (np.asarray(w_prev) == 0) & (base > 0) if s.reject_outliers else np.zeros(n_obs, bool)
     keep = used & ~flag
-    kept = _kept_pairs(arrays, state, texp, loga, keep) if pairs else None  # before the loss reuses loga's memory
+    kept = _kept_pairs(arrays, state, texp, r, w_lit, keep) if pairs else None
     m, n_loss = np.ones(0), 0  # m: the robust loss's factors (none: 1)
     if s.robust_loss != "none":
-        m, n_loss = _loss_factors(arrays, state, r, texp, keep, w_prev, s, loga)  # loga: no longer needed
+        m, n_loss = _loss_factors(arrays, state, r, texp, keep, w_prev, s, robust_kernels.workspace("loss", n_obs)[:n_obs])
     w_new, counts = robust_kernels.workspace("weights", n_obs).view(np.float32)[:n_obs], np.zeros((3, n_img))
     robust_kernels.finish(arrays["run_start"], arrays["run_image"], base, used, flag, keep, m, w_new, counts)
     return w_new, counts, n_loss, kept
