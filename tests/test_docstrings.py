@@ -83,3 +83,21 @@ def test_the_check_fails_on_an_undocumented_parameter(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(tmp_path))
     codes = {code for code, _ in _errors("docstring_probe.fn")}
     assert {"PR01", "PR02"} <= codes
+
+
+def test_no_source_file_has_an_invalid_escape():
+    r"""A docstring with LaTeX in a plain string loses characters: ``"\top"`` is a tab and ``op``.  Every module
+    of the package, the tests, tools and benchmarks compiles without an escape warning (raw strings, ``r\"\"\"``)."""
+    import warnings
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    bad = []
+    for path in sorted(p for d in ("lunaralbedo", "tests", "tools", "benchmarks") for p in (root / d).rglob("*.py")):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            try:
+                compile(path.read_text(), str(path), "exec")
+            except (SyntaxError, SyntaxWarning, DeprecationWarning) as e:
+                bad.append(f"{path.relative_to(root)}: {e}")
+    assert not bad, bad

@@ -125,6 +125,24 @@ def test_joint_step_solves_a_linear_problem_in_one_step():
     assert h == pytest.approx([0.5, -0.3], rel=1e-4)
 
 
+def test_the_haze_is_held_once_it_has_settled(tmp_path, monkeypatch):
+    """The joint step's sums cost about a features-off pass: a solve takes joint steps only until the error they
+    leave is estimated below 0.1 of the noise (model/haze.py ``settled``) and holds the haze after.  Against a
+    solve that takes the joint step in every pass (``SETTLED = 0``), which the tests above check against the
+    truth: the same haze within that 0.1 DN (1 DN of noise), the same exposures, in a few joint passes."""
+    d = tmp_path / "scene"
+    render_scene(d, SceneSpec(haze_dn=(5.0, 15.0), seed=7))
+    s = _with(d / "settings.txt", d / "haze.txt", FLOAT_HAZE=1, REJECT_OUTLIERS=0, ROBUST_LOSS="none")
+    held = solve(s, out=tmp_path / "held", workers=1, plots=False, tolerance=0.0, max_iter=6)
+    monkeypatch.setattr(haze, "SETTLED", 0.0)
+    every = solve(s, out=tmp_path / "every", workers=1, plots=False, tolerance=0.0, max_iter=6)
+    assert held.report["haze_joint_passes"] == 2 and every.report["haze_joint_passes"] == 6
+    got, want = _haze(tmp_path / "held"), _haze(tmp_path / "every")
+    assert max(abs(got[k] - want[k]) for k in want) <= 0.1, (got, want)
+    assert np.allclose(held.exposure, every.exposure, rtol=2e-4), (held.exposure, every.exposure)
+    assert held.report["haze_sigma"] == pytest.approx(every.report["haze_sigma"], rel=0.02)
+
+
 def test_resume_after_an_interrupted_pass_gives_the_same_bytes(tmp_path, monkeypatch):
     """The checkpoint holds the haze and the robust weights' generation: a run stopped in its third pass
     (after the reweight pass) and resumed writes the bytes of an uninterrupted run."""

@@ -46,13 +46,13 @@ def _compact(wt, **arrays):
 
 
 def _run(pm, kind, layers, params, t, n_par, shadow=kernels.NO_SHADOW_TEST, ratio=None, thresh=0.0, alpha=None,
-         haze=None, base=None):
+         haze=None, base=None, joint=True):
     k = len(t)
     n_cols = n_par + 1 if n_par else 0
     en, ed, jtj, jtr = np.zeros(k), np.zeros(k), np.zeros((n_cols, n_cols)), np.zeros(n_cols)
     alb = np.full(pm["npix"], np.nan, np.float32)
     empty = pm["image"][:0]
-    n_h = k if haze is not None else 0
+    n_h = k if haze is not None and joint else 0
     hg, hs, hrss = np.zeros(2 * n_h), np.zeros((2 * n_h, 2 * n_h)), np.zeros(3)
     q, n_obs, amin, amax = kernels.iterate_runs(
         kind, pm["chunks"], pm["run_start"], pm["run_pixel"], pm["run_image"], pm["image"], pm["weight"], *layers,
@@ -179,6 +179,11 @@ def test_fused_haze_sums_equal_the_numpy_formulas(chunk_px):
     np.testing.assert_allclose(got["hs"], s, rtol=1e-10, atol=1e-12 * np.abs(s).max())
     np.testing.assert_array_equal(got["hs"], got["hs"].T)
     np.testing.assert_allclose(got["hrss"], rss, rtol=1e-12)
+    # once the haze has settled it is held: taken off the values the same way, no joint step's sums
+    held = _run(pm, 0, (pm["r"], pm["r"], pm["r"]), (), t, 0, haze=haze, base=pm["base"], joint=False)
+    for name in ("alb", "q", "n_obs", "en", "ed"):
+        np.testing.assert_array_equal(held[name], got[name])
+    assert held["hg"].size == 0 and held["hs"].size == 0
 
 
 def test_dynamic_shadow_test_is_dynamic_lit():

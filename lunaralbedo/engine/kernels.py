@@ -265,7 +265,7 @@ def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1
     ``haze`` (float32 per local image; size 0: no haze, FLOAT_HAZE 0): every sum is of the values
     less their image's haze, and the joint exposure-haze step's gradient, reduced normal matrix and
     residual sums (:mod:`.haze_kernels`) are added to ``hg`` (2 per image), ``hs`` (square) and
-    ``hrss`` (3) in the same sweep, with noise weights: the robust factor ``w / base`` (``base``:
+    ``hrss`` (3) in the same sweep (``hg`` of size 0: the haze is only taken off), with noise weights: the robust factor ``w / base`` (``base``:
     the cached weights when ``w`` are robust ones, else size 0) where eq. 1's weight is not 0.
 
     A chunk's loops are flat over its observations where they need no pixel (R and dR/dp, whose
@@ -300,11 +300,12 @@ def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1
     expl = np.zeros(2 * nimg * EXP_LANES)
     want_alb = alb.shape[0] > 0
     with_haze, robust = haze.shape[0] > 0, base.shape[0] > 0
+    joint = with_haze and hg.shape[0] > 0  # the joint step's sums too (else the haze is only taken off)
     V, N = buf[_V * stride:(_V + 1) * stride], buf[_N * stride:(_N + 1) * stride]
-    hpx, hobs = (most_px, stride) if with_haze else (0, 0)
+    hpx, hobs = (most_px, stride) if joint else (0, 0)
     CP, CN, AH, IC = np.empty(hpx), np.empty(hpx), np.empty(hpx), np.empty(hpx)  # the haze step's per-pixel sums
     HH, HE = np.empty(hobs), np.empty(hobs)  # each observation's entries of b_p
-    hlanes = np.zeros((nimg if with_haze else 0, hk.N_HAZE_SUMS * hk.HAZE_LANES))
+    hlanes = np.zeros((nimg if joint else 0, hk.N_HAZE_SUMS * hk.HAZE_LANES))
     pacc = np.empty(4 + 4 * hk.PAIR_LANES)
     want_alpha = alpha.shape[0] > 0
     shadow_on = shadow != NO_SHADOW_TEST
@@ -356,7 +357,7 @@ def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1
             _normal_lanes(A, T, R, Wc, D0, D1, img, acc, n, n_par)
         else:
             _cost_lanes(A, T, R, Wc, img, acc, n)
-        if with_haze:
+        if joint:
             hk.haze_chunk(run_start, run_pixel, run_image, r0, r1, s0, lo, nsp, spans, img, R, Wc, wgt, base[s0:s1] if robust else base,
                         robust, texp, N, CP, CN, AH, IC, HH, HE, hlanes, hs, pacc, hrss, n)
     sums = np.zeros(N_SUMS)
@@ -376,7 +377,7 @@ def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1
             jtr[m] = sums[1 + m]
             for i in range(n_cols):
                 jtj[m, i] = nrm[m, i]
-    if with_haze:
+    if joint:
         hk.add_lanes(hlanes, hg, hs, hrss)
     amin, amax = _key_range(kmin, kmax)
     return sums[0], n_obs, amin, amax

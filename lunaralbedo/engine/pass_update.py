@@ -37,13 +37,13 @@ def update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref:
     """One update of exposures (eq. 4) and parameters (eq. 5); ``fixed``: the exposures are known (kept);
     ``prior``: the relative sigma of a Gaussian prior around ``t_ref`` (:mod:`lunaralbedo.model.exposure_prior`)."""
     h = state.haze
-    if h is not None:  # FLOAT_HAZE: one joint (T, H) step with the albedo eliminated (model/haze.py)
+    if h is not None and sums.haze_parts:  # FLOAT_HAZE: one joint (T, H) step with the albedo eliminated (model/haze.py)
         g, mat = haze.assemble(len(state.exposure), sums.haze_parts)
         mode = "fixed" if fixed else ("prior" if prior is not None else "solve")
         t, h = haze.joint_step(state.exposure, h, g, mat, mode, t0=t_ref,
                                prior_weight=exposure_prior.prior_weight(t_ref, prior) if prior is not None else None,
                                noise_var=max(sums.q / sums.n_obs, 1e-12) if sums.n_obs else 1.0)
-    elif fixed:
+    elif fixed:  # (with FLOAT_HAZE, once the haze has settled, it is held: eq. 4 on I - H)
         t = state.exposure
     elif prior is not None:
         t = exposure_prior.exposure_update_prior(state.exposure, sums.exp_num, sums.exp_den, t_ref, prior, sums.q, sums.n_obs)
@@ -58,12 +58,28 @@ def update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref:
     if method != "seed" and not fixed and prior is None:
         # A*T leaves one global scale free: pin the geometric mean of T to the initial one.
         t = t * np.exp(np.mean(np.log(t_ref)) - np.mean(np.log(t)))
-    return SolveState(np.asarray(t, dtype=np.float64), np.asarray(c, dtype=np.float64), robust=state.robust, haze=h)
+    return SolveState(np.asarray(t, dtype=np.float64), np.asarray(c, dtype=np.float64), robust=state.robust, haze=h,
+                      haze_joint=state.haze_joint)
 
 
-def haze_sigma(state: SolveState, mat, sums: updates.PassSums, fixed: bool, mode: str, t_ref, prior) -> list:
-    """Each image's haze standard error (:func:`lunaralbedo.model.haze.standard_errors`; None: no data)."""
-    how = "fixed" if fixed else ("prior" if mode == "prior" else "solve")
-    w = exposure_prior.prior_weight(t_ref, prior) if how == "prior" else None
-    sig = haze.standard_errors(state.exposure, mat, sums.haze_rss, how, prior_weight=w)
-    return [None if not np.isfinite(v) else float(v) for v in sig]
+def haze_step_taken(ck: dict, keys: list, before: SolveState, state: SolveState, sums: updates.PassSums, last: bool,
+                    fixed: bool, mode: str, t_ref, prior) -> None:
+    """After a pass that took the joint exposure-haze step (``before`` -> ``state``): whether the haze has settled
+    (:func:`lunaralbedo.model.haze.settled`; then it is held from the next pass on, ``state.haze_joint``), the
+    images whose haze and exposure cannot be told apart and, at the last joint step, each image's haze standard
+    error (None: no data), into the checkpoint ``ck``."""
+    g, mat = haze.assemble(len(keys), sums.haze_parts)
+    step = float(np.max(np.abs(state.haze - before.haze), initial=0.0))
+    settled = haze.settled(step, ck.get("haze_step"), sums.haze_rss)
+    ck.update(haze_step=step, haze_joint=not settled, haze_joint_passes=ck.get("haze_joint_passes", 0) + 1)
+    state.haze_joint = not settled
+    ck["haze_inseparable"] = [keys[k] for k in haze.inseparable(mat)]
+    if settled or last:
+        # the noise from the residuals after the step: less the Gauss-Newton decrease g . delta
+        delta = np.ravel(np.column_stack([state.exposure - before.exposure, state.haze - before.haze]))
+        rss = np.array(sums.haze_rss, np.float64)
+        rss[0] = max(rss[0] - max(float(g @ delta), 0.0), 0.0)
+        how = "fixed" if fixed else ("prior" if mode == "prior" else "solve")
+        w = exposure_prior.prior_weight(t_ref, prior) if how == "prior" else None
+        sig = haze.standard_errors(state.exposure, mat, rss, how, prior_weight=w)
+        ck["haze_sigma"] = [None if not np.isfinite(v) else float(v) for v in sig]

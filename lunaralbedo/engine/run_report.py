@@ -101,6 +101,7 @@ def write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timin
         "haze": None if state.haze is None else dict(zip(keys, state.haze.tolist())),
         "haze_inseparable": ck.get("haze_inseparable", []),
         "haze_sigma": dict(zip(keys, ck["haze_sigma"])) if ck.get("haze_sigma") else None,
+        "haze_joint_passes": ck.get("haze_joint_passes") if state.haze is not None else None,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
         "observations": costs,
         **(extra or {}),

@@ -28,7 +28,6 @@ from ..errors import ResumeError, SettingsError, SolverError, typed_error
 from ..io import outputs
 from ..io.atomic import remove_stale_temporaries, remove_tree
 from ..io.guard import check_output_dir
-from ..model import haze
 from ..settings import Settings, load_settings
 from ..parallel import local_workers, make_executor
 from ..parallel.progress import ROWS
@@ -44,7 +43,7 @@ from .run_report import (CACHE_DIR, CHECKPOINT_DIR, MARKER, OUTPUT_DIRS, REFINE_
 from .scene import Scene, build_scene
 from .prepare import WRITER, prepare_tile
 from . import robust
-from .pass_update import haze_sigma, reduce_init, reduce_iteration, update
+from .pass_update import haze_step_taken, reduce_init, reduce_iteration, update
 from .tilework import SolveState, finalize_tile, iterate_tile
 
 #: Modules local workers import as they start (the tile tasks' own, with NumPy, numba, rasterio).
@@ -100,7 +99,7 @@ def solve(
     runtime: Runtime | None = None,
     warn=None,
 ) -> SolveResult:
-    """Solve for the albedo, the exposures and the photometric model's parameters.
+    r"""Solve for the albedo, the exposures and the photometric model's parameters.
 
     Minimises the cost of eq. 1 of the PhotometryTK manual (section 7), :math:`Q = \sum_k \sum_{ij}
     (I^k_{ij} - T^k A_{ij} R^k_{ij} - H^k)^2 S^k_{ij} w^k_{ij}`, by the albedo update of eqs. 3/6, the
@@ -281,7 +280,8 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
         }
         outputs.write_json(out / STATE_FILE, ck)
     state = SolveState(np.array(ck["exposure"]), np.array(ck["params"], dtype=np.float64), robust=ck["robust"],
-                       haze=None if ck.get("haze") is None else np.array(ck["haze"], np.float64))
+                       haze=None if ck.get("haze") is None else np.array(ck["haze"], np.float64),
+                       haze_joint=ck.get("haze_joint", True))
     resume_info = {"tiles_prepared_before": sum(bool(m.get("reused")) for m in metas), "iterations_done_before": ck["iteration"]}
     n_obs = sum(int(m["observations"]) for m in metas) if all("observations" in m for m in metas) else None
     t2 = time.perf_counter()
@@ -292,6 +292,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
         if gen < len(reweights) and (ck["iteration"] >= reweights[gen] or ck.get("reweight_now")):
             t_rw = time.perf_counter()  # part of the iterate stage; also reported on its own
             state = robust.reweight_pass(on_tiles, _threads(executor), scene, state, ck, method == "overlap" and t_given is None)
+            ck.update(haze_joint=True, haze_step=None)  # new weights: the haze settles again
             timings["reweight"] = timings.get("reweight", 0.0) + time.perf_counter() - t_rw
             outputs.write_json(out / STATE_FILE, ck)
             robust.drop_generation(cache, gen)
@@ -306,17 +307,16 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
         reweights = robust.passes(s, ck)
         if converged and ck["robust"] < len(reweights):  # settled before the last reweight: reweight now, go on
             converged, ck["reweight_now"] = False, True
+        before = state
         if not converged:
             state = update(state, sums, method, scene.model, t_ref, fixed=t_known is not None,
                             prior=s.exposure_prior_sigma if mode == "prior" else None)
             ck["params_history"].append(state.params.tolist())
+        if sums.haze_parts:  # a joint step: held from the next pass on once it has settled
+            haze_step_taken(ck, scene.keys, before, state, sums, converged or ck["iteration"] + 1 >= max_iter,
+                            t_known is not None, mode, t_ref, s.exposure_prior_sigma)
         ck.update(iteration=ck["iteration"] + 1, exposure=state.exposure.tolist(), params=state.params.tolist(), done=converged,
                   haze=None if state.haze is None else state.haze.tolist())
-        if sums.haze_parts:
-            mat = haze.assemble(len(scene.images), sums.haze_parts)[1]
-            ck["haze_inseparable"] = [scene.keys[k] for k in haze.inseparable(mat)]
-            if converged or ck["iteration"] >= max_iter:  # the last pass: the haze's standard errors at the solution
-                ck["haze_sigma"] = haze_sigma(state, mat, sums, t_known is not None, mode, t_ref, s.exposure_prior_sigma)
         outputs.write_json(out / STATE_FILE, ck)
     timings["iterate"] = time.perf_counter() - t2
     t3 = time.perf_counter()

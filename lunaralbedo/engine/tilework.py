@@ -48,6 +48,7 @@ class SolveState:
     params: np.ndarray  # (P,) fitted parameters of the photometric model (Lunar-Lambert: c1, c2)
     robust: int = 0  # generation of the robust weights (:mod:`.robust`; 0: the cached weights as they are)
     haze: np.ndarray | None = None  # (K,) additive haze per image, DRG units (FLOAT_HAZE 1; None: no haze)
+    haze_joint: bool = True  # the pass sums the joint exposure-haze step's terms (False: the haze is held)
 
     def haze_of(self, index) -> np.ndarray:
         """The haze of the images ``index`` (float32; zeros without haze)."""
@@ -236,8 +237,9 @@ def iterate_block(arrays: dict, s, model, state: SolveState, phase: bool, out: u
     alb = np.full(runs.pixel_extent(arrays) if n_par > 2 else 0, np.nan, np.float32)
     jtj, jtr = np.zeros((n_cols, n_cols)), np.zeros(n_cols)
     # FLOAT_HAZE 1: the kernel takes each image's haze off and adds the joint (T, H) step's sums in the same sweep
-    n_h = len(arrays["index"]) if state.haze is not None else 0
-    haze = state.haze_of(arrays["index"]) if n_h else np.empty(0, np.float32)
+    # (only while the haze settles, :func:`lunaralbedo.engine.pass_update.haze_settled`; after, it is held and taken off)
+    haze = state.haze_of(arrays["index"]) if state.haze is not None else np.empty(0, np.float32)
+    n_h = len(haze) if state.haze_joint else 0
     base = arrays.get("cached_weight", arrays["weight"][:0]) if n_h else arrays["weight"][:0]  # for the robust factor
     hg, hs, hrss = np.zeros(2 * n_h), np.zeros((2 * n_h, 2 * n_h)), np.zeros(3)
     q, n_obs, amin, amax = kernels.iterate_runs(

@@ -37,6 +37,28 @@ DAMPING = 1e-6
 SEPARATION_MIN = 1e-3
 #: Largest relative change of an exposure in one step (the step is shortened to it).
 MAX_EXPOSURE_STEP = 0.25
+#: The haze has settled when the error left after a joint step, estimated from the last two steps, is
+#: below this fraction of the noise's standard deviation per observation (:func:`settled`).
+SETTLED = 0.1
+
+
+def settled(step: float, previous: float | None, rss) -> bool:
+    r"""True when the joint steps can stop and the haze be held (the exposures go on with eq. 4).
+
+    ``step``, ``previous``: the largest change of any image's haze in the last and the one before (None:
+    none before); ``rss``: the pass's noise-weighted squared residuals, observations and pixels
+    (:func:`standard_errors`).  The steps contract by :math:`\rho = s_n / s_{n-1}` (Gauss-Newton near
+    its solution), so the error left is about :math:`\rho\,s_n = s_n^2 / s_{n-1}`; settled when that is
+    at most :data:`SETTLED` :math:`\sigma_n`, :math:`\sigma_n^2 = \mathrm{rss}/(n_{obs} - n_{pix})`, and
+    the steps do contract (:math:`\rho < 1/2`).
+    """
+    if previous is None or not previous > 0:
+        return step == 0.0
+    dof = float(rss[1]) - float(rss[2])
+    if not dof > 0:
+        return False
+    noise = np.sqrt(max(float(rss[0]), 0.0) / dof)
+    return step <= 0.5 * previous and step * step / previous <= SETTLED * noise
 
 
 def assemble(n_images: int, parts) -> tuple[np.ndarray, "object"]:

@@ -70,7 +70,7 @@ class ImageObs:
 
 
 def albedo(obs: list[ImageObs], exposure: np.ndarray, n_grid: int) -> np.ndarray:
-    """Eq. 3 on the grid: :math:`A_g = \\sum_k w I T R / \\sum_k w (T R)^2` (float64; NaN where no image)."""
+    r"""Eq. 3 on the grid: :math:`A_g = \\sum_k w I T R / \\sum_k w (T R)^2` (float64; NaN where no image)."""
     num, den = np.zeros(n_grid), np.zeros(n_grid)
     for t, o in zip(exposure, obs):
         nk, dk = albedo_terms(o.value.astype(np.float64), t * o.r.astype(np.float64), o.w.astype(np.float64))
@@ -81,7 +81,7 @@ def albedo(obs: list[ImageObs], exposure: np.ndarray, n_grid: int) -> np.ndarray
 
 
 def exposures(obs: list[ImageObs], a: np.ndarray, old: np.ndarray) -> np.ndarray:
-    """Eq. 4 with the albedo fixed: :math:`T_k = \\sum w A R I / \\sum w (A R)^2` (``old`` where no observation)."""
+    r"""Eq. 4 with the albedo fixed: :math:`T_k = \\sum w A R I / \\sum w (A R)^2` (``old`` where no observation)."""
     out = np.array(old, dtype=np.float64)
     for k, o in enumerate(obs):
         ar = np.nan_to_num(a[o.pix]) * o.r
@@ -102,12 +102,12 @@ def cost(obs: list[ImageObs], exposure: np.ndarray, a: np.ndarray) -> tuple[floa
 
 
 def _normalised(o: ImageObs, t: float, a: np.ndarray, scale: float) -> np.ndarray:
-    """:math:`\sqrt{w}\,r/\sigma` of one image's observations."""
+    r""":math:`\sqrt{w}\,r/\sigma` of one image's observations."""
     return np.sqrt(o.w) * (o.value - t * np.nan_to_num(a[o.pix]) * o.r) / scale
 
 
 def residual_scales(obs: list[ImageObs], exposure: np.ndarray, a: np.ndarray, n_grid: int) -> np.ndarray:
-    """Per image the robust standard deviation (:func:`.outliers.robust_sigma`) of :math:`\sqrt{w}\,r` over its
+    r"""Per image the robust standard deviation (:func:`.outliers.robust_sigma`) of :math:`\sqrt{w}\,r` over its
     observations of pixels another image sees too (where one image alone sees a pixel its residual is 0); 1 where
     there are none."""
     seen = np.zeros(n_grid)
@@ -122,7 +122,7 @@ def residual_scales(obs: list[ImageObs], exposure: np.ndarray, a: np.ndarray, n_
 
 
 def reweighted(obs: list[ImageObs], exposure: np.ndarray, a: np.ndarray, scales, loss: str, k: float) -> list[ImageObs]:
-    """The observations with their weights (and the weights' derivatives) times the IRLS factors of ``loss``
+    r"""The observations with their weights (and the weights' derivatives) times the IRLS factors of ``loss``
     (:func:`.outliers.loss_weights` of :math:`\sqrt{w}\,r/\sigma_k`); the same list for ``none``."""
     if loss == "none":
         return obs
@@ -142,7 +142,7 @@ def robust_albedo(obs: list[ImageObs], exposure: np.ndarray, n_grid: int, scales
 
 
 def robust_cost(obs: list[ImageObs], exposure: np.ndarray, a: np.ndarray, scales, loss: str, k: float) -> tuple[float, int]:
-    """``(Q, observations)`` of the robust cost :math:`\sum_k \sigma_k^2 \sum 2\rho(\sqrt{w}\,r/\sigma_k)`
+    r"""``(Q, observations)`` of the robust cost :math:`\sum_k \sigma_k^2 \sum 2\rho(\sqrt{w}\,r/\sigma_k)`
     (:func:`.outliers.loss_rho`; :func:`cost` for ``none``)."""
     if loss == "none":
         return cost(obs, exposure, a)

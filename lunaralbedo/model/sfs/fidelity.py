@@ -48,7 +48,7 @@ class Fidelity:
         return float(np.sum(r * r)), g
 
     def diagonal(self, shape: tuple[int, int]) -> np.ndarray:
-        """The diagonal of :math:`S^\top S/\Delta^2` (the Gauss-Newton matrix of the term, its weight left out):
+        r"""The diagonal of :math:`S^\top S/\Delta^2` (the Gauss-Newton matrix of the term, its weight left out):
         :math:`\sum_q S_{qp}^2 = (G_2 (1/(G 1)^2))_p` with :math:`G_2` the convolution with the kernel squared."""
         if self.sigma_px <= 0:
             return np.full(shape, 1.0 / self.pixel_m**2)

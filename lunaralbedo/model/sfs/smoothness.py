@@ -43,12 +43,12 @@ class Smoothness:
         return float(np.sum(lap * lap)), laplacian_adjoint(2.0 * lap / self.pixel_m, h.shape)
 
     def diagonal(self, shape: tuple[int, int]) -> np.ndarray:
-        """The diagonal of :math:`L^\top L/\Delta^2` (the Gauss-Newton matrix of the term, its weight left out)."""
+        r"""The diagonal of :math:`L^\top L/\Delta^2` (the Gauss-Newton matrix of the term, its weight left out)."""
         return laplacian_adjoint_squares(shape) / self.pixel_m**2
 
 
 def laplacian_adjoint_squares(shape: tuple[int, int]) -> np.ndarray:
-    """:math:`\sum_q L_{qp}^2` per pixel ``p``: 16 for the centre of each stencil it is, 1 for each neighbour."""
+    r""":math:`\sum_q L_{qp}^2` per pixel ``p``: 16 for the centre of each stencil it is, 1 for each neighbour."""
     one = np.ones((shape[0] - 2, shape[1] - 2))
     g = np.zeros(shape)
     for sl in ((slice(2, None), slice(1, -1)), (slice(None, -2), slice(1, -1)), (slice(1, -1), slice(2, None)),
