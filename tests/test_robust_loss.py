@@ -154,28 +154,50 @@ def test_resume_after_the_loss_pass_gives_the_same_bytes(tmp_path, monkeypatch):
         assert files and all(p.read_bytes() == (tmp_path / "out" / sub / p.name).read_bytes() for p in files), sub
 
 
-def test_the_kept_overlaps_are_the_merge_of_the_kept_pixel_lists():
-    """The overlap sums for the exposures' new start, taken from the runs in the reweight pass (engine/pair_kernels.py),
-    against model/exposure_init.pair_sums over each image's kept pixels with a positive signal (its own merge)."""
+def test_the_kept_overlaps_are_the_prepare_steps_less_the_pairs_of_the_rejected():
+    """The overlap sums for the exposures' new start: the prepare step's (model/exposure_init.pair_sums over every
+    image's pixels with a value and R above 0) plus the negated pairs the rejected observations took part in
+    (engine/pair_kernels.py, walked from the rejected observations only) equal pair_sums over the kept pixels."""
     from lunaralbedo.engine import robust
-    from lunaralbedo.engine.tilework import SolveState
     from lunaralbedo.model import exposure_init
 
     rng = np.random.default_rng(5)
-    block, haze, texp, keep, _ = _block(rng, [(0, 40), (25, 70), (30, 55), (60, 96)], 48, 96)
-    block["image"][rng.random(len(keep)) < 0.01] = 0.5  # a few signals below their image's haze
+    block, _, _, keep, _ = _block(rng, [(0, 40), (25, 70), (30, 55), (60, 96)], 48, 96)
+    block["image"][rng.random(len(keep)) < 0.01] = -0.5  # a few values the prepare step does not use
     index = np.array([3, 0, 7, 5], np.int32)  # global ids, not in order
     block["index"] = index
-    state = SolveState(np.ones(8), np.zeros(0), haze=np.zeros(8))
-    state.haze[index] = haze
+    flag = ~keep & (block["weight"] > 0)  # the spatial test's rejections
     img, pix = runs.observation_images(block), runs.observation_pixels(block)
-    signal = block["image"].astype(np.float64) - haze[img].astype(np.float64)
-    r, w = block["r"].astype(np.float32), block["weight"].astype(np.float32)
-    got = robust._kept_pairs(block, state, texp, r, w, keep)
-    ok = keep & (signal > 0)
-    order = np.lexsort((pix, img))[ok[np.lexsort((pix, img))]]  # image-major, pixels ascending
-    start = np.searchsorted(img[order], np.arange(len(index) + 1))
-    want = exposure_init.pair_sums(pix[order], start, signal[order], block["r"][order].astype(np.float64), index)
-    assert set(got) == set(want) and len(want) >= 4
-    for key, (n, d) in want.items():
-        assert got[key][0] == n and got[key][1] == pytest.approx(d, rel=1e-5, abs=1e-5 * n), key  # float32 logs
+    r = block["r"].astype(np.float32)
+    prepared = (block["image"] > 0) & (r > 0)
+
+    def sums(use):
+        order = np.lexsort((pix, img))[use[np.lexsort((pix, img))]]  # image-major, pixels ascending
+        start = np.searchsorted(img[order], np.arange(len(index) + 1))
+        return exposure_init.pair_sums(pix[order], start, block["image"][order], r[order], index)
+
+    got = exposure_init.merge_pair_sums(dict(sums(prepared)), robust._removed_pairs(block, r, flag))
+    want = sums(prepared & ~flag)
+    assert flag.sum() > 50 and len(want) >= 4 and set(want) <= set(got)
+    for key, (n, d) in got.items():
+        wn, wd = want.get(key, (0, 0.0))
+        assert n == wn and d == pytest.approx(wd, rel=1e-6, abs=1e-7 * max(n, 1)), key  # float32 logs (numba, NumPy)
+
+
+def test_the_outliers_layer_from_the_runs_is_the_numpy_formula():
+    """finalise's ``outliers/`` rows (engine/finalise_kernels.lost_fraction_runs, from the runs) have the bits of
+    model/outliers.lost_fraction (NumPy bincounts over each observation's pixel): rejected, down-weighted, unweighted
+    observations and pixels no observation reaches."""
+    from lunaralbedo.engine.finalise_kernels import lost_fraction_runs
+    from lunaralbedo.model import outliers
+
+    rng = np.random.default_rng(8)
+    block, _, _, keep, _ = _block(rng, [(0, 40), (25, 70), (30, 55), (60, 96)], 48, 96)
+    base = block["weight"]
+    eff = (base * np.where(keep, rng.uniform(0.2, 1.0, len(base)), 0.0) ** (rng.random(len(base)) < 0.3)).astype(np.float32)
+    n_pix = 48 * 96
+    got = np.full(n_pix, np.nan, np.float32)
+    lost_fraction_runs(block["run_start"], block["run_pixel"], base, eff, np.empty(n_pix), np.empty(n_pix), got)
+    want = outliers.lost_fraction(base, eff, runs.observation_pixels(block), n_pix)
+    assert np.isnan(want).sum() > 10 and (want > 0).sum() > 100 and (want == 0).sum() > 100
+    np.testing.assert_array_equal(got, want)

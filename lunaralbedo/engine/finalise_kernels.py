@@ -97,3 +97,24 @@ def finalise_runs(chunks, run_start, run_pixel, run_image, image, texp, r, w, bl
                 if b > a:
                     _error_quotient(SN[a - lo:b - lo], blend[i, a - i * width - c0:b - i * width - c0], err[a:b], b - a)
                 p = (i + 1) * width
+
+
+@njit(cache=True, error_model="numpy")
+def lost_fraction_runs(run_start, run_pixel, base, effective, lost, count, out):
+    r"""The ``outliers/`` layer of a block from its runs: per pixel :math:`\sum (1 - m) / \#\{w > 0\}`, ``m`` the
+    effective weight over the cached one ``base`` (float32 ``out``; NaN where no observation has weight), the float64
+    sums ``lost`` and ``count`` (scratch, one per pixel) added in the runs' order, the order in which
+    :func:`lunaralbedo.model.outliers.lost_fraction` (its NumPy form) adds them: the same bits, without a pixel
+    number per observation."""
+    for j in range(out.shape[0]):
+        lost[j] = 0.0
+        count[j] = 0.0
+    for q in range(run_start.shape[0] - 1):
+        a, b, p = run_start[q], run_start[q + 1], run_pixel[q] - run_start[q]
+        for i in range(a, b):
+            w = np.float64(base[i])
+            if w > 0:
+                lost[p + i] += 1.0 - np.float64(effective[i]) / w
+                count[p + i] += 1.0
+    for j in range(out.shape[0]):
+        out[j] = lost[j] / count[j]

@@ -10,19 +10,25 @@ from .scene import Scene
 from .tilework import SolveState
 
 
+def prepare_pairs(metas: list[dict]) -> dict:
+    """The overlaps' log-ratio sums ``{(j, k): (n, sum d)}`` of the prepare step, merged in tile order."""
+    pairs: dict = {}
+    for meta in metas:  # fixed tile order
+        exposure_init.merge_pair_sums(pairs, {(j, k): (nn, d) for j, k, nn, d in meta["pairs"]})
+    return pairs
+
+
 def reduce_init(scene: Scene, metas: list[dict], method: str) -> np.ndarray:
     n = len(scene.images)
     r_sum, r_cnt = np.zeros(n), np.zeros(n)
-    pairs: dict = {}
     for meta in metas:  # fixed tile order
         idx = np.asarray(meta["index"], dtype=int)
         np.add.at(r_sum, idx, meta["r_sum"])
         np.add.at(r_cnt, idx, meta["r_count"])
-        exposure_init.merge_pair_sums(pairs, {(j, k): (nn, d) for j, k, nn, d in meta["pairs"]})
     t_seed = exposure_init.seed_exposure(scene.settings.tr_const, r_sum, r_cnt)
     if method == "seed":
         return t_seed
-    return exposure_init.overlap_exposure(pairs, np.log(t_seed))
+    return exposure_init.overlap_exposure(prepare_pairs(metas), np.log(t_seed))
 
 
 def reduce_iteration(n_images: int, n_params: int, parts) -> updates.PassSums:

@@ -64,8 +64,8 @@ def _blocks(t: int, scene: Scene, cache_root: Path):
 def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, gen: int, pairs: bool = False) -> dict:
     """Write generation ``gen`` of the effective weights of tile ``t``'s blocks; return per local image the
     counts of used, rejected and down-weighted (sum of 1 - m) observations, and with ``pairs`` the overlap
-    log-ratio sums of the observations kept (:func:`lunaralbedo.model.exposure_init.pair_sums`' form), for the
-    exposures to be initialised again without the outliers."""
+    log-ratio sums of the pairs the rejected observations took part in, negated (:func:`_removed_pairs`): added to
+    the prepare step's, the exposures can be initialised again without the outliers."""
     meta = load_meta(cache_dir(cache_root, scene, t))
     idx = np.asarray(meta["index"], np.int32)
     width = scene.tiles[t].width
@@ -75,10 +75,10 @@ def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, 
     totals: dict = {}
     for block, arrays in _blocks(t, scene, cache_root):
         w_prev = effective_weights(block, arrays, state.robust)
-        w_new, c, n_loss, kept = block_weights(arrays, scene, state, w_prev, width, pairs)
+        w_new, c, n_loss, removed = block_weights(arrays, scene, state, w_prev, width, pairs)
         loss_obs += n_loss
         if pairs:
-            exposure_init.merge_pair_sums(totals, kept)
+            exposure_init.merge_pair_sums(totals, removed)
         counts[:, [pos[k] for k in np.asarray(arrays["index"]).tolist()]] += c
         path = weights_path(block, gen)
         with atomic_path(path) as tmp:
@@ -87,32 +87,26 @@ def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, 
     return {"index": idx, "counts": counts, "loss_observations": loss_obs, "pairs": sorted(totals.items())}
 
 
-def _kept_pairs(arrays: dict, state: SolveState, texp, r, w_lit, keep) -> dict:
-    """Overlap log-ratio sums ``{(j, k): (n, sum d)}`` of a block's kept observations with a positive signal
-    (:mod:`.pair_kernels`), ``d = log((I - H)/R)`` of ``j`` less that of ``k`` (the single-image log albedos'
-    difference plus ``log T_j - log T_k``)."""
-    n_img, n_obs = len(arrays["index"]), len(keep)
-    haze = state.haze_of(arrays["index"])
-    loga = robust_kernels.workspace("pairs", n_obs // 2 + 1).view(np.float32)[:n_obs]
-    pair_kernels.log_albedo(arrays["run_start"], arrays["run_image"], arrays["image"], haze, texp, r, w_lit, loga,
-                            np.empty(n_obs, bool))
+def _removed_pairs(arrays: dict, r, flag) -> dict:
+    """The overlap log-ratio sums ``{(j, k): (-n, -sum d)}`` of the pairs the block's rejected observations took part
+    in (:func:`.pair_kernels.removed_pairs`), :func:`lunaralbedo.model.exposure_init.pair_sums`' form: added to the
+    prepare step's sums, those of the observations kept."""
+    n_img = len(arrays["index"])
     count, total = np.zeros((n_img, n_img)), np.zeros((n_img, n_img))
-    pair_kernels.kept_pair_sums(arrays["chunks"], arrays["run_start"], arrays["run_pixel"], arrays["run_image"],
-                                arrays["image"], haze, loga, keep, count, total)
-    log_t = np.log(np.asarray(texp, np.float64))
+    pair_kernels.removed_pairs(arrays["chunks"], arrays["run_start"], arrays["run_pixel"], arrays["run_image"],
+                               arrays["image"], np.asarray(r, np.float32), flag, count, total)
     index = np.asarray(arrays["index"]).tolist()
     out = {}
     for a, b in zip(*np.nonzero(count)):
-        n, j, k = int(count[a, b]), int(index[a]), int(index[b])
-        d = float(total[a, b]) + n * (log_t[a] - log_t[b])
-        out[(j, k) if j < k else (k, j)] = (n, d if j < k else -d)
+        n, j, k, d = int(count[a, b]), int(index[a]), int(index[b]), float(total[a, b])
+        out[(j, k) if j < k else (k, j)] = (-n, -d if j < k else d)
     return out
 
 
 def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndarray, width: int, pairs: bool = False):
     """The effective weights of one block (float32), its ``(3, local images)`` counts (used, rejected, down-weighted),
-    the observations the robust loss applies to and, with ``pairs``, the overlap sums of the kept observations
-    (:func:`_kept_pairs`; else None)."""
+    the observations the robust loss applies to and, with ``pairs``, the overlap sums the rejected observations
+    took part in, negated (:func:`_removed_pairs`; else None)."""
     s = scene.settings
     base = np.asarray(arrays["weight"], np.float32)
     r, w_lit, texp = tile_model(scene, arrays, state)
@@ -124,13 +118,13 @@ def block_weights(arrays: dict, scene: Scene, state: SolveState, w_prev: np.ndar
         robust_kernels.usable(arrays["run_start"], arrays["run_image"], texp, r, w_lit, used)
         flag = used & (np.asarray(w_prev) == 0) & (base > 0) if s.reject_outliers else np.zeros(n_obs, bool)
     keep = used & ~flag
-    kept = _kept_pairs(arrays, state, texp, r, w_lit, keep) if pairs else None
+    removed = _removed_pairs(arrays, r, flag) if pairs else None
     m, n_loss = np.ones(0), 0  # m: the robust loss's factors (none: 1)
     if s.robust_loss != "none":
         m, n_loss = _loss_factors(arrays, state, r, texp, keep, w_prev, s, robust_kernels.workspace("loss", n_obs)[:n_obs])
     w_new, counts = robust_kernels.workspace("weights", n_obs).view(np.float32)[:n_obs], np.zeros((3, n_img))
     robust_kernels.finish(arrays["run_start"], arrays["run_image"], base, used, flag, keep, m, w_new, counts)
-    return w_new, counts, n_loss, kept
+    return w_new, counts, n_loss, removed
 
 
 def _loss_factors(arrays, state, r, texp, keep, w_prev, s, out) -> tuple:
@@ -144,20 +138,21 @@ def _loss_factors(arrays, state, r, texp, keep, w_prev, s, out) -> tuple:
                                            s.robust_loss, s.robust_threshold, out)
 
 
-def reweight_pass(on_tiles, threads: int, scene: Scene, state: SolveState, ck: dict, reinit: bool) -> SolveState:
+def reweight_pass(on_tiles, threads: int, scene: Scene, state: SolveState, ck: dict, init_pairs: dict | None) -> SolveState:
     """A reweight pass over the tiles (``on_tiles``: the solve's map over them): the next generation of robust
-    weights, their per-image counts into the checkpoint ``ck``; with ``reinit`` (after the first pass) the
-    exposures initialised again from the overlaps of the observations kept (summed in the same pass; used when it
-    rejected any, else the observations kept are those the exposures were initialised with)."""
+    weights, their per-image counts into the checkpoint ``ck``; with ``init_pairs`` (the prepare step's overlap
+    sums, the exposures' first start; None: no new start) the first pass initialises the exposures again from the
+    overlaps of the observations kept (those sums less the pairs of the rejected observations, summed in the same
+    pass; when it rejected any, else the observations kept are those the exposures were initialised with)."""
     gen = ck["robust"] + 1
-    want_pairs = gen == 1 and reinit
+    want_pairs = gen == 1 and init_pairs is not None
     parts = on_tiles(reweight_tile, f"outliers {gen}", state=state, gen=gen, threads=threads, pairs=want_pairs)
     counts = np.zeros((3, len(scene.images)))
     for p in parts:  # fixed tile order
         np.add.at(counts.T, p["index"], p["counts"].T)
     t = state.exposure
     if want_pairs and counts[1].sum() > 0:  # the overlaps' exposures again, without the rejected observations
-        pairs: dict = {}
+        pairs: dict = dict(init_pairs)
         for p in parts:  # fixed tile order
             exposure_init.merge_pair_sums(pairs, {tuple(k): tuple(v) for k, v in p["pairs"]})
         t = exposure_init.overlap_exposure(pairs, np.log(state.exposure))

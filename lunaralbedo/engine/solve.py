@@ -43,7 +43,7 @@ from .run_report import (CACHE_DIR, CHECKPOINT_DIR, MARKER, OUTPUT_DIRS, REFINE_
 from .scene import Scene, build_scene
 from .prepare import WRITER, prepare_tile
 from . import robust
-from .pass_update import haze_step_taken, reduce_init, reduce_iteration, update
+from .pass_update import haze_step_taken, prepare_pairs, reduce_init, reduce_iteration, update
 from .tilework import SolveState, finalize_tile, iterate_tile
 
 #: Modules local workers import as they start (the tile tasks' own, with NumPy, numba, rasterio).
@@ -291,7 +291,8 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
         gen = ck["robust"]
         if gen < len(reweights) and (ck["iteration"] >= reweights[gen] or ck.get("reweight_now")):
             t_rw = time.perf_counter()  # part of the iterate stage; also reported on its own
-            state = robust.reweight_pass(on_tiles, _threads(executor), scene, state, ck, method == "overlap" and t_given is None)
+            state = robust.reweight_pass(on_tiles, _threads(executor), scene, state, ck,
+                                         prepare_pairs(metas) if method == "overlap" and t_given is None else None)
             ck.update(haze_joint=True, haze_step=None)  # new weights: the haze settles again
             timings["reweight"] = timings.get("reweight", 0.0) + time.perf_counter() - t_rw
             outputs.write_json(out / STATE_FILE, ck)

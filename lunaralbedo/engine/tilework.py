@@ -32,10 +32,10 @@ import numpy as np
 from ..io.cache import MemoryCache, discard, load_meta, load_stack, map_npy
 from ..io.geotiff import GeoTiffRows
 from ..io.rasters import count_finite
-from ..model import outliers, shadows, updates
+from ..model import shadows, updates
 from ..parallel.progress import ROWS
 from . import kernels, runs
-from .finalise_kernels import finalise_runs
+from .finalise_kernels import finalise_runs, lost_fraction_runs
 from ..runtime import STACK_MEMORY_MB
 from .scene import Scene
 
@@ -274,11 +274,13 @@ def _normal_equations(arrays, alb, texp, r, dr, ratio, thresh):
 
 # --------------------------------------------------------------------------- finalise
 def _lost(obs: dict, effective: np.ndarray, rows: int, width: int) -> np.ndarray:
-    """The ``outliers/`` rows of a block: per pixel the fraction of weight the robust weights took away."""
-    if not len(obs["index"]):
-        return np.full((rows, width), np.nan, np.float32)
-    pix = runs.observation_pixels(obs)
-    return outliers.lost_fraction(obs["weight"], effective, pix, rows * width).reshape(rows, width)
+    """The ``outliers/`` rows of a block: per pixel the fraction of weight the robust weights took away
+    (:func:`.finalise_kernels.lost_fraction_runs`)."""
+    out = np.full(rows * width, np.nan, np.float32)
+    if len(obs["index"]):
+        lost_fraction_runs(obs["run_start"], obs["run_pixel"], obs["weight"], effective, np.empty(len(out)),
+                           np.empty(len(out)), out)
+    return out.reshape(rows, width)
 
 
 def _tile_images(scene: Scene, t: int, used) -> dict:
