@@ -201,3 +201,28 @@ def test_the_outliers_layer_from_the_runs_is_the_numpy_formula():
     want = outliers.lost_fraction(base, eff, runs.observation_pixels(block), n_pix)
     assert np.isnan(want).sum() > 10 and (want > 0).sum() > 100 and (want == 0).sum() > 100
     np.testing.assert_array_equal(got, want)
+
+
+def test_the_weights_store_gives_back_what_a_pass_wrote(tmp_path):
+    """engine/robust_store.py: a block whose weights changed in a few places is stored as those places (a few
+    bytes), one where many changed whole; both read back as the same float32 values, an unchanged block as the
+    cached weights themselves; a block of another length is refused (a cache of another preparation)."""
+    from lunaralbedo.engine import robust_store
+
+    rng = np.random.default_rng(3)
+    cached = rng.uniform(0.1, 1.0, 10_000).astype(np.float32)
+    few, many = cached.copy(), cached * rng.uniform(0.2, 1.0, len(cached)).astype(np.float32)
+    few[rng.choice(len(few), 300, replace=False)] = 0.0
+    for name, w in (("block_0000", few), ("block_0001", many), ("block_0002", cached.copy())):
+        robust_store.save(tmp_path / name, 1, cached, w)
+        got = robust_store.load(tmp_path / name, cached, 1)
+        np.testing.assert_array_equal(got, w)
+        assert got.dtype == np.float32
+    stored = {p.name: p.stat().st_size for p in (tmp_path / "robust_1").iterdir()}
+    assert set(stored) == {"block_0000.changed.npy", "block_0000.value.npy", "block_0001.npy",
+                           "block_0002.changed.npy", "block_0002.value.npy"}
+    assert stored["block_0000.changed.npy"] + stored["block_0000.value.npy"] < 0.15 * stored["block_0001.npy"]
+    assert robust_store.load(tmp_path / "block_0002", cached, 1) is cached
+    for name in ("block_0000", "block_0001"):
+        with pytest.raises(FileNotFoundError, match="another preparation"):
+            robust_store.load(tmp_path / name, cached[:-1], 1)

@@ -4,7 +4,7 @@ A *reweight pass* maps :func:`reweight_tile` over the tiles before the first ite
 again after a few (:data:`SCHEDULE`), with the current exposures, haze and model parameters.
 Each block of a tile gets an effective weight per observation, :math:`m\\,w` (0: rejected by
 the spatial test; below 1: down-weighted by the robust loss), saved in the tile's cache
-entry as ``robust_<generation>/block_<i>.npy`` (atomic); the iterate and finalise tasks read
+entry (:mod:`.robust_store`: ``robust_<generation>/``, atomic); the iterate and finalise tasks read
 the generation the state names (:func:`.tilework.effective_weights`), so the albedo,
 exposure, phase and error updates all use them.  Everything is computed per tile from the
 tile's own observations in a fixed order: the same bytes for any number of workers.  The
@@ -16,11 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.atomic import atomic_path
 from ..io.cache import load_meta
 from ..model import exposure_init, outliers
 from ..parallel.progress import ROWS
-from . import loss_kernels, pair_kernels, robust_kernels
+from . import loss_kernels, pair_kernels, robust_kernels, robust_store
 from .scene import Scene
 from .tilework import SolveState, cache_dir, effective_weights, pixel_stack, tile_model
 
@@ -42,11 +41,6 @@ def passes(settings, ck: dict) -> tuple[int, ...]:
 def enabled(settings) -> bool:
     """True when the solve reweights (REJECT_OUTLIERS 1 or a robust loss)."""
     return bool(settings.reject_outliers) or settings.robust_loss != "none"
-
-
-def weights_path(block: Path, gen: int) -> Path:
-    """The file of a block's effective weights of generation ``gen`` (``block``: its cache folder)."""
-    return block.parent / f"robust_{gen}" / f"{block.name}.npy"
 
 
 def _blocks(t: int, scene: Scene, cache_root: Path):
@@ -80,10 +74,7 @@ def reweight_tile(t: int, *, scene: Scene, cache_root: Path, state: SolveState, 
         if pairs:
             exposure_init.merge_pair_sums(totals, removed)
         counts[:, [pos[k] for k in np.asarray(arrays["index"]).tolist()]] += c
-        path = weights_path(block, gen)
-        with atomic_path(path) as tmp:
-            with open(tmp, "wb") as f:
-                np.save(f, w_new, allow_pickle=False)
+        robust_store.save(block, gen, arrays["weight"], w_new)
     return {"index": idx, "counts": counts, "loss_observations": loss_obs, "pairs": sorted(totals.items())}
 
 

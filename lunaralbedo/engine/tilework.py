@@ -29,12 +29,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.cache import MemoryCache, discard, load_meta, load_stack, map_npy
+from ..io.cache import MemoryCache, discard, load_meta, load_stack
 from ..io.geotiff import GeoTiffRows
 from ..io.rasters import count_finite
 from ..model import shadows, updates
 from ..parallel.progress import ROWS
-from . import kernels, runs
+from . import kernels, robust_store, runs
 from .finalise_kernels import finalise_runs, lost_fraction_runs
 from ..runtime import STACK_MEMORY_MB
 from .scene import Scene
@@ -148,10 +148,7 @@ def effective_weights(block: Path, arrays: dict, gen: int) -> np.ndarray:
     (held by no cache of this process: memory stays bounded by the blocks)."""
     if gen <= 0:
         return arrays["weight"]
-    w = map_npy(block.parent / f"robust_{gen}" / f"{block.name}.npy")
-    if len(w) != len(arrays["weight"]):
-        raise FileNotFoundError(f"{block}: robust weights of another preparation; run without --resume")
-    return w
+    return robust_store.load(block, arrays["weight"], gen)
 
 
 def hazed(arrays: dict, state: "SolveState") -> dict:
