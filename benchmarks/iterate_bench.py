@@ -67,7 +67,7 @@ if len(sys.argv) > 3 and sys.argv[3] == "1":  # outliers and haze: the features 
         robust.drop_generation(cache, 1)  # a solve writes a new generation: no earlier file to unlink in the pass
         c0 = cpu()
         for t in tiles:
-            robust.reweight_tile(t, scene=scene, cache_root=cache, state=state, gen=1)
+            robust.reweight_tile(t, scene=scene, cache_root=cache, state=state, gen=1, pairs=True)  # as a solve: the overlaps for the new start
         out["reweight_pass_ns"] = 1e9 * (cpu() - c0) / n
     out["default_ns"] = steady(tilework.SolveState(state.exposure, state.params, robust=1))
     out["haze_ns"] = steady(tilework.SolveState(state.exposure, state.params, robust=1, haze=np.zeros(len(scene.images))))
