@@ -40,16 +40,18 @@ def reduce_iteration(n_images: int, n_params: int, parts) -> updates.PassSums:
 
 def update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref: np.ndarray, fixed: bool = False,
             prior: float | None = None) -> SolveState:
-    """One update of exposures (eq. 4) and parameters (eq. 5); ``fixed``: the exposures are known (kept);
+    """One update of exposures (eq. 4; with FLOAT_HAZE the joint step, or nothing once the haze has settled) and
+    parameters (eq. 5); ``fixed``: the exposures are known (kept);
     ``prior``: the relative sigma of a Gaussian prior around ``t_ref`` (:mod:`lunaralbedo.model.exposure_prior`)."""
     h = state.haze
+    held = h is not None and not sums.haze_parts  # FLOAT_HAZE, settled: the joint step's exposures and haze held
     if h is not None and sums.haze_parts:  # FLOAT_HAZE: one joint (T, H) step with the albedo eliminated (model/haze.py)
         g, mat = haze.assemble(len(state.exposure), sums.haze_parts)
         mode = "fixed" if fixed else ("prior" if prior is not None else "solve")
         t, h = haze.joint_step(state.exposure, h, g, mat, mode, t0=t_ref,
                                prior_weight=exposure_prior.prior_weight(t_ref, prior) if prior is not None else None,
                                noise_var=max(sums.q / sums.n_obs, 1e-12) if sums.n_obs else 1.0)
-    elif fixed:  # (with FLOAT_HAZE, once the haze has settled, it is held: eq. 4 on I - H)
+    elif fixed or held:
         t = state.exposure
     elif prior is not None:
         t = exposure_prior.exposure_update_prior(state.exposure, sums.exp_num, sums.exp_den, t_ref, prior, sums.q, sums.n_obs)
@@ -61,7 +63,7 @@ def update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref:
             c = updates.phase_update_seed(c, sums.jtj, sums.jtr)
         else:
             c = updates.phase_update_damped(c, sums.jtj, sums.jtr, (sums.alpha_min, sums.alpha_max), model.phase_curve)
-    if method != "seed" and not fixed and prior is None:
+    if method != "seed" and not fixed and prior is None and not held:
         # A*T leaves one global scale free: pin the geometric mean of T to the initial one.
         t = t * np.exp(np.mean(np.log(t_ref)) - np.mean(np.log(t)))
     return SolveState(np.asarray(t, dtype=np.float64), np.asarray(c, dtype=np.float64), robust=state.robust, haze=h,
@@ -71,7 +73,8 @@ def update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref:
 def haze_step_taken(ck: dict, keys: list, before: SolveState, state: SolveState, sums: updates.PassSums, last: bool,
                     fixed: bool, mode: str, t_ref, prior) -> None:
     """After a pass that took the joint exposure-haze step (``before`` -> ``state``): whether the haze has settled
-    (:func:`lunaralbedo.model.haze.settled`; then it is held from the next pass on, ``state.haze_joint``), the
+    (:func:`lunaralbedo.model.haze.settled`; then it and the exposures are held from the next pass on,
+    ``state.haze_joint``), the
     images whose haze and exposure cannot be told apart and, at the last joint step, each image's haze standard
     error (None: no data), into the checkpoint ``ck``."""
     g, mat = haze.assemble(len(keys), sums.haze_parts)

@@ -234,7 +234,7 @@ def iterate_block(arrays: dict, s, model, state: SolveState, phase: bool, out: u
     alb = np.full(runs.pixel_extent(arrays) if n_par > 2 else 0, np.nan, np.float32)
     jtj, jtr = np.zeros((n_cols, n_cols)), np.zeros(n_cols)
     # FLOAT_HAZE 1: the kernel takes each image's haze off and adds the joint (T, H) step's sums in the same sweep
-    # (only while the haze settles, :func:`lunaralbedo.engine.pass_update.haze_settled`; after, it is held and taken off)
+    # (only while the haze settles, :func:`lunaralbedo.engine.pass_update.haze_settled`; after, it is held and only taken off)
     haze = state.haze_of(arrays["index"]) if state.haze is not None else np.empty(0, np.float32)
     n_h = len(haze) if state.haze_joint else 0
     base = arrays.get("cached_weight", arrays["weight"][:0]) if n_h else arrays["weight"][:0]  # for the robust factor

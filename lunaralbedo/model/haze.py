@@ -43,7 +43,8 @@ SETTLED = 0.1
 
 
 def settled(step: float, previous: float | None, rss) -> bool:
-    r"""True when the joint steps can stop and the haze be held (the exposures go on with eq. 4).
+    r"""True when the joint steps can stop: the haze and the exposures held at the last step's (the photometric
+    parameters go on).
 
     ``step``, ``previous``: the largest change of any image's haze in the last and the one before (None:
     none before); ``rss``: the pass's noise-weighted squared residuals, observations and pixels
