@@ -74,9 +74,8 @@ def haze_step_taken(ck: dict, keys: list, before: SolveState, state: SolveState,
                     fixed: bool, mode: str, t_ref, prior) -> None:
     """After a pass that took the joint exposure-haze step (``before`` -> ``state``): whether the haze has settled
     (:func:`lunaralbedo.model.haze.settled`; then it and the exposures are held from the next pass on,
-    ``state.haze_joint``), the
-    images whose haze and exposure cannot be told apart and, at the last joint step, each image's haze standard
-    error (None: no data), into the checkpoint ``ck``."""
+    ``state.haze_joint``), the images whose haze and exposure cannot be told apart and, at the last joint step,
+    each image's haze standard error (None: no data), into the checkpoint ``ck``."""
     g, mat = haze.assemble(len(keys), sums.haze_parts)
     step = float(np.max(np.abs(state.haze - before.haze), initial=0.0))
     settled = haze.settled(step, ck.get("haze_step"), sums.haze_rss)
