@@ -7,8 +7,9 @@ Renders (or reuses) the strip scene of item 6, prepares its tiles once, then tim
 alone on the biggest tile, each checkout in a fresh process on its own prepared cache.
 ``--budget-mb`` sets LUNARALBEDO_STACK_MEMORY_MB (0: stacks re-read every pass).
 ``--real-images``: also the passes with the default robust weights and with FLOAT_HAZE 1 and one
-reweight pass, and the ratio of a 10-pass iterate stage with them to one with the features off
-(docs/solver.md, "Cost of outliers and haze").
+reweight pass (checkouts with the spatial test in the prepare step: its cost there, and the robust
+loss's pass only where a pixel has three images), and the ratio of a 10-pass iterate stage with them
+to one with the features off (docs/solver.md, "Cost of outliers and haze").
 """
 from __future__ import annotations
 
@@ -63,12 +64,31 @@ if len(sys.argv) > 3 and sys.argv[3] == "1":  # outliers and haze: the features 
             run()
         return 1e9 * (cpu() - c0) / 3 / n
     out["off_ns"] = steady(state)
-    for _ in range(2):  # the second timed: the first compiles
-        robust.drop_generation(cache, 1)  # a solve writes a new generation: no earlier file to unlink in the pass
-        c0 = cpu()
-        for t in tiles:
-            robust.reweight_tile(t, scene=scene, cache_root=cache, state=state, gen=1, pairs=True)  # as a solve: the overlaps for the new start
-        out["reweight_pass_ns"] = 1e9 * (cpu() - c0) / n
+    metas = [tilework.load_meta(tilework.cache_dir(cache, scene, t)) for t in tiles]
+    if hasattr(robust, "in_prepare"):  # the spatial test in the prepare step: its cost there, a loss pass if any
+        for _ in range(2):  # the second timed: the first compiles
+            c0 = cpu()
+            for t in tiles:
+                for i, _rows in enumerate(metas[t]["blocks"]):
+                    arrays = tilework.pixel_stack(tilework.cache_dir(cache, scene, t) / f"block_{i:04d}", cache, scene)
+                    if len(arrays["index"]):
+                        robust.prepared_block(arrays, scene, scene.tiles[t].width)
+            out["spatial_prepare_ns"] = 1e9 * (cpu() - c0) / n
+        out["reweight_pass_ns"] = 0.0
+        if any(m["spatial"]["loss_possible"] for m in metas):
+            for _ in range(2):
+                robust.drop_generation(cache, 2)
+                c0 = cpu()
+                for t in tiles:
+                    robust.reweight_tile(t, scene=scene, cache_root=cache, state=tilework.SolveState(state.exposure, state.params, robust=1), gen=2)
+                out["reweight_pass_ns"] = 1e9 * (cpu() - c0) / n
+    else:
+        for _ in range(2):  # the second timed: the first compiles
+            robust.drop_generation(cache, 1)  # a solve writes a new generation: no earlier file to unlink in the pass
+            c0 = cpu()
+            for t in tiles:
+                robust.reweight_tile(t, scene=scene, cache_root=cache, state=state, gen=1, pairs=True)  # as a solve: the overlaps for the new start
+            out["reweight_pass_ns"] = 1e9 * (cpu() - c0) / n
     out["default_ns"] = steady(tilework.SolveState(state.exposure, state.params, robust=1))
     out["haze_ns"] = steady(tilework.SolveState(state.exposure, state.params, robust=1, haze=np.zeros(len(scene.images))))
     try:  # the passes after the haze has settled: held, taken off, no joint step (checkouts before: every pass joint)
@@ -156,6 +176,10 @@ def main() -> int:
             held = r.get("haze_held_ns")
             joint = JOINT_PASSES if held is not None else PASSES
             haze = (joint * r["haze_ns"] + (PASSES - joint) * (held or 0.0)) / PASSES
+            sp = r.get("spatial_prepare_ns")
+            if sp is not None:
+                print(f"  the spatial test in the prepare step ({name}): {sp:.1f} ns CPU per observation, once per solve "
+                      f"({sp / PASSES:.2f} per pass of {PASSES}, {sp / PASSES / off:.3f} x a features-off pass)", flush=True)
             print(f"  outliers and haze ({name}), CPU ns per observation and pass: features off {off:.2f}; "
                   f"reweight pass {r['reweight_pass_ns']:.1f} per observation (/{PASSES} passes: {rw:.2f}); defaults "
                   f"{r['default_ns']:.2f} + {rw:.2f} = {(r['default_ns'] + rw) / off:.2f} x off; FLOAT_HAZE 1 "

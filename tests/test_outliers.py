@@ -43,6 +43,39 @@ def test_one_percent_outliers_with_default_settings_recover_the_truth(dirty, tmp
     assert ds.dtypes[0] == "float32" and np.nanmax(frac) == 1.0 and 0.002 < np.nanmean(frac) < 0.03
 
 
+def test_the_prepare_steps_spatial_test_rejects_what_the_first_reweight_pass_did(dirty, tmp_path, monkeypatch):
+    """With a static shadow mask the spatial test runs as each block is prepared (engine/robust.py): no reweight pass
+    over the cache on two images a pixel.  It rejects what the first reweight pass rejected with the seed exposures
+    (forced here), image by image, and the solve ends where that one did."""
+    from lunaralbedo.engine import robust
+
+    res = solve(dirty / "settings.txt", out=tmp_path / "here", workers=1, plots=False)
+    rep = res.report["outliers"]
+    assert rep["spatial_test"] == "prepare" and rep["reweight_passes"] == 0, rep
+    monkeypatch.setattr(robust, "in_prepare", lambda settings: False)
+    old = solve(dirty / "settings.txt", out=tmp_path / "pass", workers=1, plots=False)
+    was = old.report["outliers"]
+    assert was["spatial_test"] == "reweight pass" and was["reweight_passes"] == 1, was
+    for key, im in rep["images"].items():
+        assert im["observations"] == was["images"][key]["observations"], key
+        assert abs(im["rejected_fraction"] - was["images"][key]["rejected_fraction"]) <= 1e-5, (key, im, was)
+    new, ref = score(tmp_path / "here", dirty), score(tmp_path / "pass", dirty)
+    assert abs(new["albedo_rel_rmse"] - ref["albedo_rel_rmse"]) < 2e-4, (new, ref)
+    assert abs(new["exposure_max_rel_err"] - ref["exposure_max_rel_err"]) < 2e-4, (new, ref)
+
+
+def test_a_shadow_mask_of_the_exposures_keeps_the_spatial_test_in_a_reweight_pass(dirty, tmp_path):
+    """Shadow type 2 (lit where I/(R T) >= t) needs the exposures: the first reweight pass runs the spatial test,
+    and the outliers are rejected as well."""
+    res = solve(_with(dirty / "settings.txt", dirty / "ratio.txt", SHADOW_TYPE=2), out=tmp_path / "out", workers=1,
+                plots=False)
+    rep = res.report["outliers"]
+    assert rep["spatial_test"] == "reweight pass" and rep["reweight_passes"] == 1, rep
+    sc = score(tmp_path / "out", dirty)
+    assert sc["albedo_rel_rmse"] <= 0.022 and sc["albedo_rel_p99"] <= 0.08, sc
+    assert all(0.007 <= im["rejected_fraction"] <= 0.03 for im in rep["images"].values()), rep
+
+
 def test_outlier_rejection_gives_the_same_bytes_on_two_workers(tmp_path):
     """Defaults on a strip with outliers over several tiles: the reweight pass rejects observations, so the exposures
     start again from the kept observations' overlap sums, summed per tile and reduced in tile order."""
@@ -112,11 +145,10 @@ def test_spatial_test_rejects_the_deviant_image_and_keeps_a_feature_both_see():
     assert outliers.spatial_outliers(e, pixel, tau).tolist() == [True, False, False, False, True]
 
 
-def test_the_reweight_kernel_flags_what_the_numpy_test_flags():
-    """The reweight pass's numba spatial test over a block's runs (engine/robust_kernels.py) rejects exactly the
-    observations the NumPy form of model/outliers.py rejects (each image's raster, box means, window medians, the
-    other images' mean), here with hot spots, a dropout row, a bright feature every image sees and holes."""
-    from lunaralbedo.engine import robust_kernels, runs
+def _spatial_block():
+    """A block (chunk-major runs) of four images' log albedo over a texture, with hot spots, a dropout row, a bright
+    feature every image sees and holes; values ``image = exp(loga)`` (T = R = 1)."""
+    from lunaralbedo.engine import runs
 
     rng = np.random.default_rng(3)
     k, h, w = 4, 40, 50
@@ -136,7 +168,32 @@ def test_the_reweight_kernel_flags_what_the_numpy_test_flags():
            "start": np.concatenate([[0], np.cumsum([len(x) for x in sel])]).astype(np.int64),
            "loga": np.concatenate([loga[i].ravel()[sel[i]] for i in range(k)])}
     obs["image"] = np.exp(obs["loga"].astype(np.float64))  # the kernel takes values, R, T and haze: a = I / (T R)
-    block = runs.chunk_runs(obs, h * w, ["loga", "image"], 64)
+    return runs.chunk_runs(obs, h * w, ["loga", "image"], 64), k, h, w
+
+
+def test_the_spatial_test_does_not_depend_on_the_exposures():
+    """What lets the prepare step run it before any exposure is known (engine/robust.py): the same values seen with
+    other exposures (I = T a) are rejected where they were, with the exposures known or all taken as 1."""
+    from lunaralbedo.engine import robust_kernels, runs
+
+    block, k, h, w = _spatial_block()
+    ones, used = np.ones(len(block["image"]), np.float32), np.empty(len(block["image"]), bool)
+    want = robust_kernels.spatial_test(block, w, np.zeros(k), np.ones(k), ones, ones, used)
+    t = np.array([0.37, 1.9, 4.3, 0.81])
+    scaled = {**block, "image": block["image"] * t[runs.observation_images(block)]}
+    for texp in (t, np.ones(k)):
+        got = robust_kernels.spatial_test(scaled, w, np.zeros(k), texp, ones, ones, used)
+        assert used.all() and want.sum() > 20
+        np.testing.assert_array_equal(got, want)
+
+
+def test_the_reweight_kernel_flags_what_the_numpy_test_flags():
+    """The reweight pass's numba spatial test over a block's runs (engine/robust_kernels.py) rejects exactly the
+    observations the NumPy form of model/outliers.py rejects (each image's raster, box means, window medians, the
+    other images' mean), here with hot spots, a dropout row, a bright feature every image sees and holes."""
+    from lunaralbedo.engine import robust_kernels, runs
+
+    block, k, h, w = _spatial_block()
     ones, used = np.ones(len(block["image"]), np.float32), np.empty(len(block["image"]), bool)
     got = robust_kernels.spatial_test(block, w, np.zeros(k), np.ones(k), ones, ones, used)
     assert used.all()

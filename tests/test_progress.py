@@ -23,7 +23,7 @@ class Recorder:
 
 
 def test_row_bar_moves_block_by_block(tmp_path, monkeypatch):
-    render_scene(tmp_path / "scene", SceneSpec(n_images=3, image_px=60, tile_size=0.25, max_num_iter=2, seed=5))
+    render_scene(tmp_path / "scene", SceneSpec(n_images=4, overlap=0.8, image_px=60, tile_size=0.25, max_num_iter=3, seed=5))
     rec = Recorder()
     import lunaralbedo.engine.prepare as prepare
     import lunaralbedo.engine.solve as solve
@@ -38,7 +38,7 @@ def test_row_bar_moves_block_by_block(tmp_path, monkeypatch):
                             plots=False, tolerance=0, runtime=lunaralbedo.Runtime(block_rows=7))
     names = [p[0] for p in rec.passes]
     assert names[0] == "prepare" and names[-1] == "write tiles" and names.count("iteration 1") == 1
-    reweights = [n for n in names if n.startswith("outliers")]  # the robust weights' passes (engine/robust.py)
+    reweights = [n for n in names if n.startswith("outliers")]  # the robust loss's passes (engine/robust.py; three images meet)
     assert len(reweights) == res.report["outliers"]["reweight_passes"] >= 1
     assert len(names) == 2 + res.iterations + len(reweights)
     for desc, total, steps in rec.passes:

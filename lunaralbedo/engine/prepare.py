@@ -3,8 +3,9 @@
 :func:`prepare_tile` is the first of the three kinds of tile task (:mod:`.tilework` has the
 cache layout it writes, the iterate and the finalise tasks).  It goes through the tile a block
 of rows at a time (:func:`.observations.gather_blocks`): each block's observations are
-reordered into chunk-major runs (:func:`.runs.chunk_runs`), its exposure-initialisation sums
-added (:func:`_init_sums`), and the block handed to this process's cache writer
+reordered into chunk-major runs (:func:`.runs.chunk_runs`), its outliers found by the spatial test
+(:func:`.robust.prepared_block`, when it runs here), its exposure-initialisation sums added
+(:func:`_init_sums`, less the rejected observations' overlaps), and the block handed to this process's cache writer
 (:data:`WRITER`) with the block's rows of the tile outputs known at once (DEM, weight sums).
 """
 from __future__ import annotations
@@ -19,7 +20,7 @@ from ..io.cachewriter import CacheWriter
 from ..model import exposure_init
 from ..parallel.ahead import ahead, helper
 from ..parallel.progress import ROWS
-from . import kernels, observations, runs
+from . import kernels, observations, robust, runs
 from .scene import Scene
 from .tilework import CACHE_LAYOUT, KNOWN_OUTPUTS, OUTPUT_OPTIONS, cache_dir
 
@@ -53,7 +54,8 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | No
     """
     folder = cache_dir(cache_root, scene, t)
     cached = load_stack(folder)
-    if cached is not None and cached[1].get("layout") == CACHE_LAYOUT:
+    if cached is not None and cached[1].get("layout") == CACHE_LAYOUT and \
+            (cached[1].get("spatial") is not None) == robust.in_prepare(scene.settings):
         return {**cached[1], "reused": True}
     entry = WRITER.entry(folder)  # the tile's folder appears when all its blocks are written
     try:
@@ -80,6 +82,9 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
     box = observations.footprint(scene, t)  # the rows and columns gone through: all but for tiles far bigger than
     r0, c0, width = box[0], box[2], box[3] - box[2]  # their images, whose other pixels keep the outputs' fill values
     n_obs = 0
+    spatial = robust.in_prepare(scene.settings)
+    tested: dict[int, np.ndarray] = {}  # per image: used and rejected by the spatial test
+    loss_possible = False
     # the tile outputs known once it is prepared (its DEM and blending sums), written a block of rows at a time
     sparse = box != (0, tile.height, 0, tile.width)  # a part of the tile: the blocks outside it not stored
     known = partial(entry.save_rows, shape=(tile.height, tile.width), transform=tile.transform, crs=scene.crs,
@@ -97,7 +102,11 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
         pm = runs.chunk_runs(obs, (b1 - b0) * width, names)
         if "alpha" in pm:  # the phase-angle range of the block's observations (iterate_block): computed once
             pm["alpha_range"] = np.array(kernels.alpha_range(pm["alpha"], pm["weight"]), np.float32)
-        return b0, b1, cols, per_pixel, _init_sums(scene, obs, width), pm
+        part = _init_sums(scene, obs, width)
+        if spatial and len(pm["index"]):
+            part["spatial"] = robust.prepared_block(pm, scene, tile.width)
+            pm["rejected"] = part["spatial"]["rejected"]
+        return b0, b1, cols, per_pixel, part, pm
 
     big = lambda block: sum(a.nbytes for a in block[2].values()) > AHEAD_BYTES  # noqa: E731
     for b0, b1, cols, per_pixel, part, pm in ahead(reduce, observations.gather_blocks(scene, t, lut, helpers, box),
@@ -112,6 +121,11 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
             acc[0] += rs
             acc[1] += n
         exposure_init.merge_pair_sums(pairs, part["pairs"])
+        if "spatial" in part:  # the overlaps of the observations kept
+            exposure_init.merge_pair_sums(pairs, part["spatial"]["pairs"])
+            for k, c in zip(part["spatial"]["index"], part["spatial"]["counts"].T):
+                tested[k] = tested.get(k, 0) + c
+            loss_possible |= part["spatial"]["loss_possible"]
         n_obs += len(pm["image"])
         entry.save(f"block_{len(blocks):04d}", {**pm, **{f"tile_{k}": v for k, v in per_pixel.items()}},
                    {"rows": [b0, b1], "cols": [int(cols[0]), int(cols[1])]})
@@ -128,6 +142,8 @@ def _prepare_blocks(scene: Scene, t: int, lut, entry, helpers: int) -> dict:
         "blocks": blocks,
         "box": list(box),
         "observations": n_obs,
+        "spatial": {"counts": [[float(tested.get(k, np.zeros(2))[i]) for k in index] for i in (0, 1)],
+                    "loss_possible": loss_possible} if spatial else None,
         "layout": CACHE_LAYOUT,
     }
     entry.complete(meta)

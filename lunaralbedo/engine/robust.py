@@ -1,4 +1,14 @@
-"""The outlier pass: each tile's observations get robust weights (:mod:`lunaralbedo.model.outliers`).
+r"""The outlier pass: each tile's observations get robust weights (:mod:`lunaralbedo.model.outliers`).
+
+The spatial test does not depend on the solve's state: an observation's deviation from its own
+image's neighbourhood, :math:`\log a - \operatorname{med}_N \log a` with
+:math:`a = (I - H_k)/(T_k R)`, loses the image's :math:`\log T_k`, the haze is 0 and the model's
+parameters are the initial ones when it runs.  So where the shadow mask does not depend on the
+exposures either (:func:`in_prepare`: shadow type 0 or 1) the prepare step runs it on each block as
+it is cached (:func:`prepared_block`): the block keeps the observations it rejected (``rejected``,
+generation 1 of the weights, :data:`PREPARED`), the exposures' first start leaves their overlaps
+out, and no pass over the cache is spent on it.  Where the mask needs the exposures (types 2 and 3,
+:math:`I/(R T) \ge t`), the first reweight pass runs it.
 
 A *reweight pass* maps :func:`reweight_tile` over the tiles before the first iteration and
 again after a few (:data:`SCHEDULE`), with the current exposures, haze and model parameters.
@@ -17,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io.cache import load_meta
-from ..model import exposure_init, outliers
+from ..model import exposure_init, outliers, shadows
 from ..parallel.progress import ROWS
 from . import loss_kernels, pair_kernels, robust_kernels, robust_store
 from .scene import Scene
@@ -26,16 +36,52 @@ from .tilework import SolveState, cache_dir, effective_weights, pixel_stack, til
 #: Reweight passes run before these iterations (0: before the first; counted from 0).  The second (IRLS with
 #: the settled albedo) runs only where the robust loss applies: pixels with three or more images remain.
 SCHEDULE = (0, 2)
+#: The iteration of the generation the prepare step made (:func:`passes`: before every iteration, never run).
+PREPARED = -1
 
 
 def passes(settings, ck: dict) -> tuple[int, ...]:
-    """The reweight schedule of a run (:data:`SCHEDULE`; none when it does not reweight, one when the first pass
-    found no observation the robust loss applies to)."""
+    """The reweight schedule of a run: generation ``g + 1`` of the weights is made before iteration ``passes[g]``
+    (:data:`SCHEDULE`; none when it does not reweight; the prepare step's first, :data:`PREPARED`, with the
+    robust loss's passes after it only where a pixel has three images; one pass fewer when the first pass of the
+    loss found no observation it applies to)."""
     if not enabled(settings):
         return ()
-    if ck.get("robust", 0) >= 1 and not ck.get("loss_observations"):
-        return SCHEDULE[:1]
-    return SCHEDULE
+    first = (PREPARED,) if ck.get("spatial_prepared") else ()
+    loss = SCHEDULE if not first or (settings.robust_loss != "none" and ck.get("loss_possible")) else ()
+    if ck.get("robust", 0) > len(first) and not ck.get("loss_observations"):
+        loss = loss[:1]
+    return first + loss
+
+
+def in_prepare(settings) -> bool:
+    """True when the prepare step runs the spatial test (REJECT_OUTLIERS 1 and a shadow mask that does not depend
+    on the exposures: shadow type 0 or 1)."""
+    return bool(settings.reject_outliers) and settings.shadow_type not in (shadows.LAMBERT_RATIO,
+                                                                          shadows.LUNAR_LAMBERT_RATIO)
+
+
+def prepared_block(arrays: dict, scene: Scene, width: int) -> dict:
+    """The spatial test on one block being prepared (chunk-major runs; ``width``: the tile's, pixels are numbered
+    by): ``rejected`` (the observations it rejects, int64, ascending), ``counts`` ``(2, local images)`` (used and
+    rejected), ``pairs`` (the overlap sums the rejected observations took part in, negated: :func:`_removed_pairs`)
+    and ``loss_possible`` (a pixel has three images: the robust loss may apply).  The state is the initial one
+    with every exposure 1 (the test does not depend on them: module docstring) and no haze."""
+    s = scene.settings
+    n_obs, n_img = len(arrays["weight"]), len(arrays["index"])
+    state = SolveState(np.ones(len(scene.images)), np.asarray(s.initial_params, np.float64))
+    r, w, texp = tile_model(scene, arrays, state)
+    used = np.empty(n_obs, bool)
+    flag = robust_kernels.spatial_test(arrays, width, np.zeros(n_img, np.float32), texp, r, np.asarray(w, np.float32),
+                                       used)
+    counts = np.zeros((3, n_img))
+    w_new = robust_kernels.workspace("weights", n_obs).view(np.float32)[:n_obs]
+    robust_kernels.finish(arrays["run_start"], arrays["run_image"], np.asarray(arrays["weight"], np.float32), used,
+                          flag, flag, np.ones(0), w_new, counts)
+    most = robust_kernels.most_runs_on_a_pixel(arrays["chunks"], arrays["run_start"], arrays["run_pixel"])
+    return {"rejected": np.flatnonzero(flag).astype(np.int64), "index": np.asarray(arrays["index"]).tolist(),
+            "counts": counts[:2],
+            "pairs": _removed_pairs(arrays, r, flag), "loss_possible": bool(most >= outliers.MIN_IMAGES_FOR_LOSS)}
 
 
 def enabled(settings) -> bool:
@@ -153,6 +199,19 @@ def reweight_pass(on_tiles, threads: int, scene: Scene, state: SolveState, ck: d
     return SolveState(np.asarray(t, np.float64), state.params, robust=gen, haze=state.haze)
 
 
+def prepared(metas: list, n_images: int, ck: dict) -> None:
+    """Into a new checkpoint ``ck``: generation 1 of the weights, the prepare step's spatial test (its per-image
+    counts summed over the tiles' ``metas`` in tile order, whether the robust loss may apply), when it ran there."""
+    if not metas or metas[0].get("spatial") is None:
+        return
+    counts = np.zeros((3, n_images))  # used, rejected, down-weighted (none yet)
+    for m in metas:  # fixed tile order
+        for row, c in zip(counts, m["spatial"]["counts"]):
+            np.add.at(row, np.asarray(m["index"], np.int64), np.asarray(c, np.float64))
+    ck.update(robust=1, spatial_prepared=True, outliers=counts.tolist(),
+              loss_possible=any(m["spatial"]["loss_possible"] for m in metas))
+
+
 def drop_generation(cache_root: Path, gen: int) -> None:
     """Delete every tile's effective weights of generation ``gen`` (superseded and checkpointed)."""
     import shutil
@@ -163,14 +222,19 @@ def drop_generation(cache_root: Path, gen: int) -> None:
         shutil.rmtree(d, ignore_errors=True)
 
 
-def report(keys: list[str], counts, passes: int) -> dict | None:
-    """``report.json``'s ``outliers``: per image its used observations and the fractions rejected by the spatial
-    test and taken away by the robust loss (sum of 1 - m over the used ones), after the last reweight pass."""
+def report(keys: list[str], ck: dict, settings) -> dict | None:
+    """``report.json``'s ``outliers`` from the checkpoint ``ck``: where the spatial test ran (``prepare``, the
+    first ``reweight pass`` or, REJECT_OUTLIERS 0, None), how many reweight passes the iterations made, per image its used observations and the
+    fractions rejected by the spatial test and taken away by the robust loss (sum of 1 - m over the used ones),
+    after the last reweight pass."""
+    counts = ck.get("outliers")
     if counts is None:
         return None
     used, rejected, down = (np.asarray(c, np.float64) for c in counts)
     frac = lambda x, n: round(float(x / n), 6) if n else 0.0  # noqa: E731
-    return {"reweight_passes": passes,
+    first = bool(ck.get("spatial_prepared"))
+    return {"spatial_test": "prepare" if first else ("reweight pass" if settings.reject_outliers else None),
+            "reweight_passes": ck.get("robust", 0) - first,
             "rejected_fraction": frac(rejected.sum(), used.sum()),
             "images": {k: {"observations": int(n), "rejected_fraction": frac(r, n), "downweighted_fraction": frac(d, n)}
                        for k, n, r, d in zip(keys, used, rejected, down)}}

@@ -10,6 +10,9 @@ Generation ``g`` of a block ``block_<i>`` lives in its tile's cache entry, ``rob
   otherwise wrote for every observation (1.6-11 ns per observation on this machine's disk, by how many dirty
   pages the solve's cache already has).
 
+Generation 1 of a block the prepare step ran the spatial test on (:func:`.robust.in_prepare`) is not a file: the
+block holds the observations it rejected (``rejected``), :func:`rejected`.
+
 Both are written atomically; the checkpoint names the generation only after the pass wrote every block.  No
 numerical difference: the weights read back are the same float32 values.
 """
@@ -42,6 +45,16 @@ def save(block: Path, gen: int, cached: np.ndarray, weights: np.ndarray) -> None
         with atomic_path(where / f"{block.name}{suffix}") as tmp:
             with open(tmp, "wb") as f:
                 np.save(f, np.ascontiguousarray(array), allow_pickle=False)
+
+
+def rejected(cached: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """The weights ``cached`` (the weights prepared) with the observations ``index`` rejected (0): as they are when
+    none is, else a float32 copy."""
+    if not len(index):
+        return cached
+    w = np.array(cached, np.float32)
+    w[np.asarray(index)] = 0.0
+    return w
 
 
 def load(block: Path, cached: np.ndarray, gen: int) -> np.ndarray:

@@ -97,7 +97,7 @@ def write_run_outputs(scene, out, method, state, t_init, ck, tile_reports, timin
         **report_parts(ck.get("response")),
         "exposure_fixed": bool(ck.get("exposure_fixed")),
         "exposure_mode": "fixed" if ck.get("exposure_fixed") else scene.settings.exposure_mode,
-        "outliers": robust.report(keys, ck.get("outliers"), ck.get("robust", 0)),
+        "outliers": robust.report(keys, ck, scene.settings),
         "haze": None if state.haze is None else dict(zip(keys, state.haze.tolist())),
         "haze_inseparable": ck.get("haze_inseparable", []),
         "haze_sigma": dict(zip(keys, ck["haze_sigma"])) if ck.get("haze_sigma") else None,

@@ -278,6 +278,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
             "outliers": None,
             "haze": [0.0] * len(scene.images) if s.float_haze else None,  # FLOAT_HAZE: per image, DRG units
         }
+        robust.prepared(metas, len(scene.images), ck)  # the spatial test's weights, when the prepare step made them
         outputs.write_json(out / STATE_FILE, ck)
     state = SolveState(np.array(ck["exposure"]), np.array(ck["params"], dtype=np.float64), robust=ck["robust"],
                        haze=None if ck.get("haze") is None else np.array(ck["haze"], np.float64),

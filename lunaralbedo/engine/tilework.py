@@ -11,10 +11,12 @@ rows, ``block_0000/`` ... (a :func:`~lunaralbedo.io.cache.save_stack` entry each
 block's observations in chunk-major runs (:func:`.runs.chunk_runs`: ``chunks``,
 ``run_start``, ``run_pixel`` relative to the block, ``run_image``, ``index``, then ``image``,
 ``weight`` and the model's layers; with a phase-angle layer, ``alpha_range``: the range of the block's
-angles, which the iterations take as it is when no dynamic shadow test changes the weights) and ``tile_*``
+angles, which the iterations take as it is when no dynamic shadow test changes the weights; with the spatial
+test in the prepare step, ``rejected``: the observations it rejected, :mod:`.robust`) and ``tile_*``
 per-pixel arrays over the columns ``cols`` of the entry's meta, those its images' windows span), the tile's outputs known once it is
 prepared (``DEM.tif``, ``weightsSum.tif``: :data:`KNOWN_OUTPUTS`), then ``meta.json`` (written last: the
-tile is complete) with the initialisation sums, ``blocks``, the ``[b0, b1]`` rows of each
+tile is complete) with the initialisation sums, ``blocks``, ``spatial`` (the spatial test's per-image used and
+rejected counts, and whether a pixel has three images; None when the prepare step did not run it), the ``[b0, b1]`` rows of each
 block, ``observations`` (how many the blocks hold), and ``layout`` (:data:`CACHE_LAYOUT`; a cache of another layout is prepared again).
 Iterate and finalise read one block at a time (:func:`iterate_block` is one block's work),
 so memory is bounded by a block.  The order is the iteration's, so a block that does not
@@ -58,8 +60,9 @@ class SolveState:
 
 
 #: Version of the cache layout above (2: pixel-major observations; 3: the DEM and weight-sum
-#: tiles as GeoTIFFs in the entry, no cached DEM; 4: chunk-major runs); ``meta.json`` records it.
-CACHE_LAYOUT = 4
+#: tiles as GeoTIFFs in the entry, no cached DEM; 4: chunk-major runs; 5: the spatial test's rejections);
+#: ``meta.json`` records it.
+CACHE_LAYOUT = 5
 #: Folder of the cache root where finished tiles' blocks go to be deleted in the background.
 TRASH = ".discarded"
 #: GeoTIFF predictor of the error tiles: none (1).  Eq. 7's error has no smooth rows for the
@@ -145,9 +148,12 @@ def pixel_stack(folder: Path, cache_root: Path, scene: Scene | None = None) -> d
 def effective_weights(block: Path, arrays: dict, gen: int) -> np.ndarray:
     """The weights of a cached block's observations in generation ``gen`` of the robust weights
     (:mod:`.robust`; 0: the cached ones), memory-mapped like a block over :data:`STACKS`' budget
-    (held by no cache of this process: memory stays bounded by the blocks)."""
+    (held by no cache of this process: memory stays bounded by the blocks; generation 1 of a block the prepare step
+    tested, its ``rejected`` observations)."""
     if gen <= 0:
         return arrays["weight"]
+    if gen == 1 and "rejected" in arrays:
+        return robust_store.rejected(arrays["weight"], arrays["rejected"])
     return robust_store.load(block, arrays["weight"], gen)
 
 
