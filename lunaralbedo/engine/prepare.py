@@ -67,6 +67,7 @@ def prepare_tile(t: int, *, scene: Scene, cache_root: Path, lut: np.ndarray | No
         raise
     if wait:
         WRITER.flush()
+        robust.release_scratch()  # a worker's next task may be another kind: the spatial test's scratch not kept
     return {**meta, "reused": False}
 
 

@@ -74,13 +74,14 @@ def prepared_block(arrays: dict, scene: Scene, width: int) -> dict:
     used = np.empty(n_obs, bool)
     flag = robust_kernels.spatial_test(arrays, width, np.zeros(n_img, np.float32), texp, r, np.asarray(w, np.float32),
                                        used)
-    counts = np.zeros((3, n_img))
-    w_new = robust_kernels.workspace("weights", n_obs).view(np.float32)[:n_obs]
-    robust_kernels.finish(arrays["run_start"], arrays["run_image"], np.asarray(arrays["weight"], np.float32), used,
-                          flag, flag, np.ones(0), w_new, counts)
+    rejected = np.flatnonzero(flag)
+    starts, images = np.asarray(arrays["run_start"], np.int64), np.asarray(arrays["run_image"], np.int64)
+    per_run = np.add.reduceat(used, starts[:-1], dtype=np.int64) if len(starts) > 1 else np.zeros(0, np.int64)  # a run: 1+
+    counts = np.stack([np.bincount(images, per_run, n_img),
+                       np.bincount(images[np.searchsorted(starts, rejected, side="right") - 1], minlength=n_img)])
     most = robust_kernels.most_runs_on_a_pixel(arrays["chunks"], arrays["run_start"], arrays["run_pixel"])
-    return {"rejected": np.flatnonzero(flag).astype(np.int64), "index": np.asarray(arrays["index"]).tolist(),
-            "counts": counts[:2],
+    return {"rejected": rejected.astype(np.int64), "index": np.asarray(arrays["index"]).tolist(),
+            "counts": counts.astype(np.float64),
             "pairs": _removed_pairs(arrays, r, flag), "loss_possible": bool(most >= outliers.MIN_IMAGES_FOR_LOSS)}
 
 
@@ -193,10 +194,15 @@ def reweight_pass(on_tiles, threads: int, scene: Scene, state: SolveState, ck: d
         for p in parts:  # fixed tile order
             exposure_init.merge_pair_sums(pairs, {tuple(k): tuple(v) for k, v in p["pairs"]})
         t = exposure_init.overlap_exposure(pairs, np.log(state.exposure))
-    robust_kernels.release()
+    release_scratch()
     ck.update(robust=gen, reweight_now=False, outliers=counts.tolist(), exposure=np.asarray(t).tolist(),
               loss_observations=sum(int(p["loss_observations"]) for p in parts))
     return SolveState(np.asarray(t, np.float64), state.params, robust=gen, haze=state.haze)
+
+
+def release_scratch() -> None:
+    """Drop the reweight kernels' scratch of every thread (the end of a pass or of the prepare step)."""
+    robust_kernels.release()
 
 
 def prepared(metas: list, n_images: int, ck: dict) -> None:

@@ -362,6 +362,7 @@ def _prepare(on_tiles, executor, lut) -> list:
     try:
         metas = on_tiles(prepare_tile, "prepare", home=None, lut=lut, wait=False, helpers=_threads(executor))
         WRITER.flush()
+        robust.release_scratch()  # the spatial test's scratch (engine/robust.py), not kept under the iterations' stacks
         trim_malloc()  # the prepare step's freed heap, not kept resident under the iterations' stacks
     except BaseException:
         WRITER.drain()  # nothing in flight while the run's folder is cleaned up
