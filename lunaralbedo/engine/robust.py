@@ -230,9 +230,9 @@ def drop_generation(cache_root: Path, gen: int) -> None:
 
 def report(keys: list[str], ck: dict, settings) -> dict | None:
     """``report.json``'s ``outliers`` from the checkpoint ``ck``: where the spatial test ran (``prepare``, the
-    first ``reweight pass`` or, REJECT_OUTLIERS 0, None), how many reweight passes the iterations made, per image its used observations and the
-    fractions rejected by the spatial test and taken away by the robust loss (sum of 1 - m over the used ones),
-    after the last reweight pass."""
+    first ``reweight pass`` or, REJECT_OUTLIERS 0, None), how many reweight passes the iterations made, per image
+    its used observations and the fractions rejected by the spatial test and taken away by the robust loss (sum
+    of 1 - m over the used ones), after the last reweight pass."""
     counts = ck.get("outliers")
     if counts is None:
         return None
