@@ -76,7 +76,8 @@ def prepared_block(arrays: dict, scene: Scene, width: int) -> dict:
                                        used)
     rejected = np.flatnonzero(flag)
     starts, images = np.asarray(arrays["run_start"], np.int64), np.asarray(arrays["run_image"], np.int64)
-    per_run = np.add.reduceat(used, starts[:-1], dtype=np.int64) if len(starts) > 1 else np.zeros(0, np.int64)  # a run: 1+
+    # the used observations of each run (a run holds at least one)
+    per_run = np.add.reduceat(used, starts[:-1], dtype=np.int64) if len(starts) > 1 else np.zeros(0, np.int64)
     counts = np.stack([np.bincount(images, per_run, n_img),
                        np.bincount(images[np.searchsorted(starts, rejected, side="right") - 1], minlength=n_img)])
     most = robust_kernels.most_runs_on_a_pixel(arrays["chunks"], arrays["run_start"], arrays["run_pixel"])
