@@ -46,10 +46,10 @@ def _compact(wt, **arrays):
 
 
 def _run(pm, kind, layers, params, t, n_par, shadow=kernels.NO_SHADOW_TEST, ratio=None, thresh=0.0, alpha=None,
-         haze=None, base=None, joint=True):
+         haze=None, base=None, joint=True, exposure=True):
     k = len(t)
     n_cols = n_par + 1 if n_par else 0
-    en, ed, jtj, jtr = np.zeros(k), np.zeros(k), np.zeros((n_cols, n_cols)), np.zeros(n_cols)
+    en, ed, jtj, jtr = np.zeros(k if exposure else 0), np.zeros(k if exposure else 0), np.zeros((n_cols, n_cols)), np.zeros(n_cols)
     alb = np.full(pm["npix"], np.nan, np.float32)
     empty = pm["image"][:0]
     n_h = k if haze is not None and joint else 0
@@ -184,6 +184,36 @@ def test_fused_haze_sums_equal_the_numpy_formulas(chunk_px):
     for name in ("alb", "q", "n_obs", "en", "ed"):
         np.testing.assert_array_equal(held[name], got[name])
     assert held["hg"].size == 0 and held["hs"].size == 0
+    # FLOAT_HAZE's passes without eq. 4's sums (its exposures are the joint step's, or held): nothing else changes
+    for joint in (True, False):
+        lean = _run(pm, 0, (pm["r"], pm["r"], pm["r"]), (), t, 0, haze=haze, base=pm["base"], joint=joint, exposure=False)
+        for name in ("alb", "q", "n_obs", "hg", "hs", "hrss"):
+            np.testing.assert_array_equal(lean[name], (got if joint else held)[name])
+        assert lean["en"].size == 0
+
+
+def test_a_haze_pass_leaves_eq4_to_the_joint_step():
+    """``iterate_block`` with FLOAT_HAZE 1 does not sum eq. 4 (the exposures come from the joint step, or are held):
+    its exposure sums stay 0, its albedo, Q and haze sums are the kernel's with them."""
+    image, _, _, wt, t = _stacks(seed=9)
+    k, h, w = image.shape
+    rng = np.random.default_rng(9)
+    g = rng.uniform(0.2, 1.0, image.shape).astype(np.float32)
+    alpha = rng.uniform(0.1, 1.2, image.shape).astype(np.float32)
+    obs = _compact(wt, image=image, weight=wt, geometric=g, alpha=alpha)
+    pm = {**runs.chunk_runs(obs, h * w, ["image", "weight", "geometric", "alpha"]), "npix": h * w}
+    model = REGISTRY["lunar-lambert"]
+    haze = np.linspace(2.0, 9.0, k)
+    for joint in (True, False):
+        state = tilework.SolveState(t.astype(np.float64), np.array([1.4, 0.5]), haze=haze, haze_joint=joint)
+        out = updates.PassSums(k, 2, index=pm["index"])
+        tilework.iterate_block(pm, SimpleNamespace(shadow_type=shadows.NONE, shadow_thresh=0.0), model, state, False, out)
+        ref = _run(pm, 1, (pm["geometric"], pm["alpha"], pm["alpha"]), (1.4, 0.5), t.astype(np.float32), 0,
+                   haze=haze.astype(np.float32), base=pm["weight"][:0], joint=joint)
+        assert not out.exp_num.any() and not out.exp_den.any() and ref["en"].any()
+        assert out.q == ref["q"] and out.n_obs == ref["n_obs"]
+        if joint:
+            np.testing.assert_array_equal(out.haze_g, ref["hg"])
 
 
 def test_dynamic_shadow_test_is_dynamic_lit():

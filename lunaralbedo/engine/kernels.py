@@ -258,7 +258,8 @@ def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1
     shadow test :math:`I/(\rho T) \ge t` on R or on the layer ``ratio`` (:data:`SHADOW_ON_R`, ...).
     ``n_cols`` Jacobian columns (``n_par`` derivatives, then R; 0: no parameter sums); ``alpha``
     (size 0: not wanted) gives the phase-angle range of the used observations.  ``exp_num``,
-    ``exp_den`` (float64) are added to, ``jtj``, ``jtr`` (float64) filled; ``alb`` (float32 per
+    ``exp_den`` (float64; size 0: eq. 4 not wanted, its terms not computed) are added to, ``jtj``, ``jtr``
+    (float64) filled; ``alb`` (float32 per
     pixel of the block, or size 0) gets the albedo where the block has observations.  Returns
     ``(Q, n_obs, alpha_min, alpha_max)``.
 
@@ -297,7 +298,8 @@ def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1
     AP = np.empty(most_px, np.float32)
     order, spans = np.empty(most_runs, np.int32), np.empty((most_runs, 2), np.int32)
     acc = np.zeros(N_SUMS * LANES)
-    expl = np.zeros(2 * nimg * EXP_LANES)
+    want_exp = exp_num.shape[0] > 0  # eq. 4's sums (size 0: not wanted, FLOAT_HAZE: the joint step's or held)
+    expl = np.zeros(2 * nimg * EXP_LANES if want_exp else 0)
     want_alb = alb.shape[0] > 0
     with_haze, robust = haze.shape[0] > 0, base.shape[0] > 0
     joint = with_haze and hg.shape[0] > 0  # the joint step's sums too (else the haze is only taken off)
@@ -349,10 +351,11 @@ def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1
         for r in range(r0, r1):
             a, b, p = run_start[r] - s0, run_start[r + 1] - s0, run_pixel[r] - lo
             _albedo_obs(AP[p:p + b - a], A[a:b], b - a)
-        _exposure_terms(A, R, Wc, img, PN, PD, n)
-        for r in range(r0, r1):
-            a, b, k = run_start[r] - s0, run_start[r + 1] - s0, run_image[r]
-            _run_lanes(PN[a:b], PD[a:b], expl[2 * EXP_LANES * k:2 * EXP_LANES * (k + 1)], b - a)
+        if want_exp:
+            _exposure_terms(A, R, Wc, img, PN, PD, n)
+            for r in range(r0, r1):
+                a, b, k = run_start[r] - s0, run_start[r + 1] - s0, run_image[r]
+                _run_lanes(PN[a:b], PD[a:b], expl[2 * EXP_LANES * k:2 * EXP_LANES * (k + 1)], b - a)
         if n_cols:
             _normal_lanes(A, T, R, Wc, D0, D1, img, acc, n, n_par)
         else:
@@ -364,7 +367,7 @@ def iterate_runs(kind, chunks, run_start, run_pixel, run_image, image, w, l0, l1
     for m in range(N_SUMS):
         for lane in range(LANES):
             sums[m] += acc[m * LANES + lane]
-    for k in range(nimg):
+    for k in range(nimg if want_exp else 0):
         num, den = 0.0, 0.0
         for lane in range(EXP_LANES):
             num += expl[2 * EXP_LANES * k + lane]

@@ -245,10 +245,12 @@ def iterate_block(arrays: dict, s, model, state: SolveState, phase: bool, out: u
     n_h = len(haze) if state.haze_joint else 0
     base = arrays.get("cached_weight", arrays["weight"][:0]) if n_h else arrays["weight"][:0]  # for the robust factor
     hg, hs, hrss = np.zeros(2 * n_h), np.zeros((2 * n_h, 2 * n_h)), np.zeros(3)
+    # eq. 4's sums; not with FLOAT_HAZE 1, whose exposures the joint step gives, or holds once the haze has settled
+    exp_sums = (out.exp_num, out.exp_den) if state.haze is None else (np.zeros(0), np.zeros(0))
     q, n_obs, amin, amax = kernels.iterate_runs(
         kind, arrays["chunks"], arrays["run_start"], arrays["run_pixel"], arrays["run_image"], arrays["image"],
         arrays["weight"], *layers, params, texp, n_par, n_cols, shadow, ratio, np.float32(s.shadow_thresh), alpha,
-        out.exp_num, out.exp_den, jtj, jtr, alb, haze, base, hg, hs, hrss)
+        *exp_sums, jtj, jtr, alb, haze, base, hg, hs, hrss)
     if n_h:
         out.haze_g, out.haze_s, out.haze_rss = hg, hs, hrss
     if n_par > 2:  # no such model yet: the normal equations in NumPy
