@@ -6,7 +6,8 @@ Renders (or reuses) the strip scene of item 6, prepares its tiles once, then tim
 ``iterate_tile`` over every tile after one warm-up pass (steady: 3 passes) and the kernel
 alone on the biggest tile, each checkout in a fresh process on its own prepared cache.
 ``--budget-mb`` sets LUNARALBEDO_STACK_MEMORY_MB (0: stacks re-read every pass).
-``--real-images``: also the passes with the default robust weights and with FLOAT_HAZE 1 and one
+``--real-images``: also the passes with the default robust weights and with FLOAT_HAZE 1 (the
+variants' passes taken in turn, 7 rounds, the median of each) and one
 reweight pass (checkouts with the spatial test in the prepare step: its cost there, and the robust
 loss's pass only where a pixel has three images), and the ratio of a 10-pass iterate stage with them
 to one with the features off (docs/solver.md, "Cost of outliers and haze").
@@ -42,6 +43,7 @@ def cpu():
     t = resource.getrusage(resource.RUSAGE_SELF)
     return t.ru_utime + t.ru_stime
 
+ROUNDS = 7
 d, cache = Path(sys.argv[1]), Path(sys.argv[2])
 scene = build_scene(load_settings(d / "settings.txt"), False, map_fn=lambda f, xs: list(map(f, xs)))
 if len(sys.argv) > 4:  # the stack budget: a Runtime field (older checkouts read LUNARALBEDO_STACK_MEMORY_MB)
@@ -56,14 +58,11 @@ out = {"observations": n}
 run = lambda: [tilework.iterate_tile(t, scene=scene, cache_root=cache, state=state, want_phase=True) for t in tiles]
 if len(sys.argv) > 3 and sys.argv[3] == "1":  # outliers and haze: the features off, the defaults, FLOAT_HAZE 1
     from lunaralbedo.engine import robust
-    def steady(st):
+    def steady(st):  # a warm-up pass
         global state
         state = st
-        run(); c0 = cpu()
-        for _ in range(3):
-            run()
-        return 1e9 * (cpu() - c0) / 3 / n
-    out["off_ns"] = steady(state)
+        run()
+    off_state = state
     metas = [tilework.load_meta(tilework.cache_dir(cache, scene, t)) for t in tiles]
     if hasattr(robust, "in_prepare"):  # the spatial test in the prepare step: its cost there, a loss pass if any
         for _ in range(2):  # the second timed: the first compiles
@@ -89,14 +88,25 @@ if len(sys.argv) > 3 and sys.argv[3] == "1":  # outliers and haze: the features 
             for t in tiles:
                 robust.reweight_tile(t, scene=scene, cache_root=cache, state=state, gen=1, pairs=True)  # as a solve: the overlaps for the new start
             out["reweight_pass_ns"] = 1e9 * (cpu() - c0) / n
-    out["default_ns"] = steady(tilework.SolveState(state.exposure, state.params, robust=1))
-    out["haze_ns"] = steady(tilework.SolveState(state.exposure, state.params, robust=1, haze=np.zeros(len(scene.images))))
+    variants = {"off_ns": off_state, "default_ns": tilework.SolveState(off_state.exposure, off_state.params, robust=1),
+                "haze_ns": tilework.SolveState(off_state.exposure, off_state.params, robust=1, haze=np.zeros(len(scene.images)))}
     try:  # the passes after the haze has settled: held, taken off, no joint step (checkouts before: every pass joint)
-        held = tilework.SolveState(state.exposure, state.params, robust=1, haze=np.zeros(len(scene.images)), haze_joint=False)
-        out["haze_held_ns"] = steady(held)
+        variants["haze_held_ns"] = tilework.SolveState(off_state.exposure, off_state.params, robust=1,
+                                                       haze=np.zeros(len(scene.images)), haze_joint=False)
     except TypeError:
         out["haze_held_ns"] = None
-    state = tilework.SolveState(state.exposure, state.params, robust=1, haze=np.zeros(len(scene.images)))
+    # the variants' passes in turn, ROUNDS times, each the median of its rounds: the machine's load moves them alike
+    times = {k: [] for k in variants}
+    for st in variants.values():
+        steady(st)
+    for _ in range(ROUNDS):
+        for k, st in variants.items():
+            state = st
+            c0 = cpu()
+            run()
+            times[k].append(1e9 * (cpu() - c0) / n)
+    out.update({k: float(np.median(v)) for k, v in times.items()})
+    state = variants["haze_ns"]
 c0 = cpu(); run(); out["first_pass_ns"] = 1e9 * (cpu() - c0) / n
 c0 = cpu()
 for _ in range(3):
