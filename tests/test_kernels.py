@@ -193,8 +193,9 @@ def test_fused_haze_sums_equal_the_numpy_formulas(chunk_px):
 
 
 def test_a_haze_pass_leaves_eq4_to_the_joint_step():
-    """``iterate_block`` with FLOAT_HAZE 1 does not sum eq. 4 (the exposures come from the joint step, or are held):
-    its exposure sums stay 0, its albedo, Q and haze sums are the kernel's with them."""
+    """``iterate_block`` with FLOAT_HAZE 1 does not sum eq. 4 (the exposures come from the joint step, or are held),
+    nor with the exposures known (EXPOSURE_MODE fixed): its exposure sums stay 0, its Q and haze sums are the
+    kernel's with them."""
     image, _, _, wt, t = _stacks(seed=9)
     k, h, w = image.shape
     rng = np.random.default_rng(9)
@@ -204,15 +205,19 @@ def test_a_haze_pass_leaves_eq4_to_the_joint_step():
     pm = {**runs.chunk_runs(obs, h * w, ["image", "weight", "geometric", "alpha"]), "npix": h * w}
     model = REGISTRY["lunar-lambert"]
     haze = np.linspace(2.0, 9.0, k)
-    for joint in (True, False):
-        state = tilework.SolveState(t.astype(np.float64), np.array([1.4, 0.5]), haze=haze, haze_joint=joint)
+    for h, joint, known in ((haze, True, False), (haze, False, False), (None, True, True), (None, True, False)):
+        state = tilework.SolveState(t.astype(np.float64), np.array([1.4, 0.5]), haze=h, haze_joint=joint,
+                                    exposures_known=known)
         out = updates.PassSums(k, 2, index=pm["index"])
         tilework.iterate_block(pm, SimpleNamespace(shadow_type=shadows.NONE, shadow_thresh=0.0), model, state, False, out)
         ref = _run(pm, 1, (pm["geometric"], pm["alpha"], pm["alpha"]), (1.4, 0.5), t.astype(np.float32), 0,
-                   haze=haze.astype(np.float32), base=pm["weight"][:0], joint=joint)
-        assert not out.exp_num.any() and not out.exp_den.any() and ref["en"].any()
-        assert out.q == ref["q"] and out.n_obs == ref["n_obs"]
-        if joint:
+                   haze=None if h is None else h.astype(np.float32), base=pm["weight"][:0], joint=joint)
+        assert ref["en"].any() and out.q == ref["q"] and out.n_obs == ref["n_obs"]
+        if h is None and not known:  # the exposures from eq. 4: summed
+            np.testing.assert_array_equal(out.exp_num, ref["en"])
+            continue
+        assert not out.exp_num.any() and not out.exp_den.any()
+        if h is not None and joint:
             np.testing.assert_array_equal(out.haze_g, ref["hg"])
 
 

@@ -67,7 +67,7 @@ def update(state: SolveState, sums: updates.PassSums, method: str, model, t_ref:
         # A*T leaves one global scale free: pin the geometric mean of T to the initial one.
         t = t * np.exp(np.mean(np.log(t_ref)) - np.mean(np.log(t)))
     return SolveState(np.asarray(t, dtype=np.float64), np.asarray(c, dtype=np.float64), robust=state.robust, haze=h,
-                      haze_joint=state.haze_joint)
+                      haze_joint=state.haze_joint, exposures_known=state.exposures_known)
 
 
 def haze_step_taken(ck: dict, keys: list, before: SolveState, state: SolveState, sums: updates.PassSums, last: bool,

@@ -198,7 +198,8 @@ def reweight_pass(on_tiles, threads: int, scene: Scene, state: SolveState, ck: d
     release_scratch()
     ck.update(robust=gen, reweight_now=False, outliers=counts.tolist(), exposure=np.asarray(t).tolist(),
               loss_observations=sum(int(p["loss_observations"]) for p in parts))
-    return SolveState(np.asarray(t, np.float64), state.params, robust=gen, haze=state.haze)
+    return SolveState(np.asarray(t, np.float64), state.params, robust=gen, haze=state.haze,
+                      exposures_known=state.exposures_known)
 
 
 def release_scratch() -> None:

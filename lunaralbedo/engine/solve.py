@@ -282,7 +282,7 @@ def _run(scene, out, method, max_iter, tol, executor, resume, timings, plots, re
         outputs.write_json(out / STATE_FILE, ck)
     state = SolveState(np.array(ck["exposure"]), np.array(ck["params"], dtype=np.float64), robust=ck["robust"],
                        haze=None if ck.get("haze") is None else np.array(ck["haze"], np.float64),
-                       haze_joint=ck.get("haze_joint", True))
+                       haze_joint=ck.get("haze_joint", True), exposures_known=t_known is not None)
     resume_info = {"tiles_prepared_before": sum(bool(m.get("reused")) for m in metas), "iterations_done_before": ck["iteration"]}
     n_obs = sum(int(m["observations"]) for m in metas) if all("observations" in m for m in metas) else None
     t2 = time.perf_counter()

@@ -51,6 +51,7 @@ class SolveState:
     robust: int = 0  # generation of the robust weights (:mod:`.robust`; 0: the cached weights as they are)
     haze: np.ndarray | None = None  # (K,) additive haze per image, DRG units (FLOAT_HAZE 1; None: no haze)
     haze_joint: bool = True  # the pass sums the joint exposure-haze step's terms (False: the haze is held)
+    exposures_known: bool = False  # EXPOSURE_MODE fixed: the exposures are kept, no pass sums eq. 4
 
     def haze_of(self, index) -> np.ndarray:
         """The haze of the images ``index`` (float32; zeros without haze)."""
@@ -245,8 +246,10 @@ def iterate_block(arrays: dict, s, model, state: SolveState, phase: bool, out: u
     n_h = len(haze) if state.haze_joint else 0
     base = arrays.get("cached_weight", arrays["weight"][:0]) if n_h else arrays["weight"][:0]  # for the robust factor
     hg, hs, hrss = np.zeros(2 * n_h), np.zeros((2 * n_h, 2 * n_h)), np.zeros(3)
-    # eq. 4's sums; not with FLOAT_HAZE 1, whose exposures the joint step gives, or holds once the haze has settled
-    exp_sums = (out.exp_num, out.exp_den) if state.haze is None else (np.zeros(0), np.zeros(0))
+    # eq. 4's sums; not with FLOAT_HAZE 1, whose exposures the joint step gives, or holds once the haze has settled,
+    # nor with the exposures known (EXPOSURE_MODE fixed)
+    eq4 = state.haze is None and not state.exposures_known
+    exp_sums = (out.exp_num, out.exp_den) if eq4 else (np.zeros(0), np.zeros(0))
     q, n_obs, amin, amax = kernels.iterate_runs(
         kind, arrays["chunks"], arrays["run_start"], arrays["run_pixel"], arrays["run_image"], arrays["image"],
         arrays["weight"], *layers, params, texp, n_par, n_cols, shadow, ratio, np.float32(s.shadow_thresh), alpha,
