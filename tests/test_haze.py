@@ -56,6 +56,66 @@ def test_each_images_haze_error_is_within_its_standard_error(tmp_path, seed):
     assert all(0.2 < sigma[k] < 2.0 for k in z) and max(map(abs, z.values())) <= 3.5, (z, sigma)
 
 
+def _true_reflectance_fit(scene_dir, cache):
+    """The joint least-squares fit of every image's exposure and haze with the true reflectance (the rendered
+    photometric parameters), each pixel's albedo eliminated (variable projection; noise weights 1, the spatial
+    test's rejections left out), by ``scipy.optimize.least_squares`` on the prepared observations: the fit the
+    solver's joint step should land on, computed without it.  Returns the hazes and the exposures (the truth's
+    geometric mean)."""
+    from scipy.optimize import least_squares
+
+    from lunaralbedo.engine import prepare, runs, tilework
+    from lunaralbedo.engine.scene import build_scene
+    from lunaralbedo.settings import load_settings
+
+    truth = json.loads((scene_dir / "truth" / "truth.json").read_text())
+    scene = build_scene(load_settings(scene_dir / "settings.txt"), False, map_fn=lambda f, xs: list(map(f, xs)))
+    state = tilework.SolveState(np.ones(len(scene.keys)), np.array([truth["c1"], truth["c2"]], np.float64))
+    rows = []
+    for t in range(len(scene.tiles)):
+        meta = prepare.prepare_tile(t, scene=scene, cache_root=cache)
+        for i in range(len(meta["blocks"])):
+            a = tilework.pixel_stack(tilework.cache_dir(cache, scene, t) / f"block_{i:04d}", cache, scene)
+            if not len(a["index"]):
+                continue
+            r, w, _ = tilework.tile_model(scene, a, state)
+            ok = (np.asarray(w) > 0) & (r > 0)
+            ok[np.asarray(a.get("rejected", []), np.int64)] = False
+            pixel = runs.observation_pixels(a).astype(np.int64) + (t * 1000 + i) * 10**8
+            rows.append((pixel[ok], np.asarray(a["index"])[runs.observation_images(a)][ok],
+                         np.asarray(a["image"], np.float64)[ok], np.asarray(r, np.float64)[ok]))
+    pixel, img, value, r = (np.concatenate(x) for x in zip(*rows))
+    p = np.unique(pixel, return_inverse=True)[1]
+    n = len(scene.keys)
+    scale = np.mean(np.log([truth["images"][k]["exposure"] for k in scene.keys]))
+
+    def residuals(z):
+        t, h = np.exp(z[:n] - np.mean(z[:n]) + scale)[img], z[n:][img]
+        albedo = np.bincount(p, t * r * (value - h)) / np.bincount(p, (t * r) ** 2)
+        return value - h - t * albedo[p] * r
+
+    z = least_squares(residuals, np.concatenate([np.full(n, scale), np.zeros(n)]), x_scale="jac", xtol=1e-12,
+                      ftol=1e-14, gtol=1e-12).x
+    return dict(zip(scene.keys, z[n:])), dict(zip(scene.keys, np.exp(z[:n] - np.mean(z[:n]) + scale)))
+
+
+def test_the_haze_is_the_least_squares_fit_with_the_true_reflectance(tmp_path):
+    """On a scene where that fit itself leaves the haze more than 1.5 DN off (seed 25: a chain of overlaps whose R
+    hardly differ pins the haze weakly), the solver lands on it, image by image: what is left is the data's."""
+    d = tmp_path / "scene"
+    truth = render_scene(d, SceneSpec(haze_dn=(5.0, 15.0), seed=25))["images"]
+    want_h, want_t = _true_reflectance_fit(d, tmp_path / "cache")
+    assert max(abs(want_h[k] - im["haze"]) for k, im in truth.items()) > 1.5  # the scene's bound, not the solver's
+    solve(_with(d / "settings.txt", d / "haze.txt", FLOAT_HAZE=1), out=tmp_path / "out", workers=1, plots=False)
+    got = _haze(tmp_path / "out")
+    for k in truth:
+        assert abs(got[k] - want_h[k]) <= 0.1, (k, got[k], want_h[k])
+    with open(tmp_path / "out" / "exposure.csv", newline="") as f:
+        t = {row["key"]: float(row["exposure"]) for row in csv.DictReader(f)}
+    rel = {k: np.log(t[k] / want_t[k]) for k in truth}  # each against the fit's, at the solve's overall scale
+    assert max(abs(v - np.mean(list(rel.values()))) for v in rel.values()) <= 1e-3, rel
+
+
 def test_haze_standard_errors_are_those_of_the_linear_least_squares_fit():
     """The bordered inverse against a direct fit: with the scale constraint, the hazes' covariance is that
     of the least-squares problem with one exposure held (the constraint only fixes the scale of T)."""
