@@ -54,7 +54,8 @@ print(json.dumps({"seconds": dt, "cpu_s": cpu.user + cpu.system, "user_s": cpu.u
 
 def solve_child(d: Path, out: Path, workers: int = 1, method: str = "overlap", max_iter: int = 10, src: Path | None = None,
                 tolerance: float = 0.0, one_cpu: bool = False, settings_name: str = "settings.txt") -> dict:
-    """Solve in a fresh process (clean memory figures); returns seconds, CPU seconds, peak MB, timings.
+    """Solve in a fresh process (clean memory figures), the page cache's earlier writes flushed first; returns
+    seconds, CPU seconds, peak MB, timings.
 
     ``src``: run another checkout's ``lunaralbedo`` (e.g. the previous implementation) instead of this one.
     ``tolerance``: the early stop (0: every one of ``max_iter`` passes, the default of the benchmarks).
@@ -63,6 +64,7 @@ def solve_child(d: Path, out: Path, workers: int = 1, method: str = "overlap", m
     GDAL's compression) share that CPU: the one-core run a 1 -> 2 speed-up compares with.
     """
     shutil.rmtree(out, ignore_errors=True)
+    os.sync()  # no write of an earlier solve (its cache, its tiles) still in flight while this one is timed
     first = min(os.sched_getaffinity(0)) if one_cpu else None
     res = subprocess.run(
         [sys.executable, "-c", SOLVE_CHILD, str(d / settings_name), str(out), str(workers), method, str(max_iter), repr(tolerance)],

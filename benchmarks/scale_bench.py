@@ -87,7 +87,7 @@ COST_VARIANTS = {"off": {"REJECT_OUTLIERS": "0", "ROBUST_LOSS": "none", "FLOAT_H
 
 #: Rounds of item 6's cost of outliers and haze: the variants solved in turn, each figure the median of its rounds
 #: (one after the other, this machine's load and page cache moved a stage by 10-25 % between runs).
-COST_ROUNDS = 3
+COST_ROUNDS = 5
 
 
 def real_images_cost(d: Path, root: Path, n_obs: int, before: Path | None) -> dict:

@@ -76,10 +76,12 @@ def prepared_block(arrays: dict, scene: Scene, width: int) -> dict:
                                        used)
     rejected = np.flatnonzero(flag)
     starts, images = np.asarray(arrays["run_start"], np.int64), np.asarray(arrays["run_image"], np.int64)
-    # the used observations of each run (a run holds at least one)
-    per_run = np.add.reduceat(used, starts[:-1], dtype=np.int64) if len(starts) > 1 else np.zeros(0, np.int64)
-    counts = np.stack([np.bincount(images, per_run, n_img),
-                       np.bincount(images[np.searchsorted(starts, rejected, side="right") - 1], minlength=n_img)])
+    def per_image(obs):  # how many of the observations ``obs`` each local image has
+        return np.bincount(images[np.searchsorted(starts, obs, side="right") - 1], minlength=n_img)
+
+    # the used observations: each image's, less the few not used (T R <= 0 or no weight)
+    counts = np.stack([np.bincount(images, np.diff(starts), n_img) - per_image(np.flatnonzero(~used)),
+                       per_image(rejected)])
     most = robust_kernels.most_runs_on_a_pixel(arrays["chunks"], arrays["run_start"], arrays["run_pixel"])
     return {"rejected": rejected.astype(np.int64), "index": np.asarray(arrays["index"]).tolist(),
             "counts": counts.astype(np.float64),
