@@ -192,17 +192,23 @@ def test_fused_haze_sums_equal_the_numpy_formulas(chunk_px):
         assert lean["en"].size == 0
 
 
-def test_a_haze_pass_leaves_eq4_to_the_joint_step():
-    """``iterate_block`` with FLOAT_HAZE 1 does not sum eq. 4 (the exposures come from the joint step, or are held),
-    nor with the exposures known (EXPOSURE_MODE fixed): its exposure sums stay 0, its Q and haze sums are the
-    kernel's with them."""
+def _lunar_lambert_block():
+    """A block of the Lunar-Lambert model's layers (``geometric``, ``alpha``) in chunk-major runs, its exposures and
+    image count."""
     image, _, _, wt, t = _stacks(seed=9)
     k, h, w = image.shape
     rng = np.random.default_rng(9)
     g = rng.uniform(0.2, 1.0, image.shape).astype(np.float32)
     alpha = rng.uniform(0.1, 1.2, image.shape).astype(np.float32)
     obs = _compact(wt, image=image, weight=wt, geometric=g, alpha=alpha)
-    pm = {**runs.chunk_runs(obs, h * w, ["image", "weight", "geometric", "alpha"]), "npix": h * w}
+    return {**runs.chunk_runs(obs, h * w, ["image", "weight", "geometric", "alpha"]), "npix": h * w}, t, k
+
+
+def test_a_haze_pass_leaves_eq4_to_the_joint_step():
+    """``iterate_block`` with FLOAT_HAZE 1 does not sum eq. 4 (the exposures come from the joint step, or are held),
+    nor with the exposures known (EXPOSURE_MODE fixed): its exposure sums stay 0, its Q and haze sums are the
+    kernel's with them."""
+    pm, t, k = _lunar_lambert_block()
     model = REGISTRY["lunar-lambert"]
     haze = np.linspace(2.0, 9.0, k)
     for h, joint, known in ((haze, True, False), (haze, False, False), (None, True, True), (None, True, False)):
@@ -244,13 +250,7 @@ def test_a_blocks_phase_angle_range_is_the_kernels_and_stands_in_for_it_without_
     """``alpha_range`` gives what the kernel gives over the same observations (weight > 0, NaN left out);
     ``iterate_block`` takes a block's stored range instead of asking the kernel for it, unless a dynamic
     shadow test changes the weights from pass to pass."""
-    image, _, _, wt, t = _stacks(seed=9)
-    k, h, w = image.shape
-    rng = np.random.default_rng(9)
-    g = rng.uniform(0.2, 1.0, image.shape).astype(np.float32)
-    alpha = rng.uniform(0.1, 1.2, image.shape).astype(np.float32)
-    obs = _compact(wt, image=image, weight=wt, geometric=g, alpha=alpha)
-    pm = {**runs.chunk_runs(obs, h * w, ["image", "weight", "geometric", "alpha"]), "npix": h * w}
+    pm, t, k = _lunar_lambert_block()
     lo, hi = np.argmin(pm["alpha"]), np.argmax(pm["alpha"])
     pm["weight"][lo] = 0  # the smallest angle unused: the range is over the used observations only
     pm["alpha"][hi] = np.nan  # and a NaN angle is left out
